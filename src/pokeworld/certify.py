@@ -1,0 +1,306 @@
+"""Recoverability certificates and the certificate gate (paper §3, App. A).
+
+Each hidden parameter must be certified recoverable from raw observation
+windows before any model probe is interpreted. Estimators, each fit on
+probe-fit episodes and scored by held-out R^2 on probe-test episodes:
+
+* ``gru``     2-layer GRU (width 96) over raw windows: proprio, touch, actions, object state;
+* ``linear``  ridge (episode-grouped CV) on the flattened raw window;
+* ``mlp``     early-stopped MLP on the flattened raw window;
+* ``drag``    physics-informed drag estimator: median log speed ratio over the
+              window's glide frames (no fitting; population median where a window has none);
+* ``gru_pixel`` / ``drag_pixel``: the same with object state replaced by pixel
+              centroids (finger disk masked using proprioception, 3-frame smoothing).
+
+A parameter's certificate is the best R^2 of any estimator on contact
+windows; the gate requires log m / gamma / log k >= 0.4 / 0.4 / 0.25.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .config import from_preset, to_dict
+from .data import Dataset, load
+from .errors import ConfigError, DataError
+from .io import write_json
+from .regressors import RidgeCV, TorchRegressor, r2_scores
+from .windows import Windows, make_windows, wall_contact
+
+GATES = {"log_m": 0.4, "gamma": 0.4, "log_k": 0.25}
+ESTIMATORS = ("gru", "linear", "mlp", "drag", "gru_pixel", "drag_pixel")
+
+
+@dataclass
+class CertifyConfig:
+    """Certify hidden parameters recoverable from raw observations."""
+
+    data: str = "data/pokeworld"
+    """Dataset directory (``pokeworld generate`` output)."""
+    out: str = ""
+    """Where to write certificates.json (default: <data>/certificates.json)."""
+    targets: tuple[str, ...] = ("log_m", "gamma", "log_k")
+    """Per-episode parameters to certify (names under params/ in the store)."""
+    estimators: tuple[str, ...] = ESTIMATORS
+    """Estimators to run (subset of gru, linear, mlp, drag, gru_pixel, drag_pixel)."""
+    kinds: tuple[str, ...] = ("contact", "glide")
+    """Window kinds to evaluate on (the gate reads contact windows)."""
+    window: int = 16
+    """Window length in observations."""
+    stride: int = 4
+    """Step between window starts."""
+    max_windows: int = 6000
+    """Cap on fit windows per kind (random episode-preserving subsample) to bound CPU time."""
+    gru_hidden: int = 96
+    """GRU width."""
+    gru_layers: int = 2
+    """GRU depth."""
+    epochs: int = 150
+    """Maximum epochs for the neural estimators (early stopping usually ends sooner)."""
+    patience: int = 12
+    """Early-stopping patience in epochs."""
+    seed: int = 0
+    """Seed for estimator initialisation and subsampling."""
+
+    def __post_init__(self) -> None:
+        bad = set(self.estimators) - set(ESTIMATORS)
+        if bad:
+            raise ConfigError(f"unknown estimators {sorted(bad)}; choose from {list(ESTIMATORS)}")
+        if not set(self.kinds) <= {"contact", "glide", "all"}:
+            raise ConfigError(f"kinds must be among contact, glide, all; got {self.kinds}")
+        if self.window < 3 or self.stride < 1:
+            raise ConfigError("window must be >= 3 and stride >= 1")
+
+
+PRESETS = {
+    "tiny": {"epochs": 4, "patience": 2, "max_windows": 400, "gru_hidden": 32},
+    "cpu": {},
+    "paper": {"max_windows": 100000, "epochs": 300, "patience": 20},
+}
+
+
+def make_config(preset: str = "cpu", **overrides) -> CertifyConfig:
+    return from_preset(CertifyConfig, PRESETS, preset, **overrides)
+
+
+# --------------------------------------------------------------------------- observables
+def pixel_object_state(ds: Dataset, episodes: np.ndarray, smooth: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """Object position and velocity estimated from pixels for whole episodes: (E', T+1, 2) each.
+
+    The finger disk (known from proprioception) is masked out with a one-pixel
+    margin; the object is the intensity-weighted centroid of what remains;
+    positions are smoothed with a centred moving average of ``smooth`` frames
+    and velocities are central differences of the smoothed track.
+    """
+    cfg = ds.manifest.get("config", {}).get("physics", {})
+    arena, rf = cfg.get("arena", 1.0), cfg.get("finger_radius", 0.06)
+    dt = cfg.get("dt", 0.05)
+    frames = ds.frames[episodes].astype(np.float32)
+    E, T1, H, W = frames.shape
+    xs = (np.arange(W) + 0.5) * arena / W
+    ys = (np.arange(H) + 0.5) * arena / H
+    fp = ds.proprio[episodes, :, 0:2]
+    dx = xs[None, None, None, :] - fp[..., 0, None, None]
+    dy = ys[None, None, :, None] - fp[..., 1, None, None]
+    mask = dx**2 + dy**2 > (rf + 1.5 * arena / W) ** 2
+    img = frames * mask
+    mass = img.sum((2, 3))
+    pos = np.stack([(img * xs[None, None, None, :]).sum((2, 3)), (img * ys[None, None, :, None]).sum((2, 3))], -1)
+    pos = pos / np.maximum(mass, 1e-6)[..., None]
+    # frames where the finger hides the object entirely: carry the last estimate forward
+    for t in range(1, T1):
+        lost = mass[:, t] < 1e-3
+        pos[lost, t] = pos[lost, t - 1]
+    if smooth > 1:
+        k = np.ones(smooth) / smooth
+        pad = np.pad(pos, ((0, 0), (smooth // 2, smooth // 2), (0, 0)), mode="edge")
+        pos = np.stack([np.apply_along_axis(np.convolve, 1, pad[..., i], k, "valid") for i in range(2)], -1)
+    vel = np.gradient(pos, dt, axis=1)
+    return pos.astype(np.float32), vel.astype(np.float32)
+
+
+def window_features(ds: Dataset, w: Windows, object_pos: np.ndarray, object_vel: np.ndarray) -> np.ndarray:
+    """Raw per-step features (W, L, 17): proprio 4, touch 7, action 2, object position 2, velocity 2."""
+    actions = np.concatenate([ds.actions, np.zeros_like(ds.actions[:, :1])], 1)
+    return np.concatenate([w.gather(ds.proprio), w.gather(ds.touch), w.gather(actions),
+                           w.gather(object_pos), w.gather(object_vel)], -1).astype(np.float32)
+
+
+def drag_estimates(speed: np.ndarray, glide: np.ndarray, dt: float, fallback: float,
+                   min_speed: float = 0.02) -> np.ndarray:
+    """Median over glide frame pairs of log(|v_t| / |v_t+1|) / dt, per window.
+
+    ``speed`` (W, L) object speeds and ``glide`` (W, L-1) marks frame pairs with no
+    finger or wall contact. Windows without a usable pair get ``fallback``.
+    """
+    if speed.ndim != 2 or glide.shape != (speed.shape[0], speed.shape[1] - 1):
+        raise DataError(f"speed (W, L) and glide (W, L-1) expected, got {speed.shape}, {glide.shape}")
+    ok = glide & (speed[:, :-1] > min_speed) & (speed[:, 1:] > min_speed)
+    rate = np.log(np.maximum(speed[:, :-1], 1e-9) / np.maximum(speed[:, 1:], 1e-9)) / dt
+    rate = np.where(ok, rate, np.nan)
+    out = np.full(len(speed), fallback, dtype=float)
+    has = ok.any(1)
+    if has.any():
+        out[has] = np.nanmedian(rate[has], axis=1)
+    return out
+
+
+def _glide_pairs(ds: Dataset, w: Windows) -> np.ndarray:
+    contact = w.gather(ds.labels["contact"]) > 0
+    walls = w.gather(wall_contact(ds))
+    free = ~(contact | walls)
+    return free[:, :-1] & free[:, 1:]
+
+
+def _subsample(w: Windows, cap: int, rng: np.random.Generator) -> Windows:
+    if len(w) <= cap:
+        return w
+    return w.select(np.sort(rng.choice(len(w), cap, replace=False)))
+
+
+# --------------------------------------------------------------------------- main
+def certify(ds: Dataset, cfg: CertifyConfig) -> dict:
+    """Run every requested estimator; return the certificates dictionary."""
+    missing = [t for t in cfg.targets if t not in ds.params]
+    if missing:
+        raise DataError(f"targets {missing} are not in this dataset's params ({sorted(ds.params)})")
+    for lab in ("contact", "object_pos", "object_vel"):
+        if lab not in ds.labels:
+            raise DataError(f"certificates need labels/{lab} (a simulator corpus)")
+    fit_eps, test_eps = ds.episodes("probe_fit"), ds.episodes("probe_test")
+    if np.intersect1d(fit_eps, test_eps).size:
+        raise DataError("probe-fit and probe-test episodes overlap")
+    rng = np.random.default_rng(cfg.seed)
+    dt = ds.manifest.get("config", {}).get("physics", {}).get("dt", 0.05)
+    state = {"state": (ds.labels["object_pos"], ds.labels["object_vel"])}
+    if any(e.endswith("_pixel") for e in cfg.estimators):
+        pos = np.zeros_like(ds.labels["object_pos"])
+        vel = np.zeros_like(ds.labels["object_vel"])
+        probe = np.concatenate([fit_eps, test_eps])
+        for i in range(0, probe.size, 256):
+            chunk = probe[i:i + 256]
+            pos[chunk], vel[chunk] = pixel_object_state(ds, chunk)
+        state["pixel"] = (pos, vel)
+    Y_all = np.stack([ds.params[t] for t in cfg.targets], 1).astype(np.float64)
+    results: dict = {"estimators": {}, "counts": {}}
+    for kind in cfg.kinds:
+        w_fit = _subsample(make_windows(ds, fit_eps, cfg.window, cfg.stride).kind(kind), cfg.max_windows, rng)
+        w_test = make_windows(ds, test_eps, cfg.window, cfg.stride).kind(kind)
+        results["counts"][kind] = {"fit": len(w_fit), "test": len(w_test)}
+        if len(w_fit) < 10 or len(w_test) < 10:
+            print(f"[certify] too few {kind} windows ({len(w_fit)} fit / {len(w_test)} test); skipping")
+            continue
+        assert not np.intersect1d(w_fit.episode, w_test.episode).size
+        y_fit, y_test = Y_all[w_fit.episode], Y_all[w_test.episode]
+        for est in cfg.estimators:
+            source = "pixel" if est.endswith("_pixel") else "state"
+            pos, vel = state[source]
+            if est.startswith("drag"):
+                if "gamma" not in cfg.targets:
+                    continue
+                g_idx = cfg.targets.index("gamma")
+                fallback = float(np.median(y_fit[:, g_idx]))
+                speed = np.linalg.norm(w_test.gather(vel), axis=-1)
+                pred = drag_estimates(speed, _glide_pairs(ds, w_test), dt, fallback)
+                # the only thing this estimator learns from probe-fit: the parameter's support,
+                # which bounds wild ratios from noisy (pixel) speeds
+                pred = np.clip(pred, y_fit[:, g_idx].min(), y_fit[:, g_idx].max())
+                r2 = {"gamma": float(r2_scores(y_test[:, g_idx], pred)[0])}
+            else:
+                X_fit = window_features(ds, w_fit, pos, vel)
+                X_test = window_features(ds, w_test, pos, vel)
+                if est == "linear":
+                    model = RidgeCV().fit(X_fit.reshape(len(X_fit), -1), y_fit, w_fit.episode)
+                    pred = model.predict(X_test.reshape(len(X_test), -1))
+                else:
+                    arch = "mlp" if est == "mlp" else "gru"
+                    kw = dict(hidden=cfg.gru_hidden, layers=cfg.gru_layers) if arch == "gru" else {}
+                    model = TorchRegressor(arch, epochs=cfg.epochs, patience=cfg.patience, seed=cfg.seed,
+                                           **kw).fit(X_fit, y_fit, w_fit.episode)
+                    pred = model.predict(X_test)
+                r2 = {t: float(v) for t, v in zip(cfg.targets, r2_scores(y_test, pred))}
+            results["estimators"].setdefault(est, {})[kind] = r2
+            print(f"[certify] {kind:8s} {est:11s} " + " ".join(f"{t}={v:+.3f}" for t, v in r2.items()))
+    results["certificate"] = certificate_table(results["estimators"], cfg.targets)
+    results["gate"] = gate(results["certificate"])
+    results["config"] = to_dict(cfg)
+    results["dataset"] = {"path": cfg.data, "content_sha256": ds.manifest.get("content_sha256"),
+                          "corpus": ds.manifest.get("corpus")}
+    return results
+
+
+def certificate_table(estimators: dict, targets) -> dict:
+    """Best R^2 per target and window kind over all estimators, with the winning estimator's name."""
+    out: dict = {}
+    for est, kinds in estimators.items():
+        for kind, r2 in kinds.items():
+            for t, v in r2.items():
+                cur = out.setdefault(kind, {}).get(t)
+                if cur is None or v > cur["r2"]:
+                    out[kind][t] = {"r2": v, "estimator": est}
+    return out
+
+
+def gate(certificate: dict) -> dict:
+    """Gate verdict per gated parameter on contact windows."""
+    contact = certificate.get("contact", {})
+    out = {}
+    for t, thr in GATES.items():
+        if t in contact:
+            out[t] = {"threshold": thr, "certificate": contact[t]["r2"], "passed": contact[t]["r2"] >= thr}
+    return out
+
+
+def format_table(results: dict) -> str:
+    """Plain-text table of estimator x (kind, target) R^2 with the gate row."""
+    lines = []
+    for kind in ("contact", "glide", "all"):
+        rows = {e: k[kind] for e, k in results["estimators"].items() if kind in k}
+        if not rows:
+            continue
+        targets = sorted({t for r in rows.values() for t in r})
+        lines.append(f"{kind} windows ({results['counts'][kind]['fit']} fit / {results['counts'][kind]['test']} test)")
+        lines.append(f"  {'estimator':12s}" + "".join(f"{t:>10s}" for t in targets))
+        for est, r2 in rows.items():
+            lines.append(f"  {est:12s}" + "".join(f"{r2[t]:>10.3f}" if t in r2 else f"{'-':>10s}" for t in targets))
+    for t, g in results.get("gate", {}).items():
+        lines.append(f"gate {t}: certificate {g['certificate']:.3f} >= {g['threshold']} -> "
+                     f"{'PASS' if g['passed'] else 'FAIL'}")
+    return "\n".join(lines)
+
+
+def run(cfg: CertifyConfig) -> Path:
+    """Certify the dataset at ``cfg.data`` and write ``certificates.json``; skip if already done."""
+    out = Path(cfg.out) if cfg.out else Path(cfg.data) / "certificates.json"
+    ds = load(cfg.data)
+    if out.exists():
+        import json
+
+        prev = json.loads(out.read_text())
+        if prev.get("config") == to_dict(cfg) and prev.get("dataset", {}).get("content_sha256") == \
+                ds.manifest.get("content_sha256"):
+            print(format_table(prev))
+            print(f"[certify] {out} is up to date; skipping")
+            return out
+    results = certify(ds, cfg)
+    write_json(out, results)
+    print(format_table(results))
+    print(f"[certify] wrote {out}")
+    return out
+
+
+def load_gate(path: str | Path) -> dict:
+    """Read the gate verdicts from a certificates.json (raises DataError when absent)."""
+    import json
+
+    path = Path(path)
+    if not path.exists():
+        raise DataError(f"no certificates at {path}; run `pokeworld certify` first")
+    return json.loads(path.read_text()).get("gate", {})
+
+
+__all__ = ["CertifyConfig", "PRESETS", "GATES", "certify", "run", "make_config", "drag_estimates",
+           "pixel_object_state", "window_features", "field"]

@@ -1,0 +1,16 @@
+"""Exception types raised for bad user input (configs, data files, options).
+
+They exist so the CLI can print one clear line instead of a traceback.
+"""
+
+
+class PokeworldError(Exception):
+    """Base class for user-facing errors."""
+
+
+class ConfigError(PokeworldError, ValueError):
+    """An invalid configuration value or an unknown preset / variant."""
+
+
+class DataError(PokeworldError, ValueError):
+    """A missing, truncated, corrupt or non-finite dataset or sensor stream."""

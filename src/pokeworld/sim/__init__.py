@@ -1,0 +1,10 @@
+"""PokeWorld: the 2D poking environment with hidden mass, drag and contact stiffness."""
+
+from .core import PARAM_NAMES, ParamRanges, PhysicsConfig, PokeWorldSim
+from .envs import PokeWorldEnv, PokeWorldVectorEnv, register
+from .policy import MixedPolicy, PolicyConfig
+
+register()
+
+__all__ = ["PARAM_NAMES", "ParamRanges", "PhysicsConfig", "PokeWorldSim", "PokeWorldEnv",
+           "PokeWorldVectorEnv", "MixedPolicy", "PolicyConfig", "register"]

@@ -1,0 +1,248 @@
+"""The vectorised PokeWorld simulator: hidden-parameter sampling, sensors, reset/step."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Mapping
+
+import numpy as np
+
+from ..errors import ConfigError
+from . import physics
+
+PARAM_NAMES = ("mass", "gamma", "stiffness", "bias_x", "bias_y", "gain")
+
+
+@dataclass(frozen=True)
+class PhysicsConfig:
+    """Fixed (non-hidden) constants of the PokeWorld arena."""
+
+    dt: float = 0.05
+    """Control step in seconds."""
+    substeps: int = 20
+    """Semi-implicit Euler sub-steps per control step (touch statistics are taken over these)."""
+    force_max: float = 8.0
+    """F_max: the commanded finger force is F_max * a with a in [-1, 1]^2 (simulator force units)."""
+    finger_mass: float = 1.0
+    """Finger mass."""
+    finger_damping: float = 4.0
+    """Linear damping coefficient on the finger (terminal speed F_max/damping = 2 arena units/s)."""
+    finger_radius: float = 0.06
+    """Finger disk radius (arena units; the arena is the unit square)."""
+    object_radius: float = 0.09
+    """Object disk radius."""
+    contact_zeta: float = 0.25
+    """Finger-object normal damping as a fraction of critical (underdamped keeps impact peaks k-dependent)."""
+    wall_omega: float = 60.0
+    """Wall spring natural frequency (rad/s); wall accelerations are independent of m and k."""
+    wall_zeta: float = 0.25
+    """Wall damping ratio."""
+    arena: float = 1.0
+    """Side length of the square arena."""
+    image_size: int = 64
+    """Rendered frames are image_size x image_size grayscale."""
+    object_intensity: float = 255.0
+    """Gray level of the object disk."""
+    finger_intensity: float = 128.0
+    """Gray level of the finger disk (distinguishable from the object)."""
+    touch_noise: float = 0.02
+    """Std of Gaussian noise on the five force channels of touch (units of F_max)."""
+    frame_averaged_touch: bool = False
+    """Ablation: replace sub-step statistics by frame averages (peak -> |mean|, end -> mean, fraction -> flag)."""
+
+    def __post_init__(self) -> None:
+        positive = ("dt", "force_max", "finger_mass", "finger_radius", "object_radius", "wall_omega", "arena")
+        for name in positive:
+            if not getattr(self, name) > 0:
+                raise ConfigError(f"PhysicsConfig.{name} must be > 0, got {getattr(self, name)}")
+        if self.substeps < 1:
+            raise ConfigError(f"PhysicsConfig.substeps must be >= 1, got {self.substeps}")
+        if not 0 <= self.contact_zeta < 1:
+            raise ConfigError(f"contact_zeta must be in [0, 1) (underdamped), got {self.contact_zeta}")
+        if self.finger_damping < 0 or self.touch_noise < 0:
+            raise ConfigError("finger_damping and touch_noise must be >= 0")
+        if self.image_size < 8:
+            raise ConfigError(f"image_size must be >= 8, got {self.image_size}")
+        if 2 * (self.finger_radius + self.object_radius) >= self.arena:
+            raise ConfigError("finger and object do not fit in the arena")
+
+    def constants(self) -> np.ndarray:
+        c = np.zeros(physics.NUM_CONSTS)
+        c[physics.C_DT] = self.dt
+        c[physics.C_NSUB] = self.substeps
+        c[physics.C_FMAX] = self.force_max
+        c[physics.C_MF] = self.finger_mass
+        c[physics.C_CF] = self.finger_damping
+        c[physics.C_RF] = self.finger_radius
+        c[physics.C_RO] = self.object_radius
+        c[physics.C_ZETA] = self.contact_zeta
+        c[physics.C_WOMEGA] = self.wall_omega
+        c[physics.C_WZETA] = self.wall_zeta
+        c[physics.C_ARENA] = self.arena
+        return c
+
+
+@dataclass(frozen=True)
+class ParamRanges:
+    """Per-episode hidden-parameter distributions."""
+
+    mass: tuple[float, float] = (0.5, 3.0)
+    """Object mass m, sampled log-uniformly."""
+    gamma: tuple[float, float] = (0.5, 4.0)
+    """Drag decay rate gamma (1/s), sampled uniformly; drag force is -gamma*m*v."""
+    stiffness: tuple[float, float] = (500.0, 6000.0)
+    """Contact stiffness k, sampled log-uniformly."""
+    bias: float = 0.0
+    """Half-width B of the per-episode additive finger force bias b ~ U(-B, B)^2 (0 disables it)."""
+    gain: tuple[float, float] = (1.0, 1.0)
+    """Actuation gain g ~ U(lo, hi) multiplying the commanded force ((1, 1) disables it)."""
+
+    def __post_init__(self) -> None:
+        for name in ("mass", "gamma", "stiffness", "gain"):
+            lo, hi = getattr(self, name)
+            if not (lo > 0 and hi >= lo):
+                raise ConfigError(f"ParamRanges.{name} must satisfy 0 < lo <= hi, got {(lo, hi)}")
+        if self.bias < 0:
+            raise ConfigError(f"ParamRanges.bias must be >= 0, got {self.bias}")
+
+    def sample(self, rng: np.random.Generator, n: int) -> np.ndarray:
+        p = np.empty((n, len(PARAM_NAMES)))
+        p[:, 0] = np.exp(rng.uniform(np.log(self.mass[0]), np.log(self.mass[1]), n))
+        p[:, 1] = rng.uniform(*self.gamma, n)
+        p[:, 2] = np.exp(rng.uniform(np.log(self.stiffness[0]), np.log(self.stiffness[1]), n))
+        p[:, 3:5] = rng.uniform(-self.bias, self.bias, (n, 2)) if self.bias > 0 else 0.0
+        p[:, 5] = rng.uniform(*self.gain, n) if self.gain[1] > self.gain[0] else self.gain[0]
+        return p
+
+
+class PokeWorldSim:
+    """N independent PokeWorld episodes stepped together.
+
+    Observations (dict of arrays, leading dim N): ``vision`` (H, W) uint8,
+    ``proprio`` (4,) finger position and velocity, ``touch`` (7,) sub-step
+    statistics of the reaction force on the finger (see :mod:`.physics`).
+    """
+
+    def __init__(self, num_envs: int, physics_cfg: PhysicsConfig | None = None,
+                 ranges: ParamRanges | None = None, seed: int | None = None):
+        if num_envs < 1:
+            raise ConfigError(f"num_envs must be >= 1, got {num_envs}")
+        self.n = int(num_envs)
+        self.cfg = physics_cfg or PhysicsConfig()
+        self.ranges = ranges or ParamRanges()
+        self.rng = np.random.default_rng(seed)
+        self._consts = self.cfg.constants()
+        self.state = np.zeros((self.n, 8))
+        self.params = np.zeros((self.n, len(PARAM_NAMES)))
+        self.touch_clean = np.zeros((self.n, physics.TOUCH_DIM))
+        self.touch = np.zeros((self.n, physics.TOUCH_DIM), dtype=np.float32)
+        s = self.cfg.image_size
+        self.frames = np.zeros((self.n, s, s), dtype=np.uint8)
+
+    # ------------------------------------------------------------------ reset
+    def reset(self, mask: np.ndarray | None = None, params: Mapping[str, object] | None = None,
+              finger_pos=None, object_pos=None, object_vel=None, finger_vel=None) -> dict:
+        """Resample episodes where ``mask`` is True (all by default); explicit values override sampling.
+
+        ``params`` maps names in :data:`PARAM_NAMES` (or ``bias`` for both bias
+        components) to scalars or per-reset arrays.
+        """
+        idx = np.arange(self.n) if mask is None else np.flatnonzero(np.asarray(mask, bool))
+        n = idx.size
+        if n == 0:
+            return self.observe()
+        p = self.ranges.sample(self.rng, n)
+        for key, value in (params or {}).items():
+            cols = {"bias": [3, 4]}.get(key, [PARAM_NAMES.index(key)] if key in PARAM_NAMES else None)
+            if cols is None:
+                raise ConfigError(f"unknown parameter {key!r}; known: {list(PARAM_NAMES) + ['bias']}")
+            v = np.asarray(value, dtype=float)
+            if not np.all(np.isfinite(v)):
+                raise ConfigError(f"parameter {key!r} must be finite, got {value}")
+            if key in ("mass", "stiffness", "gain") and np.any(v <= 0):
+                raise ConfigError(f"parameter {key!r} must be > 0, got {value}")
+            if key == "gamma" and np.any(v < 0):
+                raise ConfigError(f"parameter 'gamma' must be >= 0, got {value}")
+            p[:, cols] = v.reshape(-1, len(cols)) if v.ndim and v.size == n * len(cols) else v
+        self.params[idx] = p
+        c, r = self.cfg, self.cfg
+        lo_f, hi_f = c.finger_radius, c.arena - c.finger_radius
+        lo_o, hi_o = c.object_radius + 0.02, c.arena - c.object_radius - 0.02
+        fp = self.rng.uniform(lo_f + 0.02, hi_f - 0.02, (n, 2))
+        op = self.rng.uniform(lo_o, hi_o, (n, 2))
+        # resample object placements that overlap (or nearly touch) the finger
+        for _ in range(100):
+            bad = np.linalg.norm(op - fp, axis=1) < 2.5 * (r.finger_radius + r.object_radius)
+            if not bad.any():
+                break
+            op[bad] = self.rng.uniform(lo_o, hi_o, (int(bad.sum()), 2))
+        fp = self._override(fp, finger_pos, "finger_pos", n, (lo_f, hi_f))
+        op = self._override(op, object_pos, "object_pos", n, (c.object_radius, c.arena - c.object_radius))
+        fv = self._override(np.zeros((n, 2)), finger_vel, "finger_vel", n, None)
+        ov = self._override(np.zeros((n, 2)), object_vel, "object_vel", n, None)
+        self.state[idx, 0:2], self.state[idx, 2:4] = fp, fv
+        self.state[idx, 4:6], self.state[idx, 6:8] = op, ov
+        self.touch_clean[idx] = 0.0
+        self.touch[idx] = 0.0
+        self._render()
+        return self.observe()
+
+    @staticmethod
+    def _override(default: np.ndarray, value, name: str, n: int, bounds) -> np.ndarray:
+        if value is None:
+            return default
+        v = np.asarray(value, dtype=float)
+        if v.shape not in ((2,), (n, 2)):
+            raise ConfigError(f"{name} must have shape (2,) or ({n}, 2), got {v.shape}")
+        if not np.all(np.isfinite(v)):
+            raise ConfigError(f"{name} must be finite, got {value}")
+        if bounds is not None and (np.any(v < bounds[0]) or np.any(v > bounds[1])):
+            raise ConfigError(f"{name} must lie in [{bounds[0]:.3f}, {bounds[1]:.3f}] (inside the walls), got {value}")
+        return np.broadcast_to(v, (n, 2)).copy()
+
+    # ------------------------------------------------------------------- step
+    def step(self, actions: np.ndarray, render: bool = True) -> dict:
+        """Apply ``actions`` (N, 2) in [-1, 1] for one control step and return observations."""
+        a = np.asarray(actions, dtype=np.float64)
+        if a.shape != (self.n, 2):
+            raise ConfigError(f"actions must have shape ({self.n}, 2), got {a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise ConfigError("actions contain NaN or inf")
+        a = np.clip(a, -1.0, 1.0)
+        physics.step_kernel(self.state, self.params, a, self._consts, self.touch_clean)
+        self._sense()
+        if render:
+            self._render()
+        return self.observe()
+
+    def _sense(self) -> None:
+        t = self.touch_clean
+        if self.cfg.frame_averaged_touch:
+            mean = t[:, 0:2]
+            t = np.concatenate([mean, np.linalg.norm(mean, axis=1, keepdims=True), mean,
+                                t[:, 6:7], t[:, 6:7]], axis=1)
+        out = t.astype(np.float32)
+        if self.cfg.touch_noise > 0:
+            out[:, :5] += self.rng.normal(0.0, self.cfg.touch_noise, (self.n, 5)).astype(np.float32)
+        self.touch = out
+
+    def _render(self) -> None:
+        c = self.cfg
+        physics.render_kernel(self.state, self.frames, c.finger_radius, c.object_radius, c.arena,
+                              c.object_intensity, c.finger_intensity)
+
+    def observe(self) -> dict:
+        return {"vision": self.frames.copy(), "proprio": self.state[:, 0:4].astype(np.float32),
+                "touch": self.touch.copy()}
+
+    def privileged(self) -> dict:
+        """Ground-truth state and parameters (for labels and ``info``)."""
+        return {"finger_pos": self.state[:, 0:2].copy(), "finger_vel": self.state[:, 2:4].copy(),
+                "object_pos": self.state[:, 4:6].copy(), "object_vel": self.state[:, 6:8].copy(),
+                "contact": self.touch_clean[:, 6].copy(),
+                **{name: self.params[:, i].copy() for i, name in enumerate(PARAM_NAMES)}}
+
+    def replace_config(self, **changes) -> None:
+        self.cfg = dataclasses.replace(self.cfg, **changes)
+        self._consts = self.cfg.constants()

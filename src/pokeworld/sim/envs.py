@@ -1,0 +1,139 @@
+"""Gymnasium front-ends: ``pokeworld/PokeWorld-v0`` and its native vector env (Gymnasium 1.x).
+
+Both wrap :class:`PokeWorldSim`. Episodes truncate after ``max_steps`` control
+steps; PokeWorld has no terminal state and no task reward (reward is 0), as in
+the paper, where it is a data source for world models. The vector env uses
+Gymnasium's default NEXT_STEP autoreset: the step after a truncation resets
+that sub-environment and returns its first observation with reward 0.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from ..errors import ConfigError
+from .core import PARAM_NAMES, ParamRanges, PhysicsConfig, PokeWorldSim
+
+_RESET_KEYS = {"params", "finger_pos", "object_pos", "object_vel", "finger_vel"}
+
+
+def _obs_space(cfg: PhysicsConfig) -> spaces.Dict:
+    s = cfg.image_size
+    return spaces.Dict({
+        "vision": spaces.Box(0, 255, (s, s), np.uint8),
+        # finger position lies in the unit arena; velocity and force bounds are loose physical caps
+        "proprio": spaces.Box(np.array([0, 0, -50, -50], np.float32), np.array([1, 1, 50, 50], np.float32)),
+        "touch": spaces.Box(-1e3, 1e3, (7,), np.float32),
+    })
+
+
+def _check_options(options: dict | None) -> dict:
+    options = dict(options or {})
+    unknown = set(options) - _RESET_KEYS
+    if unknown:
+        raise ConfigError(f"unknown reset options {sorted(unknown)}; allowed: {sorted(_RESET_KEYS)}")
+    return options
+
+
+class PokeWorldEnv(gym.Env):
+    """Single-episode PokeWorld. ``info`` carries true parameters and object/finger states."""
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
+
+    def __init__(self, physics: PhysicsConfig | None = None, ranges: ParamRanges | None = None,
+                 max_steps: int = 64, render_mode: str | None = None):
+        if render_mode not in (None, "rgb_array"):
+            raise ConfigError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
+        self.cfg = physics or PhysicsConfig()
+        self.ranges = ranges or ParamRanges()
+        self.max_steps, self.render_mode = int(max_steps), render_mode
+        self.observation_space = _obs_space(self.cfg)
+        self.action_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
+        self._sim = PokeWorldSim(1, self.cfg, self.ranges)
+        self._t = 0
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        opts = _check_options(options)
+        self._sim.rng = self.np_random
+        obs = self._sim.reset(**opts)
+        self._t = 0
+        return self._single(obs), self._info()
+
+    def step(self, action):
+        a = np.asarray(action, dtype=np.float64).reshape(1, 2)
+        obs = self._sim.step(a)
+        self._t += 1
+        return self._single(obs), 0.0, False, self._t >= self.max_steps, self._info()
+
+    def render(self):
+        if self.render_mode == "rgb_array":
+            return np.repeat(self._sim.frames[0][..., None], 3, axis=-1)
+        return None
+
+    @staticmethod
+    def _single(obs: dict) -> dict:
+        return {k: v[0] for k, v in obs.items()}
+
+    def _info(self) -> dict:
+        priv = self._sim.privileged()
+        return {k: (float(v[0]) if v.ndim == 1 else v[0]) for k, v in priv.items()}
+
+
+class PokeWorldVectorEnv(VectorEnv):
+    """Natively vectorised PokeWorld (one numba kernel steps every sub-environment)."""
+
+    metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": []}
+
+    def __init__(self, num_envs: int = 1, physics: PhysicsConfig | None = None,
+                 ranges: ParamRanges | None = None, max_steps: int = 64):
+        self.num_envs = int(num_envs)
+        self.cfg = physics or PhysicsConfig()
+        self.max_steps = int(max_steps)
+        self._sim = PokeWorldSim(self.num_envs, self.cfg, ranges)
+        self.single_observation_space = _obs_space(self.cfg)
+        self.single_action_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self._t = np.zeros(self.num_envs, int)
+        self._needs_reset = np.zeros(self.num_envs, bool)
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        if seed is not None:
+            self._sim.rng = np.random.default_rng(seed)
+        obs = self._sim.reset(**_check_options(options))
+        self._t[:] = 0
+        self._needs_reset[:] = False
+        return obs, self._sim.privileged()
+
+    def step(self, actions):
+        resetting = self._needs_reset.copy()
+        a = np.asarray(actions, dtype=np.float64).reshape(self.num_envs, 2)
+        obs = self._sim.step(a)
+        if resetting.any():
+            obs = self._sim.reset(mask=resetting)
+            self._t[resetting] = 0
+        self._t[~resetting] += 1
+        truncated = (self._t >= self.max_steps) & ~resetting
+        self._needs_reset = truncated.copy()
+        reward = np.zeros(self.num_envs)
+        terminated = np.zeros(self.num_envs, bool)
+        return obs, reward, terminated, truncated, self._sim.privileged()
+
+
+def register() -> None:
+    """Register the env ids with gymnasium (idempotent; runs on ``import pokeworld.sim``)."""
+    if "pokeworld/PokeWorld-v0" not in gym.registry:
+        gym.register(id="pokeworld/PokeWorld-v0", entry_point="pokeworld.sim.envs:PokeWorldEnv",
+                     vector_entry_point="pokeworld.sim.envs:PokeWorldVectorEnv",
+                     max_episode_steps=None, disable_env_checker=False)
+
+
+__all__ = ["PokeWorldEnv", "PokeWorldVectorEnv", "register", "PARAM_NAMES"]

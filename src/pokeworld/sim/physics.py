@@ -1,0 +1,172 @@
+"""PokeWorld dynamics and rendering kernels (numba, vectorised over episodes).
+
+State layout, one row per episode (float64):
+``[finger_x, finger_y, finger_vx, finger_vy, object_x, object_y, object_vx, object_vy]``.
+Parameter layout (float64): ``[mass, gamma, stiffness, bias_x, bias_y, gain]``.
+
+Integration is semi-implicit Euler over ``substeps`` sub-steps per control step.
+Linear drag on the object (``-gamma*m*v``) and linear damping on the finger are
+applied as exact exponential factors per sub-step, so a free glide decays as
+``exp(-gamma*t)`` to machine precision and momentum is conserved exactly when
+both are zero. Finger-object contact is a Hertzian penalty force
+``k*d**1.5`` with normal damping at ``zeta`` of critical computed from the
+tangent stiffness ``1.5*k*sqrt(d)`` and the reduced mass; this makes the
+coefficient of restitution depend on ``zeta`` only (not on k, m or the impact
+speed), so stiffness lives in the impact transient, not in the outcome.
+Walls are mass- and stiffness-independent (their accelerations do not depend on
+m or k), so no hidden parameter leaks into vision through a wall bounce.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+# indices into the per-episode constant vector passed to the kernels
+C_DT, C_NSUB, C_FMAX, C_MF, C_CF, C_RF, C_RO, C_ZETA, C_WOMEGA, C_WZETA, C_ARENA = range(11)
+NUM_CONSTS = 11
+TOUCH_DIM = 7
+
+
+@njit(cache=True, inline="always")
+def hertz_normal_force(d: float, sep_speed: float, k: float, mu: float, zeta: float) -> float:
+    """Normal contact force magnitude for overlap ``d`` > 0 and separation speed ``sep_speed``.
+
+    ``k d^1.5`` minus damping ``c * sep_speed`` with ``c = 2 zeta sqrt(1.5 k sqrt(d) mu)``;
+    clipped at zero because a penalty contact cannot pull.
+    """
+    c = 2.0 * zeta * math.sqrt(1.5 * k * math.sqrt(d) * mu)
+    fn = k * d * math.sqrt(d) - c * sep_speed
+    return fn if fn > 0.0 else 0.0
+
+
+@njit(cache=True, inline="always")
+def _wall_accel(x: float, v: float, r: float, arena: float, omega: float, zeta: float) -> float:
+    a = 0.0
+    if x < r:
+        a += omega * omega * (r - x) - 2.0 * zeta * omega * v
+    elif x > arena - r:
+        a += -omega * omega * (x - (arena - r)) - 2.0 * zeta * omega * v
+    return a
+
+
+@njit(parallel=True, cache=True)
+def step_kernel(state, params, actions, consts, touch):
+    """Advance every episode by one control step in place; write noise-free touch statistics.
+
+    touch[i] = [mean Fx, mean Fy, peak |F|, end Fx, end Fy, contact fraction, contact flag]
+    of the reaction force on the finger over the sub-steps, forces divided by F_max.
+    """
+    n = state.shape[0]
+    nsub = int(consts[C_NSUB])
+    h = consts[C_DT] / nsub
+    fmax = consts[C_FMAX]
+    mf = consts[C_MF]
+    cf = consts[C_CF]
+    rf = consts[C_RF]
+    ro = consts[C_RO]
+    zeta = consts[C_ZETA]
+    womega = consts[C_WOMEGA]
+    wzeta = consts[C_WZETA]
+    arena = consts[C_ARENA]
+    dec_f = math.exp(-cf / mf * h)
+    for i in prange(n):
+        fx, fy, fvx, fvy = state[i, 0], state[i, 1], state[i, 2], state[i, 3]
+        ox, oy, ovx, ovy = state[i, 4], state[i, 5], state[i, 6], state[i, 7]
+        m, gam, k = params[i, 0], params[i, 1], params[i, 2]
+        gain = params[i, 5]
+        cmdx = gain * fmax * actions[i, 0] + params[i, 3]
+        cmdy = gain * fmax * actions[i, 1] + params[i, 4]
+        mu = mf * m / (mf + m)
+        dec_o = math.exp(-gam * h)
+        sx = 0.0
+        sy = 0.0
+        peak = 0.0
+        ncontact = 0
+        cx = 0.0
+        cy = 0.0
+        for _ in range(nsub):
+            dx = ox - fx
+            dy = oy - fy
+            dist = math.sqrt(dx * dx + dy * dy)
+            d = rf + ro - dist
+            cx = 0.0
+            cy = 0.0
+            if d > 0.0 and dist > 1e-12:
+                nx = dx / dist
+                ny = dy / dist
+                sep = (ovx - fvx) * nx + (ovy - fvy) * ny
+                fn = hertz_normal_force(d, sep, k, mu, zeta)
+                cx = fn * nx
+                cy = fn * ny
+                ncontact += 1
+                if fn > peak:
+                    peak = fn
+            afx = (cmdx - cx) / mf + _wall_accel(fx, fvx, rf, arena, womega, wzeta)
+            afy = (cmdy - cy) / mf + _wall_accel(fy, fvy, rf, arena, womega, wzeta)
+            aox = cx / m + _wall_accel(ox, ovx, ro, arena, womega, wzeta)
+            aoy = cy / m + _wall_accel(oy, ovy, ro, arena, womega, wzeta)
+            fvx = (fvx + afx * h) * dec_f
+            fvy = (fvy + afy * h) * dec_f
+            ovx = (ovx + aox * h) * dec_o
+            ovy = (ovy + aoy * h) * dec_o
+            fx += fvx * h
+            fy += fvy * h
+            ox += ovx * h
+            oy += ovy * h
+            sx -= cx
+            sy -= cy
+        state[i, 0], state[i, 1], state[i, 2], state[i, 3] = fx, fy, fvx, fvy
+        state[i, 4], state[i, 5], state[i, 6], state[i, 7] = ox, oy, ovx, ovy
+        touch[i, 0] = sx / nsub / fmax
+        touch[i, 1] = sy / nsub / fmax
+        touch[i, 2] = peak / fmax
+        touch[i, 3] = -cx / fmax
+        touch[i, 4] = -cy / fmax
+        touch[i, 5] = ncontact / nsub
+        touch[i, 6] = 1.0 if ncontact > 0 else 0.0
+
+
+@njit(cache=True, inline="always")
+def _draw_disk(img, x, y, r, arena, value):
+    hgt, wid = img.shape
+    sx = wid / arena
+    sy = hgt / arena
+    # pixel (row j, col c) has its centre at ((c + 0.5)/sx, (j + 0.5)/sy): row index grows with y
+    cxp = x * sx - 0.5
+    cyp = y * sy - 0.5
+    rp = r * sx
+    c0 = max(int(math.floor(cxp - rp - 1.0)), 0)
+    c1 = min(int(math.ceil(cxp + rp + 1.0)), wid - 1)
+    r0 = max(int(math.floor(cyp - rp - 1.0)), 0)
+    r1 = min(int(math.ceil(cyp + rp + 1.0)), hgt - 1)
+    for j in range(r0, r1 + 1):
+        ddy = j - cyp
+        for c in range(c0, c1 + 1):
+            ddx = c - cxp
+            cov = rp - math.sqrt(ddx * ddx + ddy * ddy) + 0.5
+            if cov <= 0.0:
+                continue
+            if cov > 1.0:
+                cov = 1.0
+            v = np.uint8(int(value * cov + 0.5))
+            if v > img[j, c]:
+                img[j, c] = v
+
+
+@njit(parallel=True, cache=True)
+def render_kernel(state, out, rf, ro, arena, object_value, finger_value):
+    """Anti-aliased grayscale renders of every episode into ``out`` (N, H, W) uint8.
+
+    Object: filled disk at ``object_value``; finger: filled disk at ``finger_value``
+    (max-blended), background 0. Coverage is approximated by the signed distance
+    to the disk edge clamped to one pixel, which is smooth in sub-pixel motion.
+    Depends on positions only, so renders cannot reveal any hidden parameter.
+    """
+    for i in prange(out.shape[0]):
+        img = out[i]
+        img[:, :] = 0
+        _draw_disk(img, state[i, 4], state[i, 5], ro, arena, object_value)
+        _draw_disk(img, state[i, 0], state[i, 1], rf, arena, finger_value)

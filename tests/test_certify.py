@@ -1,0 +1,106 @@
+"""Certificates: planted-signal recovery, the exact drag estimator, split enforcement, bad input."""
+
+import numpy as np
+import pytest
+
+from pokeworld.certify import certify, drag_estimates, make_config, pixel_object_state
+
+from pokeworld.errors import ConfigError, DataError
+from pokeworld.regressors import RidgeCV, TorchRegressor, r2_scores
+from pokeworld.windows import make_windows
+
+
+def test_drag_estimator_exact_on_noise_free_glides():
+    gamma = np.array([0.5, 1.7, 3.9])
+    t = np.arange(16) * 0.05
+    speed = 1.3 * np.exp(-gamma[:, None] * t[None, :])
+    glide = np.ones((3, 15), bool)
+    np.testing.assert_allclose(drag_estimates(speed, glide, 0.05, fallback=2.0), gamma, rtol=1e-9)
+    glide[1] = False
+    assert drag_estimates(speed, glide, 0.05, fallback=2.0)[1] == 2.0  # no usable glide frames
+
+
+def test_drag_estimator_on_simulated_glide_windows(tiny_dataset):
+    ds = tiny_dataset
+    w = make_windows(ds, np.arange(ds.num_episodes)).kind("glide")
+    assert len(w) > 5
+    speed = np.linalg.norm(w.gather(ds.labels["object_vel"]), axis=-1)
+    est = drag_estimates(speed, np.ones((len(w), w.length - 1), bool), 0.05, 0.0)
+    np.testing.assert_allclose(est, ds.params["gamma"][w.episode], rtol=1e-4)
+
+
+def test_ridge_recovers_planted_linear_signal_and_not_a_shuffled_one(rng):
+    n, groups = 600, np.repeat(np.arange(60), 10)
+    X = rng.normal(size=(n, 20))
+    y = X @ rng.normal(size=20) + 0.1 * rng.normal(size=n)
+    fit, test = groups < 45, groups >= 45
+    m = RidgeCV().fit(X[fit], y[fit, None], groups[fit])
+    assert r2_scores(y[test], m.predict(X[test]))[0] > 0.95
+    shuffled = rng.permutation(y[fit])
+    m2 = RidgeCV().fit(X[fit], shuffled[:, None], groups[fit])
+    assert r2_scores(y[test], m2.predict(X[test]))[0] < 0.1
+
+
+def test_gru_recovers_a_planted_temporally_gated_parameter(rng):
+    # the target is the mean of channel 0 over the steps where the gate channel 1 is on
+    n, L = 1200, 10
+    X = rng.normal(size=(n, L, 3)).astype(np.float32)
+    X[..., 1] = rng.random((n, L)) < 0.4
+    X[:, 0, 1] = 1
+    y = (X[..., 0] * X[..., 1]).sum(1) / X[..., 1].sum(1)
+    groups = np.arange(n) // 4
+    fit = groups < 240
+    m = TorchRegressor("gru", hidden=48, layers=2, epochs=60, patience=10).fit(X[fit], y[fit, None], groups[fit])
+    assert r2_scores(y[~fit], m.predict(X[~fit]))[0] > 0.8
+
+
+def test_certify_on_tiny_corpus_reports_every_estimator(tiny_dataset):
+    cfg = make_config("tiny", kinds=("contact",))
+    res = certify(tiny_dataset, cfg)
+    assert set(res["estimators"]) == {"gru", "linear", "mlp", "drag", "gru_pixel", "drag_pixel"}
+    assert set(res["gate"]) == {"log_m", "gamma", "log_k"}
+    best = res["certificate"]["contact"]["gamma"]
+    assert best["r2"] == max(r["contact"]["gamma"] for r in res["estimators"].values() if "contact" in r)
+    assert res["counts"]["contact"]["fit"] > 0
+
+
+def test_certify_refuses_missing_probe_split(tiny_dataset):
+    ds = tiny_dataset.subset(np.arange(tiny_dataset.num_episodes))
+    ds.split[ds.split == 2] = 1  # no probe-test episodes left
+    with pytest.raises(DataError, match="no episodes"):
+        certify(ds, make_config("tiny", kinds=("contact",)))
+
+
+def test_pixel_centroids_track_the_object(tiny_dataset):
+    ds = tiny_dataset
+    eps = np.arange(8)
+    pos, vel = pixel_object_state(ds, eps, smooth=1)
+    true = ds.labels["object_pos"][eps]
+    far = np.linalg.norm(true - ds.labels["finger_pos"][eps], axis=-1) > 0.2
+    assert np.median(np.abs(pos - true)[far]) < 0.005
+
+
+def test_bad_inputs_raise(tiny_dataset):
+    with pytest.raises(DataError, match="empty training set"):
+        RidgeCV().fit(np.zeros((0, 3)), np.zeros((0, 1)), np.zeros(0))
+    X = np.ones((10, 3))
+    X[2, 1] = np.nan
+    with pytest.raises(DataError, match="non-finite"):
+        RidgeCV().fit(X, np.ones((10, 1)), np.arange(10))
+    with pytest.raises(DataError, match="not in this dataset"):
+        certify(tiny_dataset, make_config("tiny", targets=("viscosity",)))
+    with pytest.raises(ConfigError, match="unknown estimators"):
+        make_config("tiny", estimators=("oracle9000",))
+    with pytest.raises(DataError, match="no episodes"):
+        make_windows(tiny_dataset, np.array([], int))
+
+
+def test_windows_are_split_by_episode(tiny_dataset):
+    ds = tiny_dataset
+    wf = make_windows(ds, ds.episodes("probe_fit"))
+    wt = make_windows(ds, ds.episodes("probe_test"))
+    assert not np.intersect1d(wf.episode, wt.episode).size
+    assert set(np.unique(wf.episode)) == set(ds.episodes("probe_fit"))
+    assert not (wf.contact & wf.glide).any()
+
+
