@@ -35,7 +35,7 @@ COMMANDS: dict[str, Command] = {
     "map": Command("pokeworld.evaluate.experiment", "MapConfig", "the identifiability map end to end", "out"),
     "demo": Command("pokeworld.evaluate.experiment", "MapConfig", "small map on CPU in minutes", "out",
                     make="make_demo_config"),
-    "pairs": Command("pokeworld.report", "PairsConfig", "matched-pairs figure", "out"),
+    "pairs": Command("pokeworld.sim.pairs", "PairsConfig", "matched-pairs figure", "out"),
     "plan": Command("pokeworld.plan", "PlanConfig", "CEM push-to-goal with trained runs", "out"),
     "rh20t-convert": Command("pokeworld.real.rh20t", "ConvertConfig", "convert RH20T scenes to a store", "root"),
 }

@@ -1,0 +1,316 @@
+"""The identifiability map end to end: generate -> certify -> train the runs -> measure -> report.
+
+Experiments are named, runnable definitions (:data:`EXPERIMENTS`), each a
+function from the map config to a list of :class:`RunSpec`. Run names are
+deterministic in their factors and seed, so re-running skips finished runs
+and resumes unfinished ones (``pokeworld.train.run`` and ``measure.run`` both
+skip or resume). Runs execute locally in parallel through
+``concurrent.futures`` or on SLURM as a submitit job array (``--launcher
+slurm``; ``submitit-local`` uses submitit's local executor, as the tests do).
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import dataclasses
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+from ..config import from_preset, to_dict
+from ..errors import ConfigError
+from ..io import write_json
+
+VARIANT_ORDER = ("V", "VF", "VX_p", "VX_t", "VX", "VFX")
+
+
+@dataclass
+class MapConfig:
+    """Run the identifiability map (or the small demo)."""
+
+    out: str = "out/map"
+    """Output directory: data/, runs/, results.json, tables and figures land here."""
+    preset: str = "cpu"
+    """Preset used for every stage (generate, certify, train, measure): tiny, cpu or paper."""
+    experiments: tuple[str, ...] = ("factorial", "lazy", "lambda", "coverage", "frame_averaged")
+    """Named experiments to run (see EXPERIMENTS)."""
+    variants: tuple[str, ...] = VARIANT_ORDER
+    """Variants of the input x target factorial."""
+    seeds: tuple[int, ...] = (0, 1)
+    """Training seeds of the factorial."""
+    lambdas: tuple[float, ...] = (0.3, 0.1, 0.02, 0.01, 0.005)
+    """SIGReg weights of the lambda sweep."""
+    sigreg_weight: float = 0.02
+    """Operating-point SIGReg weight for every other experiment."""
+    train_steps: int = 0
+    """Override of training steps per run (0 keeps the preset's)."""
+    num_episodes: int = 0
+    """Override of episodes per corpus (0 keeps the preset's)."""
+    data_seed: int = 0
+    """Seed of the generated corpora."""
+    certify_estimators: tuple[str, ...] = ("gru", "linear", "mlp", "drag", "gru_pixel", "drag_pixel")
+    """Certificate estimators to run."""
+    mlp_probes: bool = True
+    """Fit early-stopped MLP probes besides ridge."""
+    untrained: bool = True
+    """Probe randomly initialised models too (the untrained bound)."""
+    launcher: str = "local"
+    """local (process pool), slurm (submitit job array) or submitit-local (submitit's local executor)."""
+    workers: int = 0
+    """Parallel local runs (0: one per CPU core on CPU, 1 on a GPU)."""
+    slurm_partition: str = ""
+    """SLURM partition for --launcher slurm."""
+    slurm_timeout_min: int = 180
+    """SLURM time limit per run in minutes."""
+    slurm_gpus: int = 1
+    """GPUs per SLURM job."""
+
+    def __post_init__(self) -> None:
+        bad = set(self.experiments) - set(EXPERIMENTS)
+        if bad:
+            raise ConfigError(f"unknown experiments {sorted(bad)}; choose from {sorted(EXPERIMENTS)}")
+        from ..models.xjepa import VARIANTS
+
+        badv = set(self.variants) - set(VARIANTS)
+        if badv:
+            raise ConfigError(f"unknown variants {sorted(badv)}; choose from {list(VARIANTS)}")
+        if self.launcher not in ("local", "slurm", "submitit-local"):
+            raise ConfigError(f"launcher must be local, slurm or submitit-local, got {self.launcher!r}")
+        if self.preset not in ("tiny", "cpu", "paper"):
+            raise ConfigError(f"unknown preset {self.preset!r}; choose tiny, cpu or paper")
+
+
+PRESETS: dict[str, dict] = {
+    "tiny": {"preset": "tiny", "experiments": ("factorial",), "variants": ("V", "VX_t"), "seeds": (0,),
+             "mlp_probes": False, "certify_estimators": ("linear", "drag"), "untrained": False},
+    "cpu": {"preset": "cpu", "seeds": (0,)},
+    "paper": {"preset": "paper"},
+}
+
+DEMO = {  # the newcomer's first run: four variants, one seed, ~15 minutes on 2 cores
+    "experiments": ("factorial",), "variants": ("V", "VF", "VX_t", "VFX"), "seeds": (0,),
+    "num_episodes": 1200, "mlp_probes": False, "untrained": False,
+    "certify_estimators": ("gru", "linear", "drag"),
+}
+
+
+def make_config(preset: str = "cpu", **overrides) -> MapConfig:
+    return from_preset(MapConfig, PRESETS, preset, **overrides)
+
+
+def make_demo_config(preset: str = "cpu", **overrides) -> MapConfig:
+    cfg = from_preset(MapConfig, PRESETS, preset)
+    demo = {k: v for k, v in DEMO.items() if preset != "tiny" or k in ("experiments",)}
+    return dataclasses.replace(cfg, out="out/demo", **{**demo, **overrides})
+
+
+# --------------------------------------------------------------------------- run specs
+@dataclass(frozen=True)
+class RunSpec:
+    """One training run and how to measure it."""
+
+    name: str
+    experiment: str
+    corpus: str = "standard"
+    """Training corpus."""
+    measure_corpus: str = "standard"
+    """Corpus the probes are fit and tested on."""
+    train: dict = field(default_factory=dict)
+    """TrainConfig overrides (variant, horizons, sigreg_weight, ...)."""
+    seed: int = 0
+
+
+def _h(horizons) -> str:
+    return "h" + "-".join(map(str, horizons))
+
+
+def _spec(exp, variant, seed, lam, horizons=(1, 4, 16), corpus="standard", measure_corpus="standard", **extra):
+    tag = "".join(f"-{k}{v}" for k, v in sorted(extra.items()))
+    name = f"{variant}-{_h(horizons)}-lam{lam:g}-{corpus}{tag}-s{seed}"
+    train = dict(variant=variant, horizons=tuple(horizons), sigreg_weight=lam, seed=seed, **extra)
+    return RunSpec(name, exp, corpus, measure_corpus, train, seed)
+
+
+def exp_factorial(c: MapConfig) -> list[RunSpec]:
+    return [_spec("factorial", v, s, c.sigreg_weight) for v in c.variants for s in c.seeds]
+
+
+def exp_lazy(c: MapConfig) -> list[RunSpec]:
+    """Single-step vs multi-horizon x vision-only vs cross-modal targets (single-horizon factorial column)."""
+    runs = [_spec("lazy", v, c.seeds[0], c.sigreg_weight, horizons=(1,)) for v in ("V", "VX_p", "VX_t", "VX", "VFX")]
+    runs += [_spec("lazy", v, c.seeds[0], c.sigreg_weight) for v in ("V", "VX", "VFX")]
+    return runs
+
+
+def exp_lambda(c: MapConfig) -> list[RunSpec]:
+    return [_spec("lambda", "VFX", c.seeds[0], lam) for lam in c.lambdas]
+
+
+def exp_coverage(c: MapConfig) -> list[RunSpec]:
+    return [_spec("coverage", "VFX", c.seeds[0], c.sigreg_weight, corpus=corp) for corp in ("standard", "contact_poor")]
+
+
+def exp_frame_averaged(c: MapConfig) -> list[RunSpec]:
+    return [_spec("frame_averaged", "VFX", c.seeds[0], c.sigreg_weight, corpus="frame_averaged",
+                  measure_corpus="frame_averaged")]
+
+
+def exp_controls(c: MapConfig) -> list[RunSpec]:
+    s, lam = c.seeds[0], c.sigreg_weight
+    return [_spec("controls", "VFX", s, lam, sysid_weight=0.5), _spec("controls", "VFX", s, lam, objective="gnll"),
+            _spec("controls", "V", s, lam, objective="recon"), _spec("controls", "VFX", s, lam, objective="recon"),
+            _spec("controls", "VFX", s, lam, tokens=True)]
+
+
+def exp_dose_touch(c: MapConfig) -> list[RunSpec]:
+    return [_spec("dose_touch", "VFX", c.seeds[0], c.sigreg_weight, touch_contact_weight=w) for w in (4.0, 1.0, 0.25, 0.0)]
+
+
+def exp_dose_glide(c: MapConfig) -> list[RunSpec]:
+    return [_spec("dose_glide", "VFX", c.seeds[0], c.sigreg_weight, glide_episode_weight=w) for w in (1.0, 4.0, 16.0, 64.0)]
+
+
+def exp_attributes(c: MapConfig) -> list[RunSpec]:
+    return [_spec("attributes", "VFX", c.seeds[0], c.sigreg_weight, corpus=corp, measure_corpus=corp)
+            for corp in ("bias0.5", "bias1.5", "bias2.5", "gain")]
+
+
+EXPERIMENTS: dict[str, Callable[[MapConfig], list[RunSpec]]] = {
+    "factorial": exp_factorial, "lazy": exp_lazy, "lambda": exp_lambda, "coverage": exp_coverage,
+    "frame_averaged": exp_frame_averaged, "controls": exp_controls, "dose_touch": exp_dose_touch,
+    "dose_glide": exp_dose_glide, "attributes": exp_attributes,
+}
+CORPUS_TARGETS = {"bias0.5": ("bias_x", "bias_y"), "bias1.5": ("bias_x", "bias_y"), "bias2.5": ("bias_x", "bias_y"),
+                  "gain": ("gain",)}
+
+
+def all_specs(c: MapConfig) -> list[RunSpec]:
+    seen: dict[str, RunSpec] = {}
+    for exp in c.experiments:
+        for spec in EXPERIMENTS[exp](c):
+            seen.setdefault(spec.name, spec)  # a run shared by two experiments trains once
+    return list(seen.values())
+
+
+def spec_experiments(c: MapConfig) -> dict[str, list[str]]:
+    """experiment -> run names (including runs shared with other experiments)."""
+    return {exp: [s.name for s in EXPERIMENTS[exp](c)] for exp in c.experiments}
+
+
+# --------------------------------------------------------------------------- stages
+def corpus_dir(c: MapConfig, corpus: str) -> Path:
+    return Path(c.out) / "data" / corpus
+
+
+def ensure_corpus(c: MapConfig, corpus: str) -> Path:
+    from ..sim import generate
+
+    overrides: dict[str, Any] = {"out": str(corpus_dir(c, corpus)), "corpus": corpus, "seed": c.data_seed}
+    if c.num_episodes:
+        overrides["num_episodes"] = c.num_episodes
+    return generate.run(generate.make_config(c.preset, **overrides))
+
+
+def ensure_certificates(c: MapConfig, corpus: str) -> dict:
+    from .. import certify
+
+    targets = ("log_m", "gamma", "log_k") + CORPUS_TARGETS.get(corpus, ())
+    path = certify.run(certify.make_config(c.preset, data=str(corpus_dir(c, corpus)), targets=targets,
+                                           estimators=c.certify_estimators))
+    return json.loads(Path(path).read_text())
+
+
+def execute(job: dict) -> dict:
+    """Train (resume / skip) and measure one run. Top-level and picklable for process pools and submitit."""
+    import torch
+
+    from .. import train
+    from . import measure
+
+    if job.get("threads"):
+        torch.set_num_threads(job["threads"])
+    tcfg = train.make_config(job["preset"], **job["train"])
+    train.run(tcfg)
+    mcfg = measure.make_config(job["preset"], run_dir=job["train"]["out"], data=job["measure_data"],
+                               mlp=job["mlp"], untrained=job["untrained"])
+    path = measure.run(mcfg)
+    return {"name": job["name"], "measure": str(path)}
+
+
+def _jobs(c: MapConfig, specs: list[RunSpec], threads: int) -> list[dict]:
+    jobs = []
+    for s in specs:
+        tr = dict(s.train, data=str(corpus_dir(c, s.corpus)), out=str(Path(c.out) / "runs" / s.name),
+                  progress=False)
+        if c.train_steps:
+            tr["steps"] = c.train_steps
+        if threads:
+            tr["threads"] = threads
+        measure_data = str(corpus_dir(c, s.measure_corpus)) if s.measure_corpus != s.corpus else ""
+        jobs.append({"name": s.name, "preset": c.preset, "train": tr, "measure_data": measure_data,
+                     "mlp": c.mlp_probes, "untrained": c.untrained, "threads": threads})
+    return jobs
+
+
+def launch(c: MapConfig, jobs: list[dict]) -> list[dict]:
+    """Execute jobs locally (process pool) or through submitit; returns their result dicts."""
+    if not jobs:
+        return []
+    if c.launcher == "local":
+        workers = c.workers or _default_workers(len(jobs))
+        if workers == 1:
+            return [execute(j) for j in jobs]
+        ctx = __import__("multiprocessing").get_context("spawn")
+        with cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+            return list(pool.map(execute, jobs))
+    import submitit
+
+    folder = Path(c.out) / "submitit"
+    if c.launcher == "slurm":
+        ex = submitit.AutoExecutor(folder=folder, cluster="slurm")
+        params: dict[str, Any] = {"timeout_min": c.slurm_timeout_min, "gpus_per_node": c.slurm_gpus,
+                                  "cpus_per_task": 8, "name": "pokeworld-map"}
+        if c.slurm_partition:
+            params["slurm_partition"] = c.slurm_partition
+        ex.update_parameters(**params)
+    else:
+        ex = submitit.AutoExecutor(folder=folder, cluster="local")
+        ex.update_parameters(timeout_min=c.slurm_timeout_min)
+    handles = ex.map_array(execute, jobs)
+    print(f"[map] submitted {len(handles)} jobs to {c.launcher}: {[h.job_id for h in handles][:4]}...")
+    return [h.result() for h in handles]
+
+
+def _default_workers(n_jobs: int) -> int:
+    import torch
+
+    if torch.cuda.is_available():
+        return 1
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return max(1, min(n_jobs, cores))
+
+
+def run(c: MapConfig) -> Path:
+    """Run every stage of the map and write results.json, results.md and the figure into ``c.out``."""
+    from . import report
+
+    out = Path(c.out)
+    out.mkdir(parents=True, exist_ok=True)
+    write_json(out / "map_config.json", to_dict(c))
+    specs = all_specs(c)
+    corpora = sorted({s.corpus for s in specs} | {s.measure_corpus for s in specs} | {"standard"})
+    for corpus in corpora:
+        ensure_corpus(c, corpus)
+    certificates = {corpus: ensure_certificates(c, corpus)
+                    for corpus in corpora if corpus != "contact_poor"}
+    workers = c.workers or _default_workers(len(specs))
+    threads = 1 if (c.launcher == "local" and workers > 1) else 0
+    print(f"[map] {len(specs)} runs, launcher={c.launcher}, workers={workers}")
+    launch(c, _jobs(c, specs, threads))
+    results = report.collect(c, specs, certificates)
+    write_json(out / "results.json", results)
+    report.write_all(c, results)
+    print(f"[map] wrote {out / 'results.json'}, {out / 'results.md'}, {out / 'identifiability_map.png'}")
+    return out

@@ -1,0 +1,283 @@
+"""Assemble the map's results: results.json, a markdown table with the paper beside ours, the figure."""
+
+from __future__ import annotations
+
+import json
+import platform
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from .. import __version__, paper_values as P
+from ..certify import GATES
+
+QUANTITIES = ("log_k", "log_m", "gamma", "object_pos", "object_vel")
+LABELS = {"log_k": "log k", "log_m": "log m", "gamma": "γ", "object_pos": "obj. position",
+          "object_vel": "obj. velocity", "bias_x": "bias b_x", "bias_y": "bias b_y", "gain": "gain g"}
+
+
+def _measure_path(c, spec) -> Path:
+    run_dir = Path(c.out) / "runs" / spec.name
+    if spec.measure_corpus != spec.corpus:
+        return run_dir / f"measure-{spec.measure_corpus}.json"
+    return run_dir / "measure.json"
+
+
+def _git_commit() -> str:
+    try:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                              cwd=Path(__file__).parent, timeout=5).stdout.strip() or "unknown"
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+
+
+def collect(c, specs, certificates: dict) -> dict:
+    from .experiment import spec_experiments
+    from ..config import to_dict
+
+    runs = {}
+    for s in specs:
+        path = _measure_path(c, s)
+        m = json.loads(path.read_text()) if path.exists() else {}
+        runs[s.name] = {"experiment": s.experiment, "corpus": s.corpus, "measure_corpus": s.measure_corpus,
+                        "train": s.train, "probes": m.get("probes", {}), "prediction": m.get("prediction", {}),
+                        "untrained": m.get("untrained", {})}
+    certs = {k: {"certificate": v.get("certificate", {}), "gate": v.get("gate", {}),
+                 "estimators": v.get("estimators", {}), "counts": v.get("counts", {})}
+             for k, v in certificates.items()}
+    return {"runs": runs, "certificates": certs, "experiments": spec_experiments(c), "map_config": to_dict(c),
+            "provenance": {"command": "pokeworld " + " ".join(sys.argv[1:]) if sys.argv and "pokeworld" in sys.argv[0]
+                           else " ".join(sys.argv), "preset": c.preset, "pokeworld": __version__,
+                           "git": _git_commit(), "python": platform.python_version()}}
+
+
+# --------------------------------------------------------------------------- accessors
+def probe(run: dict, q: str, kind: str = "contact", family: str = "ridge") -> float | None:
+    return run.get("probes", {}).get(family, {}).get(kind, {}).get(q)
+
+
+def mean_over(runs: list[dict], fn) -> float | None:
+    vals = [v for v in (fn(r) for r in runs) if v is not None]
+    return float(np.mean(vals)) if vals else None
+
+
+def variant_runs(results: dict, experiment: str, variant: str, horizons=(1, 4, 16)) -> list[dict]:
+    names = results["experiments"].get(experiment, [])
+    return [results["runs"][n] for n in names
+            if results["runs"][n]["train"]["variant"] == variant
+            and tuple(results["runs"][n]["train"].get("horizons", ())) == tuple(horizons)]
+
+
+def gate_failed(results: dict, q: str, corpus: str = "standard") -> bool:
+    g = results["certificates"].get(corpus, {}).get("gate", {}).get(q)
+    return bool(g) and not g["passed"]
+
+
+def fmt(v, digits=2) -> str:
+    return "—" if v is None else f"{v:+.{digits}f}" if digits == 2 else f"{v:.{digits}f}"
+
+
+# --------------------------------------------------------------------------- tables
+def certificate_table(results: dict) -> list[str]:
+    std = results["certificates"].get("standard")
+    if not std:
+        return []
+    est = std["estimators"]
+    lines = ["## Recoverability certificates (contact windows, held-out R²)", "",
+             "| estimator | log m (ours / paper) | γ (ours / paper) | log k (ours / paper) |", "|---|---|---|---|"]
+    for name, kinds in est.items():
+        r = kinds.get("contact", {})
+        p = P.CERTIFICATES.get(name, {})
+        lines.append(f"| {name} | " + " | ".join(f"{fmt(r.get(q))} / {fmt(p.get(q))}"
+                                               for q in ("log_m", "gamma", "log_k")) + " |")
+    lines.append("")
+    lines.append("Gate (m/γ/k ≥ " + "/".join(str(GATES[q]) for q in ("log_m", "gamma", "log_k")) + "): " + ", ".join(
+        f"{q} {'PASS' if g['passed'] else 'FAIL'} ({g['certificate']:.2f})" for q, g in std["gate"].items()))
+    return lines + [""]
+
+
+def factorial_table(results: dict) -> list[str]:
+    if "factorial" not in results["experiments"]:
+        return []
+    lines = ["## Targets, not inputs, decide content (factorial; ridge R², contact windows)", "",
+             "Ours is the mean over seeds (per-seed values in results.json); † marks a parameter whose certificate gate failed.",
+             "", "| variant | log k (ours / paper) | log m (ours / paper) | γ | obj. position | obj. velocity | log k MLP (ours / paper) | untrained log k |",
+             "|---|---|---|---|---|---|---|---|"]
+    variants = results["map_config"]["variants"]
+    for v in variants:
+        runs = variant_runs(results, "factorial", v)
+        if not runs:
+            continue
+        pv = P.FACTORIAL.get(v, {})
+        mk = lambda q: fmt(mean_over(runs, lambda r: probe(r, q))) + ("†" if gate_failed(results, q) else "")  # noqa
+        mlp = mean_over(runs, lambda r: probe(r, "log_k", family="mlp"))
+        unt = mean_over(runs, lambda r: r.get("untrained", {}).get("ridge", {}).get("contact", {}).get("log_k"))
+        lines.append(f"| {v} | {mk('log_k')} / {fmt(pv.get('log_k'))} | {mk('log_m')} / {fmt(pv.get('log_m'))} | "
+                     f"{mk('gamma')} | {mk('object_pos')} | {mk('object_vel')} | "
+                     f"{fmt(mlp)} / {fmt(P.FACTORIAL_MLP.get(v, {}).get('log_k'))} | {fmt(unt)} |")
+    return lines + [""]
+
+
+def lazy_table(results: dict) -> list[str]:
+    if "lazy" not in results["experiments"]:
+        return []
+    lines = ["## The lazy equilibrium (object-position ridge R², contact windows; 16-step decoded error in arena units)", "",
+             "| run | position (ours) | position (paper) | direct-16 | rollout-16 | static-16 |", "|---|---|---|---|---|---|"]
+    for name in results["experiments"]["lazy"]:
+        r = results["runs"][name]
+        h = tuple(r["train"]["horizons"])
+        key = f"{r['train']['variant']}-{'h1' if h == (1,) else 'h3'}"
+        paper = P.LAZY.get(key, P.FACTORIAL.get(r["train"]["variant"], {}).get("object_pos_h1") if h == (1,) else None)
+        pr = r["prediction"]
+        lines.append(f"| {key} | {fmt(probe(r, 'object_pos'))} | {fmt(paper)} | {fmt(pr.get('direct16'), 3)} | "
+                     f"{fmt(pr.get('rollout16'), 3)} | {fmt(pr.get('static16'), 3)} |")
+    lines.append(f"\nPaper: direct-16 {P.PREDICTION['direct16']}, rollout-16 {P.PREDICTION['rollout16']}, "
+                 f"static {P.PREDICTION['static16']} arena units.")
+    return lines + [""]
+
+
+def lambda_table(results: dict) -> list[str]:
+    if "lambda" not in results["experiments"]:
+        return []
+    lines = ["## SIGReg weight λ (VFX, contact windows)", "",
+             "| λ | log k (ours / paper) | log m (ours / paper) | velocity (ours / paper) | direct-16 (ours / paper) |",
+             "|---|---|---|---|---|"]
+    for name in results["experiments"]["lambda"]:
+        r = results["runs"][name]
+        lam = r["train"]["sigreg_weight"]
+        p = P.LAMBDA.get(lam, {})
+        lines.append(f"| {lam:g} | {fmt(probe(r, 'log_k'))} / {fmt(p.get('log_k'))} | {fmt(probe(r, 'log_m'))} / "
+                     f"{fmt(p.get('log_m'))} | {fmt(probe(r, 'object_vel'))} / {fmt(p.get('object_vel'))} | "
+                     f"{fmt(r['prediction'].get('direct16'), 3)} / {fmt(p.get('direct16'), 3)} |")
+    return lines + [""]
+
+
+def simple_table(results: dict, exp: str, title: str, key_fn, paper: dict | None = None,
+                 qs=("log_k", "log_m", "gamma", "object_pos", "object_vel")) -> list[str]:
+    if exp not in results["experiments"]:
+        return []
+    lines = [f"## {title}", "", "| run | " + " | ".join(LABELS.get(q, q) for q in qs) + " | glide test (model / median-γ / static) |",
+             "|" + "---|" * (len(qs) + 2)]
+    for name in results["experiments"][exp]:
+        r = results["runs"][name]
+        key = key_fn(r)
+        p = (paper or {}).get(key, {})
+        g = r["prediction"].get("glide_test", {})
+        cells = [f"{fmt(probe(r, q))}" + (f" / {fmt(p[q])}" if q in p else "") for q in qs]
+        gt = f"{fmt(g.get('model'), 3)} / {fmt(g.get('median_gamma'), 3)} / {fmt(g.get('static'), 3)}" if g else "—"
+        lines.append(f"| {key} | " + " | ".join(cells) + f" | {gt} |")
+    if paper:
+        lines.append("\nCells read ours / paper where the paper reports the value.")
+    return lines + [""]
+
+
+def frame_averaged_lines(results: dict) -> list[str]:
+    fa = results["certificates"].get("frame_averaged")
+    std = results["certificates"].get("standard")
+    if not fa or not std:
+        return []
+    k_fa = fa["certificate"].get("contact", {}).get("log_k", {}).get("r2")
+    k_std = std["certificate"].get("contact", {}).get("log_k", {}).get("r2")
+    return ["## Information bandwidth: frame-averaged touch", "",
+            f"log k certificate with sub-step touch: ours {fmt(k_std)} (paper {P.FRAME_AVERAGED['certificate_log_k_substep']}); "
+            f"with frame-averaged touch: ours {fmt(k_fa)} (paper: unrecoverable).", ""]
+
+
+def markdown(results: dict) -> str:
+    prov = results["provenance"]
+    out = ["# Identifiability map: results", "",
+           f"Produced by `{prov['command']}` (preset `{prov['preset']}`, pokeworld {prov['pokeworld']}, git {prov['git']}). "
+           "Paper values are the paper's own numbers, shown beside ours for comparison; they are never used as ours.", ""]
+    out += certificate_table(results)
+    out += factorial_table(results)
+    out += lazy_table(results)
+    out += lambda_table(results)
+    out += simple_table(results, "coverage", "Data coverage (VFX; probes on the standard corpus)",
+                        lambda r: r["corpus"], P.COVERAGE)
+    out += frame_averaged_lines(results)
+    out += simple_table(results, "controls", "Objective-attribution controls",
+                        lambda r: _control_key(r), P.CONTROLS)
+    out += simple_table(results, "dose_touch", "Dose-response: contact-frame touch weight",
+                        lambda r: f"touch weight {r['train'].get('touch_contact_weight')}")
+    out += simple_table(results, "dose_glide", "Dose-response: glide-episode sampling weight",
+                        lambda r: f"glide weight {r['train'].get('glide_episode_weight')}", qs=("gamma", "log_k", "object_vel"))
+    out += simple_table(results, "attributes", "Attribute matrix corpora", lambda r: r["corpus"],
+                        qs=("bias_x", "gain", "log_k", "gamma"))
+    return "\n".join(out) + "\n"
+
+
+def _control_key(r: dict) -> str:
+    t = r["train"]
+    if t.get("sysid_weight"):
+        return "VFX+sysid"
+    if t.get("objective") == "gnll":
+        return "VFX-gnll"
+    if t.get("objective") == "recon":
+        return f"{t['variant']}-recon"
+    if t.get("tokens"):
+        return "VFX-tokens"
+    return t["variant"]
+
+
+# --------------------------------------------------------------------------- figure
+def map_matrix(results: dict) -> tuple[np.ndarray, list[str], list[str], np.ndarray]:
+    """(quantities x [certificate, variants...]) R^2 matrix with a gate-failed mask."""
+    variants = [v for v in results["map_config"]["variants"] if variant_runs(results, "factorial", v)]
+    cols = ["certificate"] + variants
+    cert = results["certificates"].get("standard", {}).get("certificate", {}).get("contact", {})
+    M = np.full((len(QUANTITIES), len(cols)), np.nan)
+    failed = np.zeros_like(M, bool)
+    for i, q in enumerate(QUANTITIES):
+        if q in cert:
+            M[i, 0] = cert[q]["r2"]
+        elif q in ("object_pos", "object_vel"):
+            M[i, 0] = 1.0  # object state is observed directly by the certificate estimators
+        for j, v in enumerate(variants, 1):
+            val = mean_over(variant_runs(results, "factorial", v), lambda r: probe(r, q))
+            M[i, j] = np.nan if val is None else val
+        failed[i, :] = gate_failed(results, q)
+    return M, [LABELS[q] for q in QUANTITIES], cols, failed
+
+
+def figure(results: dict, out: Path) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    M, rows, cols, failed = map_matrix(results)
+    fig, ax = plt.subplots(figsize=(1.2 * len(cols) + 2, 0.7 * len(rows) + 1.6))
+    im = ax.imshow(np.clip(M, 0, 1), cmap="viridis", vmin=0, vmax=1, aspect="auto")
+    for i in range(M.shape[0]):
+        for j in range(M.shape[1]):
+            if np.isnan(M[i, j]):
+                txt = "—"
+            else:
+                txt = f"{M[i, j]:.2f}" + ("\ngate ✗" if failed[i, j] else "")
+            ax.text(j, i, txt, ha="center", va="center", fontsize=9,
+                    color="white" if (np.isnan(M[i, j]) or M[i, j] < 0.5) else "black")
+    ax.axvline(0.5, color="white", lw=3)
+    ax.set_xticks(range(len(cols)), cols)
+    ax.set_yticks(range(len(rows)), rows)
+    prov = results["provenance"]
+    ax.set_title(f"Identifiability map (ridge R², contact windows; preset {prov['preset']})", fontsize=10)
+    fig.colorbar(im, ax=ax, fraction=0.04, label="held-out R²")
+    fig.tight_layout()
+    paths = [out / "identifiability_map.png", out / "identifiability_map.pdf"]
+    for p in paths:
+        tmp = p.with_name(f".{p.stem}.tmp{p.suffix}")
+        fig.savefig(tmp, dpi=150)
+        tmp.replace(p)
+    plt.close(fig)
+    return paths
+
+
+def write_all(c, results: dict) -> None:
+    from ..io import atomic_path
+
+    out = Path(c.out)
+    with atomic_path(out / "results.md") as tmp:
+        tmp.write_text(markdown(results))
+    figure(results, out)

@@ -1,0 +1,61 @@
+"""Numbers reported in the paper, for side-by-side tables. Never used as results of ours.
+
+Keys: experiment -> row -> column -> value (contact windows, ridge unless noted).
+Source: paper.tex Table "targets", Table "mlp", Table "lambda", §4 text, App. A/C.
+"""
+
+CERTIFICATES = {  # App. A "instrument hierarchy", App. C "pixel-derived certificates"
+    "gru": {"log_m": 0.86, "gamma": 0.70, "log_k": 0.87},
+    "drag": {"gamma": 0.89},
+    "linear": {"log_m": 0.0, "gamma": 0.0, "log_k": 0.0},
+    "mlp": {"log_m": 0.45, "gamma": 0.0},
+    "gru_pixel": {"log_m": 0.72, "gamma": 0.43, "log_k": 0.78},
+    "drag_pixel": {"gamma": 0.05},
+}
+
+FACTORIAL = {  # Table "targets" (mean of the two seeds) and single-horizon position column
+    "V": {"log_k": -0.02, "log_m": 0.145, "object_pos_h1": 0.04},
+    "VF": {"log_k": -0.015, "log_m": 0.20},
+    "VX_p": {"log_k": -0.015, "log_m": 0.18, "object_pos_h1": 0.09},
+    "VX_t": {"log_k": 0.415, "log_m": 0.255, "object_pos_h1": 0.17},
+    "VX": {"log_k": 0.455, "log_m": 0.27, "object_pos_h1": 0.58},
+    "VFX": {"log_k": 0.495, "log_m": 0.30, "object_pos_h1": 0.98},
+}
+
+FACTORIAL_MLP = {  # Table "mlp"
+    "V": {"log_m": 0.00, "gamma": 0.00, "log_k": -0.01},
+    "VX_p": {"log_m": -0.01, "gamma": -0.01, "log_k": 0.00},
+    "VX_t": {"log_m": 0.20, "gamma": 0.06, "log_k": 0.40},
+    "VX": {"log_m": 0.21, "gamma": 0.05, "log_k": 0.44},
+    "VFX": {"log_m": 0.26, "gamma": 0.06, "log_k": 0.51},
+}
+
+LAZY = {  # §4.2: object-position R^2
+    "V-h1": 0.04, "VX-h1": 0.58, "V-h3": 0.89, "VFX-h3": 0.98,
+}
+PREDICTION = {"direct16": 0.10, "rollout16": 0.19, "static16": 0.21}  # §4.2, arena units
+
+LAMBDA = {  # Table "lambda" (VFX)
+    0.3: {"log_k": 0.12, "log_m": 0.12, "object_vel": 0.54, "direct16": 0.128},
+    0.1: {"log_k": 0.24, "log_m": 0.18, "object_vel": 0.62, "direct16": 0.111},
+    0.02: {"log_k": 0.50, "log_m": 0.29, "object_vel": 0.79, "direct16": 0.099},
+    0.01: {"log_k": 0.54, "log_m": 0.32, "object_vel": 0.79, "direct16": 0.096},
+    0.005: {"log_k": 0.57, "log_m": 0.32, "object_vel": 0.80, "direct16": 0.095},
+}
+
+COVERAGE = {  # App. C: VFX on contact-poor data vs standard
+    "standard": {"log_k": 0.50, "log_m": 0.29, "object_pos": 0.98, "object_vel": 0.79},
+    "contact_poor": {"log_k": 0.05, "log_m": 0.11, "object_pos": 0.87, "object_vel": 0.58},
+}
+
+GLIDE_TEST = {"true_gamma": 0.0002, "median_gamma": 0.049, "static": 0.144}
+
+CONTROLS = {  # Table "controls" (ridge)
+    "VFX": {"log_m": 0.29, "gamma": 0.12, "log_k": 0.50, "object_pos": 0.98, "object_vel": 0.79},
+    "VFX+sysid": {"log_m": 0.72, "gamma": 0.45, "log_k": 0.91, "object_pos": 0.98, "object_vel": 0.78},
+    "VFX-gnll": {"log_m": 0.31, "gamma": 0.10, "log_k": 0.49, "object_pos": 1.00, "object_vel": 0.88},
+    "V-recon": {"log_m": 0.16, "gamma": 0.08, "log_k": -0.01, "object_pos": 0.75, "object_vel": 0.47},
+    "VFX-recon": {"log_m": 0.19, "gamma": 0.03, "log_k": 0.61, "object_pos": 0.95, "object_vel": 0.64},
+}
+
+FRAME_AVERAGED = {"certificate_log_k_substep": 0.87}  # §4.4: frame-averaged touch makes k unrecoverable
