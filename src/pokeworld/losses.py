@@ -1,0 +1,176 @@
+"""Losses for X-JEPA: SIGReg (Epps–Pulley on random projections), Gaussian NLL, masked MSE.
+
+SIGReg ("Sketched Isotropic Gaussian Regularization", LeJEPA / LeWM) pushes the
+distribution of embeddings towards an isotropic standard Gaussian. It projects
+the N×D embeddings onto K random unit directions and, for every 1-d projection,
+compares the empirical characteristic function (ECF)
+``phi_N(t) = mean_n exp(i t x_n)`` with the standard normal one ``exp(-t²/2)``:
+
+    EP = N · ∫ |phi_N(t) − exp(−t²/2)|² w(t) dt,     w(t) = exp(−t²/2)
+
+The integrand is even in t, so we integrate over [0, t_max] with the trapezoid
+rule (17 knots on [0, 3] by default) and double the weights. The factor N makes
+the statistic O(1) under the null (it is the classical Epps–Pulley scaling), so
+it is comparable across batch sizes; the loss is the mean over directions (and
+over any leading batch dimensions, e.g. time steps).
+
+Distributed correctness (the bug most often reported against LeWM-style code):
+
+* every rank must use the *same* directions — we draw them from a
+  ``torch.Generator`` seeded by ``(seed, step)`` only, never from the global RNG,
+  so no communication is needed and resumed runs redraw identical directions;
+* the statistic must be that of the *global* batch — the ECF is linear in the
+  samples, so we all-reduce (average) the per-rank ``cos``/``sin`` means with an
+  autograd-aware all-reduce (:class:`_AllReduceSum`) and scale by the
+  global N = N_local · world_size. The backward all-reduces gradients, which,
+  combined with DDP's gradient averaging, yields exactly the gradient of the
+  global statistic (tested in tests/test_losses.py with two gloo processes).
+"""
+
+from __future__ import annotations
+
+import torch
+
+
+def _dist_world() -> int:
+    import torch.distributed as dist
+
+    if dist.is_available() and dist.is_initialized():
+        return dist.get_world_size()
+    return 1
+
+
+class _AllReduceSum(torch.autograd.Function):
+    """Sum over ranks whose backward also sums the incoming gradients over ranks.
+
+    Every rank computes the same global loss from the summed value; summing the gradients in
+    backward gives each rank ``world ×`` its true local gradient, and DDP's averaging of parameter
+    gradients then yields exactly the gradient of the global statistic."""
+
+    @staticmethod
+    def forward(ctx, x):
+        import torch.distributed as dist
+
+        y = x.clone()
+        dist.all_reduce(y, op=dist.ReduceOp.SUM)
+        return y
+
+    @staticmethod
+    def backward(ctx, g):
+        import torch.distributed as dist
+
+        g = g.clone()
+        dist.all_reduce(g, op=dist.ReduceOp.SUM)
+        return g
+
+
+def _dist_mean(x: torch.Tensor) -> torch.Tensor:
+    """Differentiable average over ranks (identity when not distributed)."""
+    world = _dist_world()
+    if world == 1:
+        return x
+    return _AllReduceSum.apply(x.contiguous()) / world
+
+
+def ep_knots(num_knots: int = 17, t_max: float = 3.0, device=None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Knots ``t`` (K,), integration weights ``w`` (K,) including the Gaussian weighting and the
+    ×2 for the negative half-line, and the target ECF ``exp(-t²/2)``."""
+    t = torch.linspace(0.0, t_max, num_knots, device=device, dtype=torch.float32)
+    dt = t_max / (num_knots - 1)
+    trap = torch.full((num_knots,), dt, device=device, dtype=torch.float32)
+    trap[0] = trap[-1] = dt / 2
+    phi = torch.exp(-0.5 * t * t)
+    return t, 2.0 * trap * phi, phi
+
+
+def epps_pulley(x: torch.Tensor, num_knots: int = 17, t_max: float = 3.0) -> torch.Tensor:
+    """Epps–Pulley normality statistic of 1-d samples along dim -2.
+
+    Args:
+        x: (..., N, K) — N samples of K independent 1-d projections.
+    Returns:
+        (..., K) statistic ``N · ∫ |ECF − φ|² w``, averaged ECF over ranks when distributed
+        (N is then the global sample count).
+    """
+    t, w, phi = ep_knots(num_knots, t_max, x.device)
+    xt = x.float().unsqueeze(-1) * t  # (..., N, K, knots)
+    cos_m = _dist_mean(torch.cos(xt).mean(-3))
+    sin_m = _dist_mean(torch.sin(xt).mean(-3))
+    err = (cos_m - phi) ** 2 + sin_m ** 2  # (..., K, knots)
+    n = x.shape[-2] * _dist_world()
+    return (err @ w) * n
+
+
+def random_directions(dim: int, num: int, seed: int, device=None) -> torch.Tensor:
+    """(dim, num) unit directions drawn from a generator seeded only by ``seed``.
+
+    Seeding from (run seed, step) makes directions identical on every rank and on resume."""
+    g = torch.Generator(device="cpu")
+    g.manual_seed(int(seed) % (2 ** 63 - 1))
+    a = torch.randn(dim, num, generator=g)
+    a = a / a.norm(dim=0, keepdim=True)
+    return a.to(device) if device is not None else a
+
+
+def sigreg(z: torch.Tensor, num_dirs: int = 1024, seed: int = 0, num_knots: int = 17,
+           t_max: float = 3.0, max_rows: int | None = None) -> torch.Tensor:
+    """SIGReg loss: mean Epps–Pulley statistic of ``z`` projected on ``num_dirs`` random unit directions.
+
+    Args:
+        z: (..., N, D) embeddings; leading dims are independent groups (e.g. time steps, as in
+           LeWM: the statistic is computed per time step over the batch and then averaged).
+        num_dirs: number of random directions (1024 for global latents, 256 for tokens).
+        seed: directions seed; pass a function of (run seed, step) so they are resampled every
+           step but shared across ranks.
+        max_rows: if set and N > max_rows, use a random subset of ``max_rows`` rows (token-level
+           subsampling, 4096 in the paper). The subset uses the same seeded generator.
+    Returns:
+        scalar loss (float32, computed outside autocast).
+    """
+    with torch.autocast(device_type=z.device.type, enabled=False):
+        z = z.float()
+        if max_rows is not None and z.shape[-2] > max_rows:
+            g = torch.Generator(device="cpu")
+            g.manual_seed((int(seed) * 7919 + 17) % (2 ** 63 - 1))
+            idx = torch.randperm(z.shape[-2], generator=g)[:max_rows].to(z.device)
+            z = z.index_select(-2, idx)
+        a = random_directions(z.shape[-1], num_dirs, seed, z.device)
+        return epps_pulley(z @ a, num_knots, t_max).mean()
+
+
+def masked_mse(pred: torch.Tensor, target: torch.Tensor, weight: torch.Tensor | None = None) -> torch.Tensor:
+    """Mean squared error over the last dim, then weighted mean over the remaining dims.
+
+    Args:
+        pred, target: (..., D).
+        weight: optional (...) non-negative per-row weights (0 masks a row out).
+    """
+    err = (pred.float() - target.float()).pow(2).mean(-1)
+    if weight is None:
+        return err.mean()
+    weight = weight.float()
+    return (err * weight).sum() / weight.sum().clamp_min(1e-8)
+
+
+def gaussian_nll(mean: torch.Tensor, logvar: torch.Tensor, target: torch.Tensor,
+                 weight: torch.Tensor | None = None, min_logvar: float = -8.0, max_logvar: float = 8.0) -> torch.Tensor:
+    """Heteroscedastic Gaussian NLL ``0.5·(exp(-s)(y-μ)² + s)`` (constant dropped), s clamped.
+
+    Shapes as :func:`masked_mse`; ``logvar`` has the shape of ``mean``."""
+    s = logvar.float().clamp(min_logvar, max_logvar)
+    nll = 0.5 * (torch.exp(-s) * (target.float() - mean.float()).pow(2) + s)
+    nll = nll.mean(-1)
+    if weight is None:
+        return nll.mean()
+    weight = weight.float()
+    return (nll * weight).sum() / weight.sum().clamp_min(1e-8)
+
+
+def expected_null_ep(num_knots: int = 17, t_max: float = 3.0) -> float:
+    """Expected EP statistic for N(0,1) samples: N·E|ECF−φ|² = ∫ (1 − φ(t)²) w(t) dt."""
+    t, w, phi = ep_knots(num_knots, t_max)
+    return float(((1 - phi ** 2) * w).sum())
+
+
+__all__ = ["sigreg", "epps_pulley", "random_directions", "ep_knots", "masked_mse", "gaussian_nll",
+           "expected_null_ep"]

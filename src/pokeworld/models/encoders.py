@@ -1,0 +1,100 @@
+"""Per-frame encoders for X-JEPA (paper App. B "Architecture").
+
+* :class:`FrameCNN` — 4-stage stride-2 CNN over two channels: the frame and its
+  temporal difference ``x_t − x_{t−1}`` (zero at the first frame of a sequence).
+* :class:`VectorMLP` — small MLP for proprioception / touch (already normalised).
+* :class:`FusedEncoder` — concatenates the enabled modality features and projects
+  them with Linear + BatchNorm1d to the latent (128-d). Deliberately no trailing
+  LayerNorm: it would pin embeddings to a shell and fight SIGReg's isotropic
+  Gaussian target.
+
+All modules here work on flattened frames ``(N, ...)``; the sequence bookkeeping
+(and the temporal-difference channel) lives in :class:`pokeworld.models.xjepa.XJEPA`.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+
+class FrameCNN(nn.Module):
+    """Conv(k4, s2, p1) + GroupNorm + GELU, four times: (N, 2, S, S) -> (N, C4, S/16, S/16)."""
+
+    def __init__(self, channels: tuple[int, ...] = (32, 64, 128, 256), in_ch: int = 2):
+        super().__init__()
+        layers: list[nn.Module] = []
+        c_prev = in_ch
+        for c in channels:
+            layers += [nn.Conv2d(c_prev, c, 4, 2, 1), nn.GroupNorm(min(8, c), c), nn.GELU()]
+            c_prev = c
+        self.net = nn.Sequential(*layers)
+        self.out_channels = c_prev
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.net(x)
+
+
+class VectorMLP(nn.Module):
+    """Two-layer MLP ``in -> hidden -> out`` with GELU."""
+
+    def __init__(self, in_dim: int, hidden: int = 64, out_dim: int = 64):
+        super().__init__()
+        self.net = nn.Sequential(nn.Linear(in_dim, hidden), nn.GELU(), nn.Linear(hidden, out_dim), nn.GELU())
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.net(x)
+
+
+class FusedEncoder(nn.Module):
+    """Frame (+ proprio) (+ touch) -> latent.
+
+    Global mode: the CNN's last map is flattened (keeps *where* things are), fused with the
+    vector features and projected by Linear + BatchNorm1d to ``latent_dim``.
+
+    Token mode (``tokens=True``): every cell of the last CNN map becomes a token, projected
+    (with the vector features broadcast to all tokens and a learned spatial embedding) by
+    Linear + BatchNorm1d to ``latent_dim``. Output (N, S, latent_dim) with S = (image/16)².
+    """
+
+    def __init__(self, image_size: int, channels: tuple[int, ...], dp: int, dt: int,
+                 use_proprio: bool, use_touch: bool, latent_dim: int = 128, vec_dim: int = 64,
+                 tokens: bool = False):
+        super().__init__()
+        self.cnn = FrameCNN(channels)
+        side = max(1, image_size // (2 ** len(channels)))
+        self.num_tokens = side * side
+        self.tokens = tokens
+        self.use_proprio, self.use_touch = use_proprio, use_touch
+        self.proprio = VectorMLP(dp, vec_dim, vec_dim) if use_proprio else None
+        self.touch = VectorMLP(dt, vec_dim, vec_dim) if use_touch else None
+        vec = vec_dim * (int(use_proprio) + int(use_touch))
+        c = self.cnn.out_channels
+        if tokens:
+            self.pos = nn.Parameter(torch.zeros(self.num_tokens, c))
+            nn.init.normal_(self.pos, std=0.02)
+            self.proj = nn.Linear(c + vec, latent_dim)
+        else:
+            self.proj = nn.Linear(c * self.num_tokens + vec, latent_dim)
+        self.norm = nn.BatchNorm1d(latent_dim)
+
+    def forward(self, img: torch.Tensor, proprio: torch.Tensor | None, touch: torch.Tensor | None) -> torch.Tensor:
+        """img (N, 2, S, S) float; proprio (N, Dp) / touch (N, Dt) normalised (or None when unused).
+
+        Returns (N, latent) or, in token mode, (N, num_tokens, latent)."""
+        fmap = self.cnn(img)  # (N, C, s, s)
+        vecs = []
+        if self.use_proprio:
+            vecs.append(self.proprio(proprio))
+        if self.use_touch:
+            vecs.append(self.touch(touch))
+        if not self.tokens:
+            feats = torch.cat([fmap.flatten(1)] + vecs, dim=-1)
+            return self.norm(self.proj(feats))
+        tok = fmap.flatten(2).transpose(1, 2) + self.pos  # (N, S, C)
+        if vecs:
+            v = torch.cat(vecs, -1)[:, None, :].expand(-1, tok.shape[1], -1)
+            tok = torch.cat([tok, v], -1)
+        out = self.proj(tok)
+        n, s, d = out.shape
+        return self.norm(out.reshape(n * s, d)).reshape(n, s, d)

@@ -1,0 +1,411 @@
+"""X-JEPA: action-conditioned latent world models with cross-modal forecasting targets (paper §3, App. B).
+
+Shapes: B batch, L sequence length, H×W frame, D latent (128), W predictor width,
+Dp/Dt/Da proprio/touch/action dims (read from the data), S spatial tokens (token mode).
+
+The model owns all preprocessing (buffers): frame area-downsampling to ``image_size``,
+the temporal-difference channel, proprio/touch/action normalisation statistics and the
+whitening of hidden parameters (sysid control). A loaded model therefore takes *raw*
+dataset arrays.
+
+Variants (inputs × targets, paper Table "targets"); see :data:`VARIANTS`.
+Objectives: ``latent`` (MSE to jointly learned encoder targets, no stop-gradient),
+``gnll`` (latent heads also output a log-variance; Gaussian NLL), ``recon`` (a shared
+deconvolutional decoder reconstructs future frames instead of latent targets; SIGReg off).
+Controls: ``sysid`` head (trunk -> whitened (log m, γ, log k)), ``tokens`` (spatial tokens,
+dense aligned Δ=1 token prediction, token-level SIGReg subsampling).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from ..errors import ConfigError
+from ..losses import gaussian_nll, masked_mse, sigreg
+from .encoders import FusedEncoder
+from .predictor import CausalPredictor
+
+#: variant name -> (input modalities, target modalities). "latent" is the visual/fused latent target.
+VARIANTS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
+    "V": (("vision",), ("latent",)),
+    "VF": (("vision", "proprio", "touch"), ("latent",)),
+    "VX_p": (("vision",), ("latent", "proprio")),
+    "VX_t": (("vision",), ("latent", "touch")),
+    "VX": (("vision",), ("latent", "proprio", "touch")),
+    "VFX": (("vision", "proprio", "touch"), ("latent", "proprio", "touch")),
+}
+OBJECTIVES = ("latent", "gnll", "recon")
+SYSID_PARAMS = ("log_m", "gamma", "log_k")
+
+
+def check_variant(variant: str) -> None:
+    if variant not in VARIANTS:
+        raise ConfigError(f"unknown variant {variant!r}; choose one of {list(VARIANTS)}")
+
+
+def area_downsample(frames: torch.Tensor, size: int) -> torch.Tensor:
+    """(..., H, W) -> (..., size, size) by area pooling; uint8 in -> uint8 out (rounded), float -> float."""
+    h, w = frames.shape[-2:]
+    if h == size and w == size:
+        return frames
+    if h < size or w < size:
+        raise ValueError(f"frames {h}x{w} are smaller than image_size {size}; only downsampling is supported")
+    lead = frames.shape[:-2]
+    x = frames.reshape(-1, 1, h, w).float()
+    y = F.interpolate(x, size=(size, size), mode="area")
+    if frames.dtype == torch.uint8:
+        y = y.round_().clamp_(0, 255).to(torch.uint8)
+    return y.reshape(*lead, size, size)
+
+
+class DeltaHead(nn.Module):
+    """Direct Δ-step head: MLP([h_t, flattened actions t..t+Δ-1]) -> out_dim."""
+
+    def __init__(self, width: int, act_in: int, out_dim: int, hidden: int | None = None):
+        super().__init__()
+        hidden = hidden or width
+        self.net = nn.Sequential(nn.Linear(width + act_in, hidden), nn.GELU(), nn.Linear(hidden, out_dim))
+
+    def forward(self, h: torch.Tensor, a: torch.Tensor) -> torch.Tensor:
+        return self.net(torch.cat([h, a], -1) if a.shape[-1] else h)
+
+
+class Decoder(nn.Module):
+    """Shared deconvolutional decoder: vector -> (C0, s0, s0) map -> 4 stride-2 upconvs -> (1, S, S) in [0,1]."""
+
+    def __init__(self, channels: tuple[int, ...], image_size: int):
+        super().__init__()
+        rev = tuple(reversed(channels))  # e.g. 256/128/64/32
+        self.c0, self.s0 = rev[0], max(1, image_size // 2 ** len(channels))
+        self.in_dim = self.c0 * self.s0 * self.s0
+        layers: list[nn.Module] = []
+        for i, c in enumerate(rev):
+            c_out = rev[i + 1] if i + 1 < len(rev) else 1
+            layers.append(nn.ConvTranspose2d(c, c_out, 4, 2, 1))
+            if i + 1 < len(rev):
+                layers += [nn.GroupNorm(min(8, c_out), c_out), nn.GELU()]
+        self.net = nn.Sequential(*layers)
+
+    def forward(self, v: torch.Tensor) -> torch.Tensor:
+        return torch.sigmoid(self.net(v.reshape(-1, self.c0, self.s0, self.s0)))
+
+
+class XJEPA(nn.Module):
+    """The X-JEPA model. Construct with :meth:`__init__` kwargs (stored in ``self.config`` for checkpoints).
+
+    Public API (shapes in each docstring): :meth:`encode`, :meth:`trunk`, :meth:`predict`,
+    :meth:`forecast`, :meth:`rollout`, :meth:`features`, :meth:`loss`; attributes
+    ``variant``, ``horizons``, ``latent_dim``, ``width``, ``inputs``, ``targets``.
+    """
+
+    def __init__(self, variant: str = "VFX", proprio_dim: int = 4, touch_dim: int = 7, action_dim: int = 2,
+                 image_size: int = 64, channels: tuple[int, ...] = (32, 64, 128, 256), latent_dim: int = 128,
+                 width: int = 192, depth: int = 4, heads: int = 8, dropout: float = 0.1,
+                 horizons: tuple[int, ...] = (1, 4, 16), objective: str = "latent", tokens: bool = False,
+                 sysid: bool = False, max_len: int = 128, vec_dim: int = 64, contact_channel: int = 6,
+                 recon_positions: int = 8):
+        super().__init__()
+        check_variant(variant)
+        if objective not in OBJECTIVES:
+            raise ConfigError(f"unknown objective {objective!r}; choose one of {list(OBJECTIVES)}")
+        horizons = tuple(sorted(int(d) for d in horizons))
+        if not horizons or horizons[0] < 1:
+            raise ConfigError(f"horizons must be positive integers, got {horizons}")
+        if tokens and objective != "latent":
+            raise ConfigError("the token variant supports objective='latent' only")
+        self.config: dict[str, Any] = dict(
+            variant=variant, proprio_dim=proprio_dim, touch_dim=touch_dim, action_dim=action_dim,
+            image_size=image_size, channels=tuple(channels), latent_dim=latent_dim, width=width, depth=depth,
+            heads=heads, dropout=dropout, horizons=horizons, objective=objective, tokens=tokens, sysid=sysid,
+            max_len=max_len, vec_dim=vec_dim, contact_channel=contact_channel, recon_positions=recon_positions)
+        self.variant, self.horizons, self.latent_dim, self.width = variant, horizons, latent_dim, width
+        self.inputs, self.targets = VARIANTS[variant]
+        self.objective, self.tokens, self.image_size = objective, tokens, image_size
+        self.contact_channel, self.recon_positions = contact_channel, recon_positions
+        self.dims = {"proprio": proprio_dim, "touch": touch_dim}
+        self.action_dim = action_dim
+
+        self.encoder = FusedEncoder(image_size, tuple(channels), proprio_dim, touch_dim,
+                                    "proprio" in self.inputs, "touch" in self.inputs, latent_dim, vec_dim, tokens)
+        self.num_tokens = self.encoder.num_tokens if tokens else 1
+        self.predictor = CausalPredictor(latent_dim, action_dim, width, depth, heads, dropout, max_len,
+                                         self.num_tokens)
+        out = latent_dim * (2 if objective == "gnll" else 1)
+        self.latent_heads = nn.ModuleDict({str(d): DeltaHead(width, d * action_dim, out) for d in horizons})
+        self.modal_heads = nn.ModuleDict()
+        for m in ("proprio", "touch"):
+            if m in self.targets:
+                self.modal_heads[m] = nn.ModuleDict(
+                    {str(d): DeltaHead(width, d * action_dim, self.dims[m]) for d in horizons})
+        self.sysid_head = (nn.Sequential(nn.Linear(width, width), nn.GELU(), nn.Linear(width, len(SYSID_PARAMS)))
+                           if sysid else None)
+        if objective == "recon":
+            self.decoder = Decoder(tuple(channels), image_size)
+            self.adapters = nn.ModuleDict({str(d): nn.Linear(width + (d * action_dim if d > 1 else 0),
+                                                             self.decoder.in_dim) for d in horizons})
+        # preprocessing statistics (set from the train split by set_stats)
+        for name, dim in (("proprio", proprio_dim), ("touch", touch_dim), ("action", action_dim),
+                          ("param", len(SYSID_PARAMS))):
+            self.register_buffer(f"{name}_mean", torch.zeros(dim))
+            self.register_buffer(f"{name}_std", torch.ones(dim))
+
+    # ------------------------------------------------------------------ preprocessing
+    @torch.no_grad()
+    def set_stats(self, stats: dict[str, np.ndarray | torch.Tensor]) -> None:
+        """Set normalisation buffers from ``{"proprio_mean": (Dp,), "proprio_std": ..., "touch_*", "action_*",
+        "param_*"}`` (any subset). Standard deviations are floored to avoid division by ~0."""
+        for k, v in stats.items():
+            buf = getattr(self, k)
+            v = torch.as_tensor(np.asarray(v), dtype=torch.float32)
+            if k.endswith("_std"):
+                v = torch.where(v > 1e-6, v, torch.ones_like(v))
+            buf.copy_(v.to(buf.device))
+
+    def _dev(self) -> torch.device:
+        return self.proprio_mean.device
+
+    def _t(self, x) -> torch.Tensor:
+        return torch.as_tensor(x, device=self._dev())
+
+    def norm(self, name: str, x) -> torch.Tensor:
+        """Normalise raw ``proprio`` / ``touch`` / ``action`` / ``param`` values with the train-split stats."""
+        x = self._t(x).float()
+        return (x - getattr(self, f"{name}_mean")) / getattr(self, f"{name}_std")
+
+    def denorm(self, name: str, x: torch.Tensor) -> torch.Tensor:
+        return x * getattr(self, f"{name}_std") + getattr(self, f"{name}_mean")
+
+    def prep_frames(self, frames) -> torch.Tensor:
+        """(B, L, H, W) uint8 or float in [0,1] -> (B, L, 2, S, S) float: frame and temporal difference.
+
+        The difference channel is ``x_t − x_{t−1}`` inside the given sequence and zero at its first frame
+        (matching t = 0 of an episode, which has no previous frame)."""
+        f = area_downsample(self._t(frames), self.image_size)
+        f = f.float() / 255.0 if f.dtype == torch.uint8 else f.float()
+        diff = torch.cat([torch.zeros_like(f[:, :1]), f[:, 1:] - f[:, :-1]], dim=1)
+        return torch.stack([f, diff], dim=2)
+
+    # ------------------------------------------------------------------ public API
+    def encode(self, frames, proprio=None, touch=None) -> torch.Tensor:
+        """Per-frame latents.
+
+        Args:
+            frames: (B, L, H, W) uint8 or float in [0,1] (any H ≥ image_size; area-downsampled inside).
+            proprio: (B, L, Dp) raw proprioception (ignored unless the variant inputs it).
+            touch: (B, L, Dt) raw touch (ignored unless the variant inputs it).
+        Returns:
+            z: (B, L, latent_dim); in token mode (B, L, S, latent_dim).
+        """
+        x = self.prep_frames(frames)
+        b, L = x.shape[:2]
+        p = self.norm("proprio", proprio).reshape(b * L, -1) if "proprio" in self.inputs else None
+        t = self.norm("touch", touch).reshape(b * L, -1) if "touch" in self.inputs else None
+        z = self.encoder(x.reshape(b * L, *x.shape[2:]), p, t)
+        return z.reshape(b, L, *z.shape[1:])
+
+    def trunk_tokens(self, z: torch.Tensor, actions) -> torch.Tensor:
+        """(B, L, D) or (B, L, S, D) latents + (B, L, Da) raw actions -> (B, L, S, width) causal states."""
+        if z.dim() == 3:
+            z = z[:, :, None, :]
+        return self.predictor(z, self.norm("action", actions))
+
+    def trunk(self, z: torch.Tensor, actions) -> torch.Tensor:
+        """Causal predictor states.
+
+        Args:
+            z: (B, L, latent_dim) from :meth:`encode` (token mode: (B, L, S, latent_dim)).
+            actions: (B, L, Da) raw actions; ``actions[:, t]`` is the action taken after observation t
+                (pad the last one with zeros when it is unknown). State t depends on z[:, :t+1] and
+                actions[:, :t+1] only.
+        Returns:
+            h: (B, L, width) (token mode: mean over the S token states).
+        """
+        return self.trunk_tokens(z, actions).mean(2)
+
+    def action_window(self, actions, delta: int) -> torch.Tensor:
+        """(B, L, Da) raw -> (B, L, delta·Da): normalised actions[t:t+delta] flattened, zero past the end."""
+        a = self.norm("action", actions)
+        b, L, da = a.shape
+        a = torch.cat([a, a.new_zeros(b, delta, da)], 1)
+        return a.unfold(1, delta, 1)[:, :L].transpose(-1, -2).reshape(b, L, delta * da)
+
+    def _head_out(self, h, actions, delta: int, head: nn.Module) -> torch.Tensor:
+        aw = self.action_window(actions, delta)
+        if h.dim() == 4:  # token states: same action window for every token of the step
+            aw = aw[:, :, None, :].expand(*h.shape[:3], aw.shape[-1])
+        return head(h, aw)
+
+    def _check_delta(self, delta: int) -> None:
+        if delta not in self.horizons:
+            raise ValueError(f"no direct head for delta={delta}; this model has horizons {self.horizons}")
+
+    def predict(self, h: torch.Tensor, actions, delta: int, return_logvar: bool = False):
+        """Direct Δ-step latent prediction.
+
+        Args:
+            h: (B, L, width) trunk states (token mode: (B, L, S, width) from :meth:`trunk_tokens`).
+            actions: (B, L, Da) raw actions aligned as in :meth:`trunk`; the head at t sees actions[t:t+Δ]
+                flattened (zero-padded past the window end).
+            delta: one of ``self.horizons``.
+        Returns:
+            z_hat: (B, L, latent_dim) (token mode (B, L, S, latent_dim)): prediction of z at t+Δ for every t
+            (positions t+Δ ≥ L use padded actions). With ``return_logvar`` (gnll objective) also the log-variance.
+        """
+        self._check_delta(delta)
+        out = self._head_out(h, actions, delta, self.latent_heads[str(delta)])
+        if self.objective == "gnll":
+            mean, logvar = out.chunk(2, -1)
+            return (mean, logvar) if return_logvar else mean
+        return (out, None) if return_logvar else out
+
+    def forecast(self, h: torch.Tensor, actions, delta: int, modality: str, raw: bool = True) -> torch.Tensor:
+        """Cross-modal forecast of ``modality`` ('touch' / 'proprio') at t+Δ: (B, L, Dm), raw units by default."""
+        self._check_delta(delta)
+        if modality not in self.modal_heads:
+            raise ValueError(f"variant {self.variant} has no {modality!r} forecasting head")
+        y = self._head_out(h, actions, delta, self.modal_heads[modality][str(delta)])
+        return self.denorm(modality, y) if raw else y
+
+    def sysid(self, h: torch.Tensor, raw: bool = True) -> torch.Tensor:
+        """System-ID control head: (B, L, width) -> (B, L, 3) estimates of (log m, γ, log k)."""
+        if self.sysid_head is None:
+            raise ValueError("this model was built without the sysid head")
+        y = self.sysid_head(h)
+        return self.denorm("param", y) if raw else y
+
+    @torch.no_grad()
+    def rollout(self, z_context: torch.Tensor, actions_future, steps: int, actions_context=None) -> torch.Tensor:
+        """Autoregressive rollout composing the Δ=1 head, feeding each prediction back into the predictor.
+
+        Args:
+            z_context: (B, C, latent_dim) encoded context observations 0..C-1 (global-latent models only).
+            actions_future: raw actions, either (B, C+steps-1, Da) aligned with the context start
+                (``actions[:, t]`` after observation t, the usual window layout; longer is fine), or
+                (B, steps, Da) = the actions after observations C-1 .. C+steps-2, in which case
+                ``actions_context`` (B, C-1, Da) must give the actions after observations 0..C-2.
+            steps: number of future latents to produce.
+        Returns:
+            z_hat: (B, steps, latent_dim) predictions of z at C, C+1, ..., C+steps-1.
+        """
+        if self.tokens:
+            raise ValueError("rollout is defined for global-latent models")
+        self._check_delta(1)
+        C = z_context.shape[1]
+        acts = self._t(actions_future).float()
+        if actions_context is not None:
+            acts = torch.cat([self._t(actions_context).float()[:, :C - 1], acts], 1)
+        if acts.shape[1] < C + steps - 1:
+            raise ValueError(f"rollout needs actions for {C + steps - 1} steps from the context start "
+                             f"(or pass actions_context), got {acts.shape[1]}")
+        seq, outs = z_context, []
+        for _ in range(steps):
+            L = seq.shape[1]
+            ctx = seq[:, -self.predictor.max_len:]
+            a = acts[:, L - ctx.shape[1]:L]
+            h = self.trunk(ctx, a)
+            z_next = self.predict(h[:, -1:], a[:, -1:], 1)
+            outs.append(z_next)
+            seq = torch.cat([seq, z_next], 1)
+        return torch.cat(outs, 1)
+
+    @torch.no_grad()
+    def features(self, frames, proprio, touch, actions) -> torch.Tensor:
+        """Frozen predictor state for probes: encode + trunk in eval mode, no grad. Returns (B, L, width)."""
+        was = self.training
+        self.eval()
+        try:
+            return self.trunk(self.encode(frames, proprio, touch), actions)
+        finally:
+            self.train(was)
+
+    # ------------------------------------------------------------------ training objective
+    def forward(self, batch: dict[str, torch.Tensor], **kw) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        """Same as :meth:`loss` (so DistributedDataParallel hooks see a forward call)."""
+        return self.loss(batch, **kw)
+
+    def loss(self, batch: dict[str, torch.Tensor], *, sigreg_weight: float = 0.02, sigreg_dirs: int = 1024,
+             sigreg_seed: int = 0, sigreg_knots: int = 17, token_rows: int = 4096, token_dirs: int = 256,
+             touch_contact_weight: float = 4.0, proprio_weight: float = 1.0, touch_weight: float = 1.0,
+             sysid_weight: float = 0.5) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        """Training loss on a batch of windows.
+
+        Args:
+            batch: ``frames`` (B, L, H, W) uint8, ``proprio`` (B, L, Dp), ``touch`` (B, L, Dt), ``actions``
+                (B, L, Da) raw (last action of an episode zero-padded), optional ``params`` (B, 3) raw
+                (log m, γ, log k) for the sysid control.
+        Returns:
+            (total loss, {term name: detached scalar}).
+        """
+        frames, proprio, touch, actions = batch["frames"], batch["proprio"], batch["touch"], batch["actions"]
+        L = frames.shape[1]
+        z = self.encode(frames, proprio, touch)
+        hs = self.trunk_tokens(z, actions)  # (B, L, S, W)
+        h = hs.mean(2)
+        terms: dict[str, torch.Tensor] = {}
+        total = z.new_zeros((), dtype=torch.float32)
+        valid = [d for d in self.horizons if d < L]
+
+        if self.tokens:  # dense, spatially aligned Δ=1 token prediction
+            pred = self._head_out(hs, actions, 1, self.latent_heads["1"])
+            terms["pred_1"] = masked_mse(pred[:, :-1], z[:, 1:])
+            total = total + terms["pred_1"]
+            flat = z.reshape(-1, z.shape[-1])
+            terms["sigreg"] = sigreg(flat, token_dirs, sigreg_seed, sigreg_knots, max_rows=token_rows)
+        elif self.objective in ("latent", "gnll"):
+            losses = []
+            for d in valid:
+                mean, logvar = self.predict(h, actions, d, return_logvar=True)
+                if self.objective == "gnll":
+                    l_d = gaussian_nll(mean[:, :L - d], logvar[:, :L - d], z[:, d:])
+                else:
+                    l_d = masked_mse(mean[:, :L - d], z[:, d:])
+                terms[f"pred_{d}"] = l_d
+                losses.append(l_d)
+            total = total + torch.stack(losses).mean()
+            # per time step over the batch (LeWM), then averaged over time and directions
+            terms["sigreg"] = sigreg(z.transpose(0, 1), sigreg_dirs, sigreg_seed, sigreg_knots)
+        else:  # recon: shared decoder on per-horizon adapters; SIGReg omitted (pixels anchor the latent)
+            img = area_downsample(frames, self.image_size).float() / 255.0
+            losses = []
+            for d in valid:
+                pos = torch.linspace(0, L - 1 - d, min(self.recon_positions, L - d), device=h.device).round().long()
+                inp = h[:, pos]
+                if d > 1:
+                    inp = torch.cat([inp, self.action_window(actions, d)[:, pos]], -1)
+                rec = self.decoder(self.adapters[str(d)](inp)).reshape(h.shape[0], len(pos), *img.shape[-2:])
+                l_d = (rec - img[:, pos + d]).pow(2).mean()
+                terms[f"recon_{d}"] = l_d
+                losses.append(l_d)
+            total = total + torch.stack(losses).mean()
+
+        if "sigreg" in terms:
+            total = total + sigreg_weight * terms["sigreg"]
+
+        for m, w in (("proprio", proprio_weight), ("touch", touch_weight)):
+            if m not in self.modal_heads:
+                continue
+            target = self.norm(m, batch[m])
+            losses = []
+            for d in valid:
+                pred = self._head_out(h, actions, d, self.modal_heads[m][str(d)])[:, :L - d]
+                weight = None
+                if m == "touch" and 0 <= self.contact_channel < batch[m].shape[-1]:
+                    contact = batch[m][:, d:, self.contact_channel] > 0.5
+                    weight = 1.0 + (touch_contact_weight - 1.0) * contact.float()
+                losses.append(masked_mse(pred, target[:, d:], weight))
+            terms[m] = torch.stack(losses).mean()
+            total = total + w * terms[m]
+
+        if self.sysid_head is not None:
+            if "params" not in batch:
+                raise ValueError("sysid control needs batch['params'] (log_m, gamma, log_k)")
+            tgt = self.norm("param", batch["params"])[:, None, :].expand(-1, L, -1)
+            terms["sysid"] = masked_mse(self.sysid_head(h), tgt)
+            total = total + sysid_weight * terms["sysid"]
+
+        return total, {k: v.detach() for k, v in terms.items()}

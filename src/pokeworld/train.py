@@ -1,0 +1,550 @@
+"""Training X-JEPA models (paper App. B "Optimization"): one readable file.
+
+``run(cfg)`` trains one model into ``cfg.out`` and returns that directory:
+
+* ``config.json`` — the full :class:`TrainConfig`; re-running with a conflicting config
+  (anything but the bookkeeping fields in :data:`RESUMABLE_FIELDS`) raises ConfigError;
+* ``metrics.jsonl`` — one JSON object per ``log_every`` steps (step, loss terms, lr, frames/s);
+* ``tb/`` — TensorBoard events (``tensorboard=True``);
+* ``ckpt.pt`` — written atomically every ``ckpt_every`` steps: model, optimizer, scheduler,
+  python/numpy/torch(/cuda) RNG states, the window sampler's generator, step;
+* ``final.pt`` + ``DONE`` — at the end. A finished run returns immediately; an interrupted
+  one resumes from ``ckpt.pt`` and reproduces the uninterrupted run bit-for-bit on CPU.
+
+The whole dataset lives in memory as tensors (on the GPU when there is one); a batch
+is gathered with two index tensors, so window sampling never bottlenecks a step.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import random
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from .config import from_preset, to_dict
+from .errors import ConfigError
+from .models.xjepa import OBJECTIVES, SYSID_PARAMS, XJEPA, area_downsample, check_variant
+
+
+@dataclass
+class TrainConfig:
+    """Train one X-JEPA variant (paper §3, App. B). Defaults are the ``paper`` preset."""
+
+    variant: str = "VFX"
+    """Variant (inputs × targets): one of V, VF, VX_p, VX_t, VX, VFX (paper Table "targets")."""
+    data: str = "data/sim"
+    """Dataset directory (``pokeworld.data`` format)."""
+    out: str = "runs/xjepa"
+    """Run directory: config, metrics, TensorBoard, checkpoints. Re-running resumes or returns."""
+    seed: int = 0
+    """Seed for initialisation, window sampling, dropout and SIGReg directions."""
+    steps: int = 20000
+    """Total optimisation steps (also sets the cosine schedule length)."""
+    stop_at: int = 0
+    """Stop (checkpointed, not finished) after this global step; 0 = run to ``steps``. For time-sliced jobs."""
+    batch_size: int = 128
+    """Windows per step (paper: 96–128)."""
+    window: int = 24
+    """Observations per training window; must exceed the largest horizon."""
+    horizons: tuple[int, ...] = (1, 4, 16)
+    """Direct prediction horizons Δ; (1,) is the single-horizon mode."""
+    objective: str = "latent"
+    """'latent' (MSE to latent targets), 'gnll' (latent heads also predict a log-variance) or 'recon'
+    (pixel-reconstruction control: shared deconv decoder replaces latent targets, SIGReg omitted)."""
+    tokens: bool = False
+    """Token-based control: spatial tokens from the last CNN map, dense aligned Δ=1 token prediction,
+    token-level SIGReg on subsampled rows. Forces horizons=(1,) for the latent target."""
+    sysid_weight: float = 0.0
+    """Weight of the system-ID control head (trunk -> whitened (log m, γ, log k)); paper control: 0.5; 0 = off."""
+    image_size: int = 64
+    """Encoder input side; stored frames are area-pooled down to it on load (must divide evenly by 16)."""
+    channels: tuple[int, ...] = (32, 64, 128, 256)
+    """CNN channels of the four stride-2 stages."""
+    latent_dim: int = 128
+    """Latent (embedding) dimension."""
+    width: int = 192
+    """Predictor transformer width."""
+    depth: int = 4
+    """Predictor transformer layers."""
+    heads: int = 8
+    """Attention heads."""
+    dropout: float = 0.1
+    """Dropout in the predictor."""
+    vec_dim: int = 64
+    """Hidden/output width of the proprio and touch MLP encoders."""
+    sigreg_weight: float = 0.02
+    """SIGReg weight λ."""
+    sigreg_dirs: int = 1024
+    """Random unit directions per step for SIGReg (resampled every step)."""
+    sigreg_knots: int = 17
+    """Trapezoid knots on [0, 3] for the Epps–Pulley integral."""
+    token_rows: int = 4096
+    """Token variant: token rows subsampled per step for SIGReg."""
+    token_dirs: int = 256
+    """Token variant: SIGReg directions per step."""
+    touch_contact_weight: float = 4.0
+    """Touch-loss weight on frames whose target contact flag is set (1 elsewhere)."""
+    contact_channel: int = 6
+    """Touch channel holding the contact flag (used for the contact weight and glide detection)."""
+    proprio_weight: float = 1.0
+    """Weight of the proprio forecasting loss (variants with a proprio target)."""
+    touch_weight: float = 1.0
+    """Weight of the touch forecasting loss (variants with a touch target)."""
+    glide_episode_weight: float = 1.0
+    """Relative sampling weight of zero-contact training episodes (contact flag 0 throughout)."""
+    lr: float = 3e-4
+    """Peak AdamW learning rate."""
+    warmup: int = 500
+    """Linear warm-up steps before cosine decay to zero."""
+    weight_decay: float = 0.05
+    """AdamW weight decay."""
+    grad_clip: float = 1.0
+    """Global gradient-norm clip (0 = off)."""
+    device: str = "auto"
+    """'auto' (cuda if available, else cpu), 'cpu', 'cuda' or 'cuda:N'."""
+    amp: bool = True
+    """bf16 autocast where supported (CUDA with bf16); ignored on CPU, where bf16 is slower."""
+    threads: int = 0
+    """CPU threads for torch (0 = auto: half the usable cores, 1 on a 2-core machine; see ``auto_threads``)."""
+    ckpt_every: int = 1000
+    """Checkpoint every this many steps (and at the end / ``stop_at``)."""
+    log_every: int = 100
+    """Write metrics every this many steps."""
+    tensorboard: bool = True
+    """Also write TensorBoard events under ``out/tb``."""
+    progress: bool = True
+    """Show a tqdm progress bar."""
+    ddp: bool = False
+    """Opt-in multi-GPU DistributedDataParallel; launch with ``torchrun --nproc_per_node=N``."""
+
+
+#: Field overrides per preset. ``paper`` = App. B. ``cpu``: a model in ≤ 10 min on 2 CPU cores
+#: (32×32 frames, narrower CNN/predictor, batch 32, 256 SIGReg directions). ``tiny``: unit tests.
+PRESETS: dict[str, dict[str, Any]] = {
+    "paper": {},
+    "cpu": dict(image_size=32, channels=(16, 32, 64, 64), width=128, depth=2, heads=4, vec_dim=32,
+                batch_size=32, steps=1500, warmup=100, lr=1e-3, sigreg_dirs=256, token_rows=1024,
+                token_dirs=128, ckpt_every=250, log_every=25),
+    "tiny": dict(image_size=16, channels=(4, 8, 8, 8), latent_dim=16, width=16, depth=1, heads=2, vec_dim=8,
+                 batch_size=4, window=18, steps=10, warmup=2, sigreg_dirs=16, token_rows=64, token_dirs=16,
+                 ckpt_every=5, log_every=5, tensorboard=False, progress=False, device="cpu"),
+}
+
+#: Fields that may differ when re-running into an existing run directory.
+RESUMABLE_FIELDS = ("steps", "stop_at", "ckpt_every", "log_every", "tensorboard", "progress", "threads", "device")
+
+
+def make_config(preset: str = "cpu", **overrides: Any) -> TrainConfig:
+    """``TrainConfig`` from a named preset plus field overrides; validated."""
+    cfg = from_preset(TrainConfig, PRESETS, preset, **overrides)
+    validate(cfg)
+    return cfg
+
+
+def validate(cfg: TrainConfig) -> None:
+    """Raise ConfigError on inconsistent settings."""
+    check_variant(cfg.variant)
+    if cfg.objective not in OBJECTIVES:
+        raise ConfigError(f"unknown objective {cfg.objective!r}; choose one of {list(OBJECTIVES)}")
+    hs = tuple(cfg.horizons)
+    if not hs or min(hs) < 1 or 1 not in hs:
+        raise ConfigError(f"horizons must be positive and include 1, got {hs}")
+    if max(hs) >= cfg.window:
+        raise ConfigError(f"window {cfg.window} must exceed the largest horizon {max(hs)}")
+    if cfg.tokens and cfg.objective != "latent":
+        raise ConfigError("tokens=True supports objective='latent' only")
+    if cfg.image_size % 16 or cfg.image_size < 16:
+        raise ConfigError(f"image_size must be a multiple of 16 (4 stride-2 stages), got {cfg.image_size}")
+    if len(cfg.channels) != 4:
+        raise ConfigError(f"channels must list the 4 CNN stages, got {cfg.channels}")
+    for name in ("steps", "batch_size", "log_every", "ckpt_every"):
+        if getattr(cfg, name) < 1:
+            raise ConfigError(f"{name} must be ≥ 1, got {getattr(cfg, name)}")
+    if cfg.glide_episode_weight < 0 or cfg.sysid_weight < 0 or cfg.sigreg_weight < 0:
+        raise ConfigError("weights must be non-negative")
+
+
+# ---------------------------------------------------------------------- data in memory
+
+
+class WindowSampler:
+    """Holds a dataset's train episodes as (device) tensors and samples random windows.
+
+    Episodes are drawn with replacement, zero-contact ("glide") episodes weighted by
+    ``glide_weight``; the start step is uniform. Randomness comes from a dedicated CPU
+    ``torch.Generator`` whose state is checkpointed, so resumption is exact.
+    """
+
+    def __init__(self, ds, episodes: np.ndarray, image_size: int, window: int, device: torch.device,
+                 glide_weight: float = 1.0, contact_channel: int = 6, seed: int = 0, with_params: bool = False):
+        ep = np.asarray(episodes)
+        if ep.size == 0:
+            raise ConfigError("the dataset has no training episodes (split == 0)")
+        T1 = ds.frames.shape[1]
+        if window > T1:
+            raise ConfigError(f"window {window} exceeds the episode length {T1} observations")
+        self.window, self.device = window, device
+        frames = torch.from_numpy(np.ascontiguousarray(ds.frames[ep]))
+        chunks = [area_downsample(frames[i:i + 32], image_size) for i in range(0, len(ep), 32)]
+        self.frames = torch.cat(chunks).to(device)
+        self.proprio = torch.from_numpy(ds.proprio[ep]).float().to(device)
+        self.touch = torch.from_numpy(ds.touch[ep]).float().to(device)
+        acts = torch.from_numpy(ds.actions[ep]).float()
+        self.actions = torch.cat([acts, acts.new_zeros(acts.shape[0], 1, acts.shape[2])], 1).to(device)
+        self.params = None
+        if with_params:
+            missing = [k for k in SYSID_PARAMS if k not in ds.params]
+            if missing:
+                raise ConfigError(f"sysid control needs params {list(SYSID_PARAMS)}; the dataset lacks {missing}")
+            self.params = torch.from_numpy(np.stack([ds.params[k][ep] for k in SYSID_PARAMS], -1)).float().to(device)
+        if 0 <= contact_channel < ds.touch.shape[-1]:
+            glide = ds.touch[ep][..., contact_channel].max(1) <= 0.5
+        else:
+            glide = np.zeros(len(ep), bool)
+        self.num_glide = int(glide.sum())
+        w = np.where(glide, glide_weight, 1.0)
+        if w.sum() <= 0:
+            raise ConfigError("glide_episode_weight=0 but every training episode is zero-contact")
+        self.weights = torch.as_tensor(w / w.sum(), dtype=torch.float64)
+        self.num_starts = T1 - window + 1
+        self.gen = torch.Generator(device="cpu")
+        self.gen.manual_seed(seed)
+        self.offsets = torch.arange(window, device=device)
+
+    def sample(self, batch_size: int) -> dict[str, torch.Tensor]:
+        """A batch of windows: frames (B, L, S, S) uint8, proprio/touch/actions (B, L, ·), params (B, 3)."""
+        e = torch.multinomial(self.weights, batch_size, replacement=True, generator=self.gen)
+        s = torch.randint(0, self.num_starts, (batch_size,), generator=self.gen)
+        e, s = e.to(self.device), s.to(self.device)
+        t = s[:, None] + self.offsets[None]
+        ee = e[:, None]
+        out = {"frames": self.frames[ee, t], "proprio": self.proprio[ee, t], "touch": self.touch[ee, t],
+               "actions": self.actions[ee, t]}
+        if self.params is not None:
+            out["params"] = self.params[e]
+        return out
+
+
+def data_stats(ds, episodes: np.ndarray) -> dict[str, np.ndarray]:
+    """Normalisation statistics from the training episodes (model buffers)."""
+    ep = np.asarray(episodes)
+    st = {}
+    for name, arr in (("proprio", ds.proprio[ep]), ("touch", ds.touch[ep]), ("action", ds.actions[ep])):
+        flat = arr.reshape(-1, arr.shape[-1]).astype(np.float64)
+        st[f"{name}_mean"], st[f"{name}_std"] = flat.mean(0), flat.std(0)
+    if all(k in ds.params for k in SYSID_PARAMS):
+        p = np.stack([ds.params[k][ep] for k in SYSID_PARAMS], -1).astype(np.float64)
+        st["param_mean"], st["param_std"] = p.mean(0), p.std(0)
+    return st
+
+
+def synthetic_dataset(num_episodes: int = 12, steps: int = 24, size: int = 32, seed: int = 0,
+                      proprio_dim: int = 4, touch_dim: int = 7, action_dim: int = 2, glide_fraction: float = 0.25):
+    """Tiny synthetic :class:`pokeworld.data.Dataset` for tests and smoke runs (no simulator needed).
+
+    A finger blob follows integrated random actions; an object blob drifts and is pushed when the
+    finger is close (touch channel 6 = contact flag). Params (log_m, gamma, log_k) are random.
+    """
+    from .data import Dataset
+
+    rng = np.random.default_rng(seed)
+    E, T1 = num_episodes, steps + 1
+    actions = rng.uniform(-1, 1, (E, steps, action_dim)).astype(np.float32)
+    fp = np.zeros((E, T1, 2), np.float32)
+    fv = np.zeros((E, T1, 2), np.float32)
+    op = np.zeros((E, T1, 2), np.float32)
+    touch = np.zeros((E, T1, touch_dim), np.float32)
+    fp[:, 0] = rng.uniform(0.2, 0.8, (E, 2))
+    op[:, 0] = rng.uniform(0.3, 0.7, (E, 2))
+    ov = rng.normal(0, 0.02, (E, 2)).astype(np.float32)
+    glide = rng.random(E) < glide_fraction
+    for t in range(steps):
+        fv[:, t + 1] = 0.8 * fv[:, t] + 0.03 * actions[:, t, :2]
+        fp[:, t + 1] = np.clip(fp[:, t] + fv[:, t + 1], 0.05, 0.95)
+        d = op[:, t] - fp[:, t + 1]
+        dist = np.linalg.norm(d, axis=-1)
+        hit = (dist < 0.15) & ~glide
+        push = np.where(hit[:, None], d / np.maximum(dist, 1e-3)[:, None] * 0.03, 0)
+        ov = 0.9 * ov + push
+        op[:, t + 1] = np.clip(op[:, t] + ov, 0.05, 0.95)
+        touch[:, t + 1, :2] = -push * 10
+        touch[:, t + 1, 2] = np.linalg.norm(push, axis=-1) * 10
+        touch[:, t + 1, min(6, touch_dim - 1)] = hit
+    yy, xx = np.mgrid[0:size, 0:size] / size
+    def blob(p, r):
+        return np.exp(-((xx - p[..., 0, None, None]) ** 2 + (yy - p[..., 1, None, None]) ** 2) / (2 * r * r))
+    img = np.clip(blob(op, 0.08) + 0.6 * blob(fp, 0.05), 0, 1)
+    frames = (img * 255).astype(np.uint8)
+    proprio = np.concatenate([fp, fv], -1)[..., :proprio_dim].astype(np.float32)
+    if proprio_dim > 4:
+        proprio = np.concatenate([proprio, np.zeros((E, T1, proprio_dim - 4), np.float32)], -1)
+    split = np.zeros(E, np.int8)
+    split[int(0.75 * E):] = 2
+    params = {"log_m": rng.normal(size=E).astype(np.float32), "gamma": rng.uniform(0.5, 4, E).astype(np.float32),
+              "log_k": rng.normal(size=E).astype(np.float32)}
+    return Dataset(frames=frames, proprio=proprio, touch=touch, actions=actions,
+                   labels={"object_pos": op, "contact": touch[..., min(6, touch_dim - 1)].copy()},
+                   params=params, split=split)
+
+
+# ---------------------------------------------------------------------- model / checkpoint helpers
+
+
+def model_kwargs(cfg: TrainConfig, dims: tuple[int, int, int]) -> dict[str, Any]:
+    """XJEPA constructor arguments for ``cfg`` and data dims (Dp, Dt, Da)."""
+    return dict(variant=cfg.variant, proprio_dim=dims[0], touch_dim=dims[1], action_dim=dims[2],
+                image_size=cfg.image_size, channels=tuple(cfg.channels), latent_dim=cfg.latent_dim, width=cfg.width,
+                depth=cfg.depth, heads=cfg.heads, dropout=cfg.dropout,
+                horizons=(1,) if cfg.tokens else tuple(cfg.horizons), objective=cfg.objective, tokens=cfg.tokens,
+                sysid=cfg.sysid_weight > 0, max_len=max(128, cfg.window), vec_dim=cfg.vec_dim,
+                contact_channel=cfg.contact_channel)
+
+
+def lr_lambda(step: int, warmup: int, total: int) -> float:
+    """Linear warm-up to 1, then cosine decay to 0 at ``total``."""
+    if step < warmup:
+        return (step + 1) / warmup
+    p = min(1.0, (step - warmup) / max(1, total - warmup))
+    return 0.5 * (1 + math.cos(math.pi * p))
+
+
+def _rng_state() -> dict[str, Any]:
+    st = {"python": random.getstate(), "numpy": np.random.get_state(), "torch": torch.get_rng_state()}
+    if torch.cuda.is_available():
+        st["cuda"] = torch.cuda.get_rng_state_all()
+    return st
+
+
+def _set_rng_state(st: dict[str, Any]) -> None:
+    random.setstate(st["python"])
+    np.random.set_state(st["numpy"])
+    torch.set_rng_state(st["torch"])
+    if "cuda" in st and torch.cuda.is_available():
+        torch.cuda.set_rng_state_all(st["cuda"])
+
+
+def _atomic_save(obj: Any, path: Path) -> None:
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    torch.save(obj, tmp)
+    os.replace(tmp, path)
+
+
+def load_model(run_dir: str | os.PathLike, map_location: str | torch.device = "cpu", final: bool | None = None) -> XJEPA:
+    """Load a trained model (eval mode) from a run directory: ``final.pt`` if present, else ``ckpt.pt``."""
+    run_dir = Path(run_dir)
+    path = run_dir / "final.pt"
+    if final is False or not path.exists():
+        path = run_dir / "ckpt.pt"
+    if not path.exists():
+        raise FileNotFoundError(f"{run_dir} holds no final.pt or ckpt.pt; train it with `pokeworld train`")
+    ck = torch.load(path, map_location=map_location, weights_only=False)
+    model = XJEPA(**ck["model_kwargs"])
+    model.load_state_dict(ck["model"])
+    return model.to(map_location).eval()
+
+
+def auto_threads() -> int:
+    """Half the usable cores (≥ 1, ≤ 8). On a shared 2-core machine one thread per process is ~4× faster
+    than two (measured: oversubscription with other workers dominates small-matrix CPU training)."""
+    n = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return max(1, min(8, n // 2))
+
+
+def _device(cfg: TrainConfig, local_rank: int = 0) -> torch.device:
+    if cfg.device == "auto":
+        return torch.device(f"cuda:{local_rank}" if torch.cuda.is_available() else "cpu")
+    dev = torch.device(cfg.device)
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise ConfigError(f"device {cfg.device!r} requested but CUDA is not available")
+    return dev
+
+
+def _check_finite(loss: torch.Tensor, terms: dict[str, torch.Tensor], step: int) -> None:
+    if not bool(torch.isfinite(loss)):
+        bad = {k: float(v) for k, v in terms.items() if not bool(torch.isfinite(v))}
+        raise FloatingPointError(
+            f"non-finite training loss at step {step}: total={float(loss.detach())}; offending terms {bad or '(none: overflow in sum)'}. "
+            "Lower the learning rate or check the data; the last good checkpoint is kept.")
+
+
+# ---------------------------------------------------------------------- training
+
+
+def run(cfg: TrainConfig) -> Path:
+    """Train (or resume, or skip if finished) one model; returns the run directory."""
+    validate(cfg)
+    out = Path(cfg.out)
+    cfg_dict = to_dict(cfg)
+    if (out / "config.json").exists():
+        old = json.loads((out / "config.json").read_text())
+        diff = {k: (old.get(k), v) for k, v in cfg_dict.items() if k not in RESUMABLE_FIELDS and old.get(k) != v}
+        if diff:
+            raise ConfigError(f"{out} already holds a run with a different config {diff} (old, new); "
+                              "use another --out or delete the directory")
+    if (out / "DONE").exists():
+        return out
+    rank, world, local_rank = 0, 1, 0
+    if cfg.ddp:
+        import torch.distributed as dist
+
+        if "RANK" not in os.environ:
+            raise ConfigError("ddp=True must be launched with torchrun (RANK/WORLD_SIZE unset)")
+        rank, world, local_rank = int(os.environ["RANK"]), int(os.environ["WORLD_SIZE"]), int(os.environ.get("LOCAL_RANK", 0))
+        dev = _device(cfg, local_rank)
+        if dev.type == "cuda":
+            torch.cuda.set_device(dev)
+        dist.init_process_group("nccl" if dev.type == "cuda" else "gloo")
+    else:
+        dev = _device(cfg)
+    if dev.type == "cpu":
+        torch.set_num_threads(cfg.threads or auto_threads())
+    main = rank == 0
+
+    if main:
+        from .io import write_json
+
+        out.mkdir(parents=True, exist_ok=True)
+        write_json(out / "config.json", cfg_dict)
+
+    from . import data as data_mod
+
+    ds = data_mod.load(cfg.data)
+    train_ep = ds.episodes("train")
+    dims = (ds.proprio.shape[-1], ds.touch.shape[-1], ds.actions.shape[-1])
+    sampler = WindowSampler(ds, train_ep, cfg.image_size, cfg.window, dev, cfg.glide_episode_weight,
+                            cfg.contact_channel, seed=cfg.seed * 1000 + 1 + rank, with_params=cfg.sysid_weight > 0)
+    stats = data_stats(ds, train_ep)
+    del ds
+
+    torch.manual_seed(cfg.seed)
+    random.seed(cfg.seed)
+    np.random.seed(cfg.seed)
+    mk = model_kwargs(cfg, dims)
+    model = XJEPA(**mk)
+    model.set_stats(stats)
+    model.to(dev)
+    decay = [p for n, p in model.named_parameters() if p.ndim >= 2 and "pos" not in n]
+    no_decay = [p for n, p in model.named_parameters() if not (p.ndim >= 2 and "pos" not in n)]
+    opt = torch.optim.AdamW([{"params": decay, "weight_decay": cfg.weight_decay},
+                             {"params": no_decay, "weight_decay": 0.0}], lr=cfg.lr, betas=(0.9, 0.999))
+    sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda s: lr_lambda(s, cfg.warmup, cfg.steps))
+
+    step = 0
+    ckpt_path = out / "ckpt.pt"
+    if ckpt_path.exists():
+        ck = torch.load(ckpt_path, map_location="cpu", weights_only=False)
+        model.load_state_dict(ck["model"])
+        opt.load_state_dict(ck["optimizer"])
+        sched.load_state_dict(ck["scheduler"])
+        _set_rng_state(ck["rng"])
+        if rank == 0:
+            sampler.gen.set_state(ck["sampler"])
+        else:
+            sampler.gen.manual_seed(cfg.seed * 1000 + 1 + rank + 7919 * ck["step"])
+        step = int(ck["step"])
+        if main:  # drop metrics logged after the checkpoint so the log matches an uninterrupted run
+            from .io import read_jsonl
+
+            rows = [r for r in read_jsonl(out / "metrics.jsonl") if r.get("step", 0) <= step]
+            (out / "metrics.jsonl").write_text("".join(json.dumps(r, sort_keys=True) + "\n" for r in rows))
+
+    net: torch.nn.Module = model
+    if cfg.ddp:
+        from torch.nn.parallel import DistributedDataParallel as DDP
+
+        net = DDP(model, device_ids=[dev.index] if dev.type == "cuda" else None,
+                  find_unused_parameters=cfg.objective == "recon")
+    use_amp = cfg.amp and dev.type == "cuda" and torch.cuda.is_bf16_supported()
+
+    def save_ckpt(s: int) -> None:
+        if main:
+            _atomic_save({"model": model.state_dict(), "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
+                          "rng": _rng_state(), "sampler": sampler.gen.get_state(), "step": s, "model_kwargs": mk,
+                          "config": cfg_dict}, ckpt_path)
+
+    writer = None
+    if main and cfg.tensorboard:
+        from torch.utils.tensorboard import SummaryWriter
+
+        writer = SummaryWriter(str(out / "tb"), purge_step=step or None)
+    pbar = None
+    if main and cfg.progress:
+        from tqdm.auto import tqdm
+
+        pbar = tqdm(total=cfg.steps, initial=step, desc=f"train {cfg.variant}", dynamic_ncols=True)
+
+    end = min(cfg.steps, cfg.stop_at) if cfg.stop_at > 0 else cfg.steps
+    loss_kw = dict(sigreg_weight=cfg.sigreg_weight, sigreg_dirs=cfg.sigreg_dirs, sigreg_knots=cfg.sigreg_knots,
+                   token_rows=cfg.token_rows, token_dirs=cfg.token_dirs, touch_contact_weight=cfg.touch_contact_weight,
+                   proprio_weight=cfg.proprio_weight, touch_weight=cfg.touch_weight, sysid_weight=cfg.sysid_weight)
+    acc: dict[str, torch.Tensor] = {}
+    n_acc, t0 = 0, time.perf_counter()
+    model.train()
+    try:
+        while step < end:
+            batch = sampler.sample(cfg.batch_size)
+            with torch.autocast(dev.type, dtype=torch.bfloat16, enabled=use_amp):
+                # directions depend only on (seed, step): identical on every rank and after resume
+                loss, terms = net(batch, sigreg_seed=cfg.seed * 1_000_003 + step, **loss_kw)
+            _check_finite(loss, terms, step)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            if cfg.grad_clip > 0:
+                terms["grad_norm"] = torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip).detach()
+            opt.step()
+            sched.step()
+            step += 1
+            terms["loss"] = loss.detach()
+            for k, v in terms.items():
+                acc[k] = acc.get(k, 0.0) + v.float()
+            n_acc += 1
+            if pbar is not None:
+                pbar.update(1)
+            if step % cfg.log_every == 0 or step == end:
+                if dev.type == "cuda":
+                    torch.cuda.synchronize(dev)
+                dt = time.perf_counter() - t0
+                row = {"step": step, "lr": sched.get_last_lr()[0],
+                       "frames_per_s": n_acc * cfg.batch_size * cfg.window * world / max(dt, 1e-9),
+                       "steps_per_s": n_acc / max(dt, 1e-9)}
+                row.update({k: float(v) / n_acc for k, v in acc.items()})
+                if main:
+                    from .io import append_jsonl
+
+                    append_jsonl(out / "metrics.jsonl", row)
+                    if writer is not None:
+                        for k, v in row.items():
+                            if k != "step":
+                                writer.add_scalar(f"train/{k}", v, step)
+                    if pbar is not None:
+                        pbar.set_postfix(loss=f"{row['loss']:.4f}", fps=f"{row['frames_per_s']:.0f}")
+                acc, n_acc, t0 = {}, 0, time.perf_counter()
+            if step % cfg.ckpt_every == 0 or step == end:
+                save_ckpt(step)
+    finally:
+        if pbar is not None:
+            pbar.close()
+        if writer is not None:
+            writer.close()
+    if step >= cfg.steps and main:
+        _atomic_save({"model": model.state_dict(), "model_kwargs": mk, "config": cfg_dict, "step": step},
+                     out / "final.pt")
+        (out / "DONE").write_text(f"finished {step} steps\n")
+    if cfg.ddp:
+        import torch.distributed as dist
+
+        dist.barrier()
+        dist.destroy_process_group()
+    return out
+
+
+__all__ = ["TrainConfig", "PRESETS", "make_config", "validate", "run", "load_model", "WindowSampler",
+           "data_stats", "synthetic_dataset", "model_kwargs", "lr_lambda"]

@@ -1,0 +1,133 @@
+"""X-JEPA architecture: variants, AdaLN-zero, causality, heads, controls."""
+
+import pytest
+import torch
+
+from pokeworld.errors import ConfigError
+from pokeworld.models import VARIANTS, XJEPA
+
+SMALL = dict(image_size=16, channels=(4, 8, 8, 8), latent_dim=16, width=16, depth=2, heads=2, vec_dim=8)
+B, L = 2, 18
+
+
+def batch(seed=0, size=32):
+    g = torch.Generator().manual_seed(seed)
+    return dict(frames=torch.randint(0, 256, (B, L, size, size), generator=g, dtype=torch.uint8),
+                proprio=torch.randn(B, L, 4, generator=g), touch=torch.rand(B, L, 7, generator=g),
+                actions=torch.rand(B, L, 2, generator=g) * 2 - 1, params=torch.randn(B, 3, generator=g))
+
+
+def make(variant="VFX", **kw):
+    torch.manual_seed(0)
+    return XJEPA(variant, **{**SMALL, **kw}).eval()
+
+
+@pytest.mark.parametrize("variant", list(VARIANTS))
+def test_variant_inputs_and_heads(variant):
+    inputs, targets = VARIANTS[variant]
+    m = make(variant)
+    assert m.variant == variant and m.horizons == (1, 4, 16) and m.latent_dim == 16 and m.width == 16
+    assert set(m.modal_heads.keys()) == {t for t in targets if t != "latent"}
+    b = batch()
+    z = m.encode(b["frames"], b["proprio"], b["touch"])
+    assert z.shape == (B, L, 16)
+    z2 = m.encode(b["frames"], b["proprio"] + 1.0, b["touch"] + 1.0)
+    assert torch.allclose(z, z2) == (inputs == ("vision",))
+    loss, terms = m.train().loss(b, sigreg_dirs=8)
+    assert torch.isfinite(loss)
+    assert {"pred_1", "pred_4", "pred_16", "sigreg"} <= set(terms)
+    assert ("touch" in terms) == ("touch" in targets) and ("proprio" in terms) == ("proprio" in targets)
+
+
+def test_unknown_variant_lists_choices():
+    with pytest.raises(ConfigError, match="VX_t"):
+        XJEPA("VT", **SMALL)
+
+
+def test_adaln_zero_trunk_ignores_actions_at_init():
+    m = make()
+    b = batch()
+    z = m.encode(b["frames"], b["proprio"], b["touch"])
+    h1 = m.trunk(z, b["actions"])
+    h2 = m.trunk(z, torch.randn_like(b["actions"]) * 5)
+    assert torch.equal(h1, h2)
+    assert not torch.allclose(h1, m.trunk(z + 1.0, b["actions"]))
+
+
+@pytest.mark.parametrize("tokens", [False, True])
+def test_causality(tokens):
+    m = make("VFX", tokens=tokens, horizons=(1,) if tokens else (1, 4, 16))
+    # give the AdaLN modulation non-zero weights so the action path is exercised too
+    for blk in m.predictor.blocks:
+        torch.nn.init.normal_(blk.ada[1].weight, std=0.1)
+    b, t = batch(), 7
+    b2 = {k: v.clone() for k, v in b.items()}
+    b2["frames"][:, t + 1:] = 255 - b2["frames"][:, t + 1:]
+    b2["proprio"][:, t + 1:] += 3.0
+    b2["touch"][:, t + 1:] += 3.0
+    b2["actions"][:, t + 1:] = -b2["actions"][:, t + 1:]
+    h1 = m.features(b["frames"], b["proprio"], b["touch"], b["actions"])
+    h2 = m.features(b2["frames"], b2["proprio"], b2["touch"], b2["actions"])
+    assert h1.shape == (B, L, 16)
+    assert torch.allclose(h1[:, :t + 1], h2[:, :t + 1], atol=1e-6)
+    assert not torch.allclose(h1[:, t + 1:], h2[:, t + 1:])
+
+
+def test_predict_forecast_rollout_shapes_and_window():
+    m = make()
+    b = batch()
+    h = m.features(b["frames"], b["proprio"], b["touch"], b["actions"])
+    for d in m.horizons:
+        assert m.predict(h, b["actions"], d).shape == (B, L, 16)
+    assert m.forecast(h, b["actions"], 4, "touch").shape == (B, L, 7)
+    aw = m.action_window(b["actions"], 4)
+    na = m.norm("action", b["actions"])
+    assert torch.allclose(aw[:, 3], na[:, 3:7].reshape(B, -1))
+    assert torch.equal(aw[:, -1, 2:], torch.zeros(B, 6))  # zero-padded past the window end
+    with pytest.raises(ValueError):
+        m.predict(h, b["actions"], 2)
+    z = m.encode(b["frames"], b["proprio"], b["touch"])
+    out = m.rollout(z[:, :5], b["actions"], steps=6)
+    assert out.shape == (B, 6, 16)
+    # first rollout step equals the direct Δ=1 prediction from the last context state
+    h5 = m.trunk(z[:, :5], b["actions"][:, :5])
+    assert torch.allclose(out[:, 0], m.predict(h5, b["actions"][:, :5], 1)[:, -1], atol=1e-5)
+    out2 = m.rollout(z[:, :5], b["actions"][:, 4:10], steps=6, actions_context=b["actions"][:, :4])
+    assert torch.allclose(out, out2)
+
+
+def test_single_horizon_and_raw_frames_are_downsampled():
+    m = make("V", horizons=(1,))
+    assert set(m.latent_heads.keys()) == {"1"}
+    b = batch(size=64)
+    z64 = m.encode(b["frames"])
+    small = torch.nn.functional.interpolate(b["frames"].float().reshape(-1, 1, 64, 64), size=16, mode="area")
+    small = small.round().to(torch.uint8).reshape(B, L, 16, 16)
+    assert torch.allclose(z64, m.encode(small), atol=1e-6)
+
+
+@pytest.mark.parametrize("kw", [dict(objective="gnll"), dict(objective="recon"), dict(sysid=True),
+                                dict(tokens=True, horizons=(1,))])
+def test_control_variants_train_step(kw):
+    m = make("VFX", **kw).train()
+    b = batch()
+    loss, terms = m.loss(b, sigreg_dirs=8, token_rows=64, token_dirs=8)
+    loss.backward()
+    assert torch.isfinite(loss)
+    if kw.get("objective") == "recon":
+        assert "sigreg" not in terms and "recon_16" in terms and "touch" in terms
+        assert all(p.grad is None for p in m.latent_heads.parameters())
+    elif kw.get("tokens"):
+        z = m.encode(b["frames"], b["proprio"], b["touch"])
+        assert z.shape == (B, L, 1, 16) and "sigreg" in terms
+    elif kw.get("sysid"):
+        assert "sysid" in terms
+    else:
+        mean, logvar = m.predict(m.trunk(m.encode(b["frames"], b["proprio"], b["touch"]), b["actions"]),
+                                 b["actions"], 1, return_logvar=True)
+        assert logvar.shape == mean.shape
+
+
+def test_no_trailing_layernorm_latent_is_batchnormed():
+    m = make()
+    assert isinstance(m.encoder.norm, torch.nn.BatchNorm1d)

@@ -1,0 +1,121 @@
+"""Training loop: presets, learning on tiny data, exact resume, skip/conflict, NaN guard, loading."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from pokeworld.data import save
+from pokeworld.errors import ConfigError
+from pokeworld.train import PRESETS, TrainConfig, WindowSampler, load_model, make_config, run, synthetic_dataset
+
+
+@pytest.fixture(scope="module")
+def data_dir(tmp_path_factory):
+    d = tmp_path_factory.mktemp("xj") / "syn"
+    save(synthetic_dataset(num_episodes=12, steps=24, size=32, seed=0), d)
+    return str(d)
+
+
+def test_presets_and_validation():
+    assert set(PRESETS) == {"tiny", "cpu", "paper"}
+    paper = make_config("paper")
+    assert (paper.window, paper.horizons, paper.sigreg_weight, paper.sigreg_dirs, paper.lr) == (24, (1, 4, 16), 0.02, 1024, 3e-4)
+    assert make_config("cpu").window == 24
+    with pytest.raises(ConfigError, match="VFX"):
+        make_config("tiny", variant="nope")
+    with pytest.raises(ConfigError, match="window"):
+        make_config("tiny", window=16)
+    fields = TrainConfig.__dataclass_fields__
+    for f in ("variant", "data", "out", "seed", "steps", "batch_size", "window", "horizons", "sigreg_weight",
+              "touch_contact_weight", "glide_episode_weight", "image_size", "device", "amp", "ckpt_every",
+              "log_every", "tensorboard", "ddp", "objective", "sysid_weight", "tokens"):
+        assert f in fields
+
+
+def test_loss_decreases_on_tiny_data(data_dir, tmp_path):
+    cfg = make_config("tiny", data=data_dir, out=str(tmp_path / "r"), steps=60, log_every=10, lr=3e-3,
+                      variant="VX_t", tensorboard=True)
+    out = run(cfg)
+    rows = [json.loads(x) for x in (out / "metrics.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in rows] == [10, 20, 30, 40, 50, 60]
+    for k in ("pred_1", "pred_4", "pred_16"):  # the touch term is dominated by batch-of-4 noise
+        assert rows[-1][k] < 0.5 * rows[0][k]
+    assert {"frames_per_s", "lr", "sigreg", "pred_16"} <= set(rows[0])
+    assert (out / "DONE").exists() and (out / "final.pt").exists() and any((out / "tb").iterdir())
+
+
+def test_resume_matches_uninterrupted(data_dir, tmp_path):
+    kw = dict(data=data_dir, steps=10, variant="VFX", dropout=0.1)
+    a = run(make_config("tiny", out=str(tmp_path / "a"), **kw))
+    b_cfg = make_config("tiny", out=str(tmp_path / "b"), stop_at=5, **kw)
+    run(b_cfg)
+    assert not (tmp_path / "b" / "DONE").exists()
+    assert torch.load(tmp_path / "b" / "ckpt.pt", weights_only=False)["step"] == 5
+    b = run(make_config("tiny", out=str(tmp_path / "b"), **kw))
+    sa = torch.load(a / "final.pt", weights_only=False)["model"]
+    sb = torch.load(b / "final.pt", weights_only=False)["model"]
+    for k in sa:
+        assert torch.allclose(sa[k].float(), sb[k].float(), atol=1e-6), k
+    la = [json.loads(x) for x in (a / "metrics.jsonl").read_text().splitlines()]
+    lb = [json.loads(x) for x in (b / "metrics.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in la] == [r["step"] for r in lb]
+    assert la[-1]["loss"] == pytest.approx(lb[-1]["loss"], rel=1e-5)
+
+
+def test_finished_run_returns_and_conflicts_raise(data_dir, tmp_path):
+    cfg = make_config("tiny", data=data_dir, out=str(tmp_path / "r"), steps=3)
+    out = run(cfg)
+    mtime = (out / "final.pt").stat().st_mtime_ns
+    run(cfg)
+    assert (out / "final.pt").stat().st_mtime_ns == mtime
+    with pytest.raises(ConfigError, match="different config"):
+        run(make_config("tiny", data=data_dir, out=str(tmp_path / "r"), steps=3, sigreg_weight=0.1))
+
+
+def test_nan_loss_stops_with_clear_error(data_dir, tmp_path, monkeypatch):
+    from pokeworld.models import XJEPA
+
+    orig = XJEPA.loss
+
+    def bad(self, batch, **kw):
+        loss, terms = orig(self, batch, **kw)
+        terms["touch"] = torch.tensor(float("nan"))
+        return loss * float("nan"), terms
+
+    monkeypatch.setattr(XJEPA, "loss", bad)
+    with pytest.raises(FloatingPointError, match=r"step 0.*touch"):
+        run(make_config("tiny", data=data_dir, out=str(tmp_path / "nan"), variant="VX_t"))
+
+
+def test_load_model_takes_raw_arrays_and_controls_run(data_dir, tmp_path):
+    from pokeworld.data import load
+
+    out = run(make_config("tiny", data=data_dir, out=str(tmp_path / "s"), steps=2, sysid_weight=0.5, objective="gnll"))
+    m = load_model(out)
+    assert not m.training and m.sysid_head is not None
+    ds = load(data_dir)
+    h = m.features(ds.frames[:2, :18], ds.proprio[:2, :18], ds.touch[:2, :18], ds.actions[:2, :18])
+    assert h.shape == (2, 18, m.width)
+    assert m.sysid(h).shape == (2, 18, 3)
+    assert torch.allclose(m.proprio_mean, torch.as_tensor(ds.proprio[ds.episodes("train")].reshape(-1, 4).mean(0)), atol=1e-4)
+    for kw in (dict(objective="recon"), dict(tokens=True, image_size=32)):
+        run(make_config("tiny", data=data_dir, out=str(tmp_path / str(len(kw)) / kw.get("objective", "tok")), steps=2, **kw))
+
+
+def test_glide_episode_weight(data_dir):
+    from pokeworld.data import load
+
+    ds = load(data_dir)
+    ep = ds.episodes("train")
+    glide = ds.touch[ep][..., 6].max(1) <= 0.5
+    assert 0 < glide.sum() < len(ep)
+    s = WindowSampler(ds, ep, 16, 18, torch.device("cpu"), glide_weight=0.0, seed=0)
+    for _ in range(5):
+        b = s.sample(16)
+        assert (b["touch"][..., 6].amax(1) >= 0).all()
+    e = torch.multinomial(s.weights, 1000, replacement=True, generator=s.gen).numpy()
+    assert not glide[e].any()
+    assert b["frames"].shape == (16, 18, 16, 16) and b["frames"].dtype == torch.uint8
+    np.testing.assert_array_equal(b["actions"].shape, (16, 18, 2))
