@@ -41,18 +41,27 @@ COMMANDS: dict[str, Command] = {
 }
 
 
-def _bool_flags(cls) -> set[str]:
+def _flag_arity(cls) -> dict[str, int]:
+    """Number of values each ``--flag`` of ``cls`` takes: 0 (bool), 1, or -1 (a tuple: until the next flag)."""
     hints = typing.get_type_hints(cls)
-    out = set()
+    out: dict[str, int] = {}
     for f in dataclasses.fields(cls):
-        if hints.get(f.name) is bool:
-            name = f.name.replace("_", "-")
-            out |= {f"--{name}", f"--no-{name}", f"--{f.name}", f"--no-{f.name}"}
+        tp = hints.get(f.name)
+        arity = 0 if tp is bool else -1 if typing.get_origin(tp) is tuple else 1
+        for name in {f.name, f.name.replace("_", "-")}:
+            out[f"--{name}"] = arity
+            if arity == 0:
+                out[f"--no-{name}"] = 0
     return out
 
 
-def split_args(argv: list[str], positional: str | None, bool_flags: set[str]) -> tuple[str, list[str]]:
-    """Pull ``--preset X`` out of ``argv`` and turn a bare positional into ``--<positional> value``."""
+def split_args(argv: list[str], positional: str | None, arity: dict[str, int]) -> tuple[str, list[str]]:
+    """Pull ``--preset X`` out of ``argv`` and turn the one bare positional into ``--<positional> value``.
+
+    Flags consume their values by type (bool none, scalar one, tuple until the next flag), so a
+    bare token that no flag consumes is the positional; after a tuple flag it cannot be told
+    apart from the tuple's values, so put the positional first in that case.
+    """
     preset, rest, i = "cpu", [], 0
     while i < len(argv):
         tok = argv[i]
@@ -66,16 +75,24 @@ def split_args(argv: list[str], positional: str | None, bool_flags: set[str]) ->
         i += 1
     if positional is None:
         return preset, rest
-    out, found = [], False
-    for j, tok in enumerate(rest):
-        prev = rest[j - 1] if j else None
-        bare = not tok.startswith("-") and (prev is None or not prev.startswith("-") or prev in bool_flags
-                                            or "=" in prev)
-        if bare and not found:
+    out, found, i = [], False, 0
+    while i < len(rest):
+        tok = rest[i]
+        if tok.startswith("-"):
+            out.append(tok)
+            n = 0 if "=" in tok else arity.get(tok, 1)
+            i += 1
+            while i < len(rest) and (n == -1 or n > 0) and not rest[i].startswith("--"):
+                out.append(rest[i])
+                i += 1
+                n -= 1 if n > 0 else 0
+            continue
+        if not found:
             out += [f"--{positional.replace('_', '-')}", tok]
             found = True
         else:
             out.append(tok)
+        i += 1
     return preset, out
 
 
@@ -97,7 +114,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         mod = importlib.import_module(cmd.module)
         cls = getattr(mod, cmd.config)
-        preset, rest = split_args(argv, cmd.positional, _bool_flags(cls))
+        preset, rest = split_args(argv, cmd.positional, _flag_arity(cls))
         default = getattr(mod, cmd.make)(preset)
         cfg = tyro.cli(cls, default=default, args=rest, prog=f"pokeworld {name}",
                        description=f"{cmd.help} (preset {preset!r})")

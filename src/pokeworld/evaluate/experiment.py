@@ -283,13 +283,17 @@ def launch(c: MapConfig, jobs: list[dict]) -> list[dict]:
     return [h.result() for h in handles]
 
 
+def _cores() -> int:
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
 def _default_workers(n_jobs: int) -> int:
+    """One run per core on CPU (small models scale badly across threads); one per GPU otherwise."""
     import torch
 
     if torch.cuda.is_available():
         return 1
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    return max(1, min(n_jobs, cores))
+    return max(1, min(n_jobs, _cores()))
 
 
 def run(c: MapConfig) -> Path:
@@ -306,7 +310,7 @@ def run(c: MapConfig) -> Path:
     certificates = {corpus: ensure_certificates(c, corpus)
                     for corpus in corpora if corpus != "contact_poor"}
     workers = c.workers or _default_workers(len(specs))
-    threads = 1 if (c.launcher == "local" and workers > 1) else 0
+    threads = max(1, _cores() // workers) if (c.launcher == "local" and workers > 1) else 0
     print(f"[map] {len(specs)} runs, launcher={c.launcher}, workers={workers}")
     launch(c, _jobs(c, specs, threads))
     results = report.collect(c, specs, certificates)

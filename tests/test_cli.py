@@ -1,0 +1,39 @@
+"""The CLI: preset layering, positional arguments, clear errors instead of tracebacks."""
+
+import pytest
+
+from pokeworld.cli import _flag_arity, main, split_args
+from pokeworld.evaluate.experiment import MapConfig
+
+
+def test_positional_and_preset_are_parsed():
+    ar = _flag_arity(MapConfig)
+    assert split_args(["--preset", "tiny", "OUT"], "out", ar) == ("tiny", ["--out", "OUT"])
+    assert split_args(["OUT", "--variants", "V", "VX_t"], "out", ar) == ("cpu", ["--out", "OUT", "--variants", "V", "VX_t"])
+    assert split_args(["--no-mlp-probes", "OUT", "--train-steps", "5"], "out", ar)[1] == \
+        ["--no-mlp-probes", "--out", "OUT", "--train-steps", "5"]
+    assert split_args(["--train-steps", "5", "OUT"], "out", ar)[1] == ["--train-steps", "5", "--out", "OUT"]
+
+
+def test_errors_are_one_line_not_tracebacks(capsys, tmp_path):
+    assert main(["certify", str(tmp_path / "missing")]) == 2
+    assert "does not exist" in capsys.readouterr().err
+    assert main(["train", "--preset", "tiny", "--variant", "VQ", "--data", str(tmp_path)]) == 2
+    assert "unknown variant" in capsys.readouterr().err
+    assert main(["generate", "--preset", "huge"]) == 2
+    assert "unknown preset" in capsys.readouterr().err
+    assert main(["frobnicate"]) == 2
+
+
+def test_generate_via_cli_writes_a_store(tmp_path):
+    out = tmp_path / "d"
+    assert main(["generate", "--preset", "tiny", str(out), "--num-episodes", "6", "--batch-envs", "6"]) == 0
+    assert (out / "manifest.json").exists()
+
+
+@pytest.mark.parametrize("cmd", ["generate", "certify", "train", "probe", "map", "demo", "pairs", "plan"])
+def test_every_command_has_help(cmd, capsys):
+    with pytest.raises(SystemExit) as e:
+        main([cmd, "--help"])
+    assert e.value.code == 0
+    assert "usage" in capsys.readouterr().out.lower()
