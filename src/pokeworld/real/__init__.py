@@ -1,0 +1,5 @@
+"""Real-robot data: the RH20T loader/converter (:mod:`pokeworld.real.rh20t`) and a
+generator of small fixture scenes in RH20T's on-disk layout (:mod:`pokeworld.real.fixtures`).
+
+See docs/rh20t.md for the format facts relied on and every choice made.
+"""

@@ -1,0 +1,241 @@
+"""RH20T loader: fixture scenes in the real layout -> converted store, values checked against known signals."""
+
+import collections
+import json
+
+import numpy as np
+import pytest
+
+from pokeworld import data
+from pokeworld.errors import ConfigError, DataError
+from pokeworld.real import rh20t
+from pokeworld.real.fixtures import (FT_OFFSET, force_breakpoints, image_level, make_fixture_root, signals)
+from pokeworld.real.rh20t import apply_whiten, contact_onset, make_config, parse_scene_name, run
+
+
+@pytest.fixture(scope="module")
+def converted(tmp_path_factory):
+    base = tmp_path_factory.mktemp("rh20t")
+    fx = make_fixture_root(base / "raw", cfg=7)
+    cfg = make_config("tiny", root=str(base / "raw"), out=str(base / "store"))
+    out = run(cfg)
+    return fx, cfg, out, data.load(out)
+
+
+def _truth(fx, ds, e):
+    """Fixture ground truth at the grid times of stored episode ``e``: (scene row, signal dict, t since t0 [s])."""
+    row = ds.manifest["scenes"][int(ds.params["scene_index"][e])]
+    info = fx["good"][row["name"]]
+    t = (row["start_ms"] + 1000.0 * ds.labels["time_s"][e].astype(np.float64) - info["t0_ms"]) / 1000.0
+    return row, info, signals(t, info["params"]), t
+
+
+def test_store_shapes_and_labels(converted):
+    fx, cfg, out, ds = converted
+    E = ds.num_episodes
+    assert ds.frames.shape == (E, 17, 96, 96) and ds.frames.dtype == np.uint8
+    assert ds.proprio.shape == (E, 17, 8) and ds.touch.shape == (E, 17, 6) and ds.actions.shape == (E, 16, 7)
+    for k in ("force", "tcp_pos"):
+        assert ds.labels[k].shape == (E, 17, 3)
+    for k in ("force_norm", "contact_onset", "contact"):
+        assert ds.labels[k].shape == (E, 17)
+    for k in ("task_id", "user_id", "scene_id", "cfg_id", "scene_index", "chunk_index"):
+        assert ds.params[k].shape == (E,) and ds.params[k].dtype == np.float32
+    assert set(ds.params["cfg_id"]) == {7.0}
+    # every good scene converted, chunked into floor(N / 17) chunks of 17 observations at exactly 10 Hz
+    assert {r["name"] for r in ds.manifest["scenes"]} == set(fx["good"])
+    assert E == sum(r["chunks"] for r in ds.manifest["scenes"]) and all(r["chunks"] == r["grid_steps"] // 17
+                                                                         for r in ds.manifest["scenes"])
+    np.testing.assert_allclose(np.diff(ds.labels["time_s"], axis=1), 0.1, atol=1e-5)
+    for e in range(E):
+        row = ds.manifest["scenes"][int(ds.params["scene_index"][e])]
+        assert parse_scene_name(row["name"]).task == ds.params["task_id"][e]
+
+
+def test_interpolated_values_units_and_quaternion_order(converted):
+    fx, cfg, out, ds = converted
+    for e in range(ds.num_episodes):
+        row, info, truth, t = _truth(fx, ds, e)
+        np.testing.assert_allclose(ds.labels["tcp_pos"][e], truth["pos"], atol=1e-6)  # metres, exact (linear signal)
+        np.testing.assert_allclose(ds.labels["tcp_quat"][e], truth["quat"], atol=1e-5)  # (w, x, y, z)
+        np.testing.assert_allclose(ds.labels["gripper_width"][e], truth["gripper_info_mm"] / 1000, atol=1e-6)
+        away = np.min(np.abs(t[:, None] - force_breakpoints(info["params"])[None]), axis=1) > 0.15
+        assert away.sum() > 8
+        np.testing.assert_allclose(ds.labels["force"][e][away], truth["ft_zeroed"][away, :3], atol=1e-5)
+        np.testing.assert_allclose(ds.labels["torque"][e], truth["ft_zeroed"][:, 3:], atol=1e-6)  # zeroed, not raw
+        assert not np.allclose(ds.labels["torque"][e], truth["ft_raw"][:, 3:], atol=FT_OFFSET[3] / 2)
+        np.testing.assert_allclose(ds.labels["force_norm"][e], np.linalg.norm(ds.labels["force"][e], axis=1), rtol=1e-6)
+
+
+def test_proprio_touch_actions_are_clipped_whitened_physical_streams(converted):
+    fx, cfg, out, ds = converted
+    st = ds.manifest["normalization"]
+    for e in range(ds.num_episodes):
+        row, info, truth, t = _truth(fx, ds, e)
+        raw_p = np.concatenate([truth["pos"], truth["quat"], truth["gripper_info_mm"][:, None] / 1000], 1)
+        np.testing.assert_allclose(ds.proprio[e], apply_whiten(raw_p, st["proprio"]), atol=2e-3)
+        # action = (d position, rotation vector of q_{t+1} q_t^*, d gripper): the yaw-only motion gives (0, 0, d yaw)
+        dyaw = info["params"]["yaw_rate"] * np.diff(t)
+        raw_a = np.concatenate([np.diff(truth["pos"], axis=0), np.zeros((16, 2)), dyaw[:, None],
+                                np.diff(truth["gripper_info_mm"])[:, None] / 1000], 1)
+        np.testing.assert_allclose(ds.actions[e], apply_whiten(raw_a, st["actions"]), atol=2e-3)
+        away = np.min(np.abs(t[:, None] - force_breakpoints(info["params"])[None]), axis=1) > 0.15
+        np.testing.assert_allclose(ds.touch[e][away], apply_whiten(truth["ft_zeroed"], st["touch"])[away], atol=1e-4)
+
+
+def test_percentile_clipping_uses_train_statistics_only(converted):
+    fx, cfg, out, ds = converted
+    raw = np.concatenate([ds.labels["force"], ds.labels["torque"]], -1).astype(np.float64)
+    train = raw[ds.split == 0].reshape(-1, 6)
+    st = ds.manifest["normalization"]["touch"]
+    lo, hi = np.percentile(train, [0.1, 99.9], axis=0)
+    np.testing.assert_allclose(st["lo"], lo, rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(st["hi"], hi, rtol=1e-5, atol=1e-5)
+    clipped = np.clip(train, lo, hi)
+    np.testing.assert_allclose(st["mean"], clipped.mean(0), atol=1e-5)
+    # the clip is active (torque_x = 0.01 t rises past its 99.9th train percentile) and applies to every split
+    assert (raw[..., 3] > hi[3] + 1e-7).any()
+    z_hi = (hi[3] - st["mean"][3]) / st["std"][3]
+    assert ds.touch[..., 3].max() <= z_hi + 1e-5 and np.isclose(ds.touch[..., 3].max(), z_hi, atol=1e-5)
+    # statistics are not those of all episodes
+    assert not np.allclose(st["mean"], np.clip(raw.reshape(-1, 6), lo, hi).mean(0), atol=1e-3)
+    # train split is (approximately) whitened
+    tz = ds.touch[ds.split == 0].reshape(-1, 6)
+    np.testing.assert_allclose(tz[:, 2].mean(), 0, atol=1e-4)
+    np.testing.assert_allclose(tz[:, 2].std(), 1, atol=1e-3)
+
+
+def test_contact_onset_labels_match_analytic_force(converted):
+    fx, cfg, out, ds = converted
+    assert ds.manifest["onset_base_rate"] > 0
+    n_onset = 0
+    for e in range(ds.num_episodes):
+        row, info, truth, t = _truth(fx, ds, e)
+        fn = lambda tt: np.linalg.norm(signals(tt, info["params"])["ft_zeroed"][..., :3], axis=-1)  # noqa: E731
+        future = np.stack([fn(t + 0.1 * k) > 10 for k in range(1, 5)]).any(0)
+        expected = (fn(t) <= 10) & future
+        np.testing.assert_array_equal(ds.labels["contact_onset"][e], expected.astype(np.float32))
+        np.testing.assert_array_equal(ds.labels["contact"][e], (fn(t) > 10).astype(np.float32))
+        n_onset += int(expected.sum())
+    assert n_onset >= len(fx["good"]) * 3  # every scene presses once: ~4 onset steps each (unless cut at a chunk edge)
+
+
+def test_contact_onset_definition():
+    fn = np.array([0, 0, 0, 0, 0, 0, 12, 15, 3, 0, 0, 11.0])
+    contact, onset = contact_onset(fn, 10.0, 4)
+    np.testing.assert_array_equal(contact, [0, 0, 0, 0, 0, 0, 1, 1, 0, 0, 0, 1])
+    np.testing.assert_array_equal(onset, [0, 0, 1, 1, 1, 1, 0, 0, 1, 1, 1, 0])
+
+
+def test_frames_use_nearest_frame_of_the_far_camera_cropped(converted):
+    fx, cfg, out, ds = converted
+    for e in range(ds.num_episodes):
+        row, info, truth, t = _truth(fx, ds, e)
+        assert row["serials"] == [info["serials"]["far"]]
+        grid_ms = row["start_ms"] + np.round(ds.labels["time_s"][e].astype(np.float64) * 1000).astype(np.int64)
+        cam_ms = info["cam_ts"]["far"]
+        nearest = cam_ms[np.abs(cam_ms[None] - grid_ms[:, None]).argmin(1)]  # ties -> the earlier frame
+        level = image_level((nearest - info["t0_ms"]) / 1000.0, "far")
+        got = ds.frames[e][:, 8:-8, 8:-8].reshape(17, -1).astype(float)
+        tol = 3.0 if info["video"] == "mp4" else 2.0
+        np.testing.assert_allclose(got.mean(1), level, atol=tol)
+        assert (got.std(1) < 2.5).all()  # centred square crop: the black side bands are gone
+
+
+def test_bad_scenes_are_skipped_with_counted_reasons(converted):
+    fx, cfg, out, ds = converted
+    rep = json.loads((out / "conversion_report.json").read_text())
+    assert rep["skip_counts"] == dict(collections.Counter(fx["bad"].values()))
+    assert rep["scenes_found"] == len(fx["good"]) + len(fx["bad"]) and rep["scenes_converted"] == len(fx["good"])
+    got = {s["scene"]: s["reason"] for s in rep["skipped"]}
+    assert got == fx["bad"]
+    assert all(s["message"] for s in rep["skipped"]) and set(rep["skip_reason_meaning"]) == set(got.values())
+    assert ds.manifest["skip_counts"] == rep["skip_counts"]
+
+
+def test_splits_are_scene_level_disjoint_and_heldout_tasks(converted):
+    fx, cfg, out, ds = converted
+    scene_split = collections.defaultdict(set)
+    for e in range(ds.num_episodes):
+        scene_split[int(ds.params["scene_index"][e])].add(int(ds.split[e]))
+    assert all(len(v) == 1 for v in scene_split.values())  # all chunks of a scene share its split
+    held = ds.manifest["heldout_tasks"]
+    assert len(held) == 1
+    tasks = ds.params["task_id"]
+    assert set(tasks[ds.split == 3]) == set(map(float, held))
+    assert not set(tasks[ds.split != 3]) & set(map(float, held))
+    per = {s: {int(i) for i in ds.params["scene_index"][ds.split == s]} for s in range(4)}
+    assert all(per[s] for s in range(4))
+    for a in range(4):
+        for b in range(a + 1, 4):
+            assert not per[a] & per[b]
+
+
+def test_split_scenes_counts_and_explicit_heldout():
+    cfg = make_config("tiny", root="x", num_heldout_tasks=2)
+    tasks = np.repeat(np.arange(1, 11), 5)
+    split, held = rh20t.split_scenes(tasks, cfg)
+    assert len(held) == 2 and set(tasks[split == 3]) == set(held)
+    assert np.bincount(split, minlength=4).tolist() == [24, 8, 8, 10]
+    split2, held2 = rh20t.split_scenes(tasks, make_config("tiny", root="x", heldout_tasks=(3, 7)))
+    assert held2 == [3, 7] and set(np.flatnonzero(split2 == 3) // 5 + 1) == {3, 7}
+
+
+def test_rerun_skips_and_resume_uses_scene_cache(converted, monkeypatch, tmp_path):
+    fx, cfg, out, ds = converted
+    mtime = (out / "data.h5").stat().st_mtime_ns
+    assert run(cfg) == out and (out / "data.h5").stat().st_mtime_ns == mtime
+    with pytest.raises(ConfigError, match="different config"):
+        run(make_config("tiny", root=cfg.root, out=cfg.out, seed=3))
+    # a new output over the same cache key: every scene comes from the cache, nothing is re-read
+    cache = rh20t.cache_dir(cfg)
+    n_short = list(fx["bad"].values()).count("too_short")  # too_short is decided at assembly, after caching
+    assert len(list(cache.glob("*.npz"))) == len(fx["good"]) + n_short
+
+    def boom(*a, **k):
+        raise AssertionError("scene re-processed although cached")
+
+    monkeypatch.setattr(rh20t, "process_scene", boom)
+    import shutil
+    shutil.rmtree(out)
+    out2 = run(cfg)
+    ds2 = data.load(out2)
+    assert ds2.manifest["content_sha256"] == ds.manifest["content_sha256"]
+    rep = json.loads((out2 / "conversion_report.json").read_text())
+    assert rep["skip_counts"] == dict(collections.Counter(fx["bad"].values()))
+
+
+def test_two_view_and_close_camera(converted, tmp_path):
+    fx, cfg, out, ds = converted
+    two = data.load(run(make_config("tiny", root=cfg.root, out=str(tmp_path / "two"), camera="two_view")))
+    close = data.load(run(make_config("tiny", root=cfg.root, out=str(tmp_path / "close"), camera="close")))
+    assert two.frames.shape[2:] == (96, 96) and two.num_episodes == ds.num_episodes
+    for e in range(0, two.num_episodes, 5):
+        row, info, truth, t = _truth(fx, two, e)
+        assert row["serials"] == [info["serials"]["far"], info["serials"]["close"]]
+        left, right = two.frames[e][:, 8:-8, 6:42].mean((1, 2)), two.frames[e][:, 8:-8, 54:90].mean((1, 2))
+        np.testing.assert_allclose(left, image_level(t, "far"), atol=5)
+        np.testing.assert_allclose(right, image_level(t, "close"), atol=5)
+        np.testing.assert_allclose(close.frames[e][:, 8:-8, 8:-8].mean((1, 2)), image_level(t, "close"), atol=5)
+
+
+def test_config_and_input_errors(tmp_path):
+    with pytest.raises(ConfigError, match="cfg"):
+        make_config("tiny", root="x", cfg=9)
+    with pytest.raises(ConfigError, match="camera"):
+        make_config("tiny", root="x", camera="left_eye")
+    with pytest.raises(ConfigError, match="root"):
+        run(make_config("tiny", out=str(tmp_path / "o")))
+    with pytest.raises(DataError, match="does not exist"):
+        run(make_config("tiny", root=str(tmp_path / "nope"), out=str(tmp_path / "o")))
+    (tmp_path / "empty" / "RH20T_cfg7").mkdir(parents=True)
+    with pytest.raises(DataError, match="no RH20T cfg7 scene"):
+        run(make_config("tiny", root=str(tmp_path / "empty"), out=str(tmp_path / "o")))
+    assert (tmp_path / "o" / "conversion_report.json").exists() and not data.is_complete(tmp_path / "o")
+
+
+def test_scene_name_parsing():
+    r = parse_scene_name("task_0012_user_0003_scene_0004_cfg_0007")
+    assert (r.task, r.user, r.scene, r.cfg, r.human) == (12, 3, 4, 7, False)
+    assert parse_scene_name("task_0012_user_0003_scene_0004_cfg_0007_human").human
+    assert parse_scene_name("calib") is None and parse_scene_name("task_12_user_3") is None
