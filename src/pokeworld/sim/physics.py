@@ -34,10 +34,11 @@ TOUCH_DIM = 7
 def hertz_normal_force(d: float, sep_speed: float, k: float, mu: float, zeta: float) -> float:
     """Normal contact force magnitude for overlap ``d`` > 0 and separation speed ``sep_speed``.
 
-    ``k d^1.5`` minus damping ``c * sep_speed`` with ``c = 2 zeta sqrt(1.5 k sqrt(d) mu)``;
-    clipped at zero because a penalty contact cannot pull.
+    ``k d^1.5`` minus damping ``c * sep_speed`` with ``c = 2 zeta sqrt(k mu)`` (``zeta`` of the
+    critical damping of a spring of stiffness k on the reduced mass); clipped at zero because a
+    penalty contact cannot pull.
     """
-    c = 2.0 * zeta * math.sqrt(1.5 * k * math.sqrt(d) * mu)
+    c = 2.0 * zeta * math.sqrt(k * mu)
     fn = k * d * math.sqrt(d) - c * sep_speed
     return fn if fn > 0.0 else 0.0
 
