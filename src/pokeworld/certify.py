@@ -10,7 +10,9 @@ probe-fit episodes and scored by held-out R^2 on probe-test episodes:
 * ``drag``    physics-informed drag estimator: median log speed ratio over the
               window's glide frames (no fitting; population median where a window has none);
 * ``gru_pixel`` / ``drag_pixel``: the same with object state replaced by pixel
-              centroids (finger disk masked using proprioception, 3-frame smoothing).
+              centroids (finger disk masked using proprioception, 3-frame smoothing);
+* ``gru_notouch`` the GRU without the touch channels: what a model whose inputs are
+              vision and proprioception could know at best (the bound of the vision-input arms).
 
 A parameter's certificate is the best R^2 of any estimator on contact
 windows; the gate requires log m / gamma / log k >= 0.4 / 0.4 / 0.25.
@@ -18,7 +20,7 @@ windows; the gate requires log m / gamma / log k >= 0.4 / 0.4 / 0.25.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -31,7 +33,9 @@ from .regressors import RidgeCV, TorchRegressor, r2_scores
 from .windows import Windows, make_windows, wall_contact
 
 GATES = {"log_m": 0.4, "gamma": 0.4, "log_k": 0.25}
-ESTIMATORS = ("gru", "linear", "mlp", "drag", "gru_pixel", "drag_pixel")
+ESTIMATORS = ("gru", "linear", "mlp", "drag", "gru_pixel", "drag_pixel", "gru_notouch")
+# feature columns of window_features: proprio 0-3, touch 4-10, action 11-12, object position 13-14, velocity 15-16
+NO_TOUCH = [0, 1, 2, 3, 11, 12, 13, 14, 15, 16]
 
 
 @dataclass
@@ -45,7 +49,7 @@ class CertifyConfig:
     targets: tuple[str, ...] = ("log_m", "gamma", "log_k")
     """Per-episode parameters to certify (names under params/ in the store)."""
     estimators: tuple[str, ...] = ESTIMATORS
-    """Estimators to run (subset of gru, linear, mlp, drag, gru_pixel, drag_pixel)."""
+    """Estimators to run (subset of gru, linear, mlp, drag, gru_pixel, drag_pixel, gru_notouch)."""
     kinds: tuple[str, ...] = ("contact", "glide")
     """Window kinds to evaluate on (the gate reads contact windows)."""
     window: int = 16
@@ -212,6 +216,8 @@ def certify(ds: Dataset, cfg: CertifyConfig) -> dict:
             else:
                 X_fit = window_features(ds, w_fit, pos, vel)
                 X_test = window_features(ds, w_test, pos, vel)
+                if est == "gru_notouch":
+                    X_fit, X_test = X_fit[..., NO_TOUCH], X_test[..., NO_TOUCH]
                 if est == "linear":
                     model = RidgeCV().fit(X_fit.reshape(len(X_fit), -1), y_fit, w_fit.episode)
                     pred = model.predict(X_test.reshape(len(X_test), -1))
@@ -303,4 +309,4 @@ def load_gate(path: str | Path) -> dict:
 
 
 __all__ = ["CertifyConfig", "PRESETS", "GATES", "certify", "run", "make_config", "drag_estimates",
-           "pixel_object_state", "window_features", "field"]
+           "pixel_object_state", "window_features"]

@@ -182,6 +182,21 @@ def is_complete(path: str | os.PathLike) -> bool:
     return (path / "data.h5").exists() and (path / "manifest.json").exists()
 
 
+def store_is_current(path: str | os.PathLike, content_config: dict, overwrite: bool = False) -> bool:
+    """True when ``path`` already holds a store built from ``content_config`` (so the caller skips work).
+
+    False when there is no complete store or ``overwrite`` is set; raises ConfigError when a store
+    built from a *different* config is there, so nothing is silently replaced.
+    """
+    from .errors import ConfigError
+
+    if overwrite or not is_complete(path):
+        return False
+    if load(path, verify=False).manifest.get("config") == content_config:
+        return True
+    raise ConfigError(f"{path} holds a store built with a different config; pass --overwrite or choose another --out")
+
+
 def assign_splits(num_episodes: int, fractions: tuple[float, float, float], rng: np.random.Generator) -> np.ndarray:
     """Random disjoint train / probe-fit / probe-test assignment with the given fractions."""
     if len(fractions) != 3 or min(fractions) < 0 or abs(sum(fractions) - 1) > 1e-6:

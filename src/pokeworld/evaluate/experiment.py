@@ -42,6 +42,8 @@ class MapConfig:
     """Training seeds of the factorial."""
     lambdas: tuple[float, ...] = (0.3, 0.1, 0.02, 0.01, 0.005)
     """SIGReg weights of the lambda sweep."""
+    lazy_variants: tuple[str, ...] = ("V", "VX_p", "VX_t", "VX", "VFX")
+    """Variants trained single-horizon (Δ = 1 only) in the lazy-equilibrium experiment."""
     sigreg_weight: float = 0.02
     """Operating-point SIGReg weight for every other experiment."""
     train_steps: int = 0
@@ -50,7 +52,7 @@ class MapConfig:
     """Override of episodes per corpus (0 keeps the preset's)."""
     data_seed: int = 0
     """Seed of the generated corpora."""
-    certify_estimators: tuple[str, ...] = ("gru", "linear", "mlp", "drag", "gru_pixel", "drag_pixel")
+    certify_estimators: tuple[str, ...] = ("gru", "linear", "mlp", "drag", "gru_pixel", "drag_pixel", "gru_notouch")
     """Certificate estimators to run."""
     mlp_probes: bool = True
     """Fit early-stopped MLP probes besides ridge."""
@@ -73,7 +75,7 @@ class MapConfig:
             raise ConfigError(f"unknown experiments {sorted(bad)}; choose from {sorted(EXPERIMENTS)}")
         from ..models.xjepa import VARIANTS
 
-        badv = set(self.variants) - set(VARIANTS)
+        badv = (set(self.variants) | set(self.lazy_variants)) - set(VARIANTS)
         if badv:
             raise ConfigError(f"unknown variants {sorted(badv)}; choose from {list(VARIANTS)}")
         if self.launcher not in ("local", "slurm", "submitit-local"):
@@ -89,10 +91,10 @@ PRESETS: dict[str, dict] = {
     "paper": {"preset": "paper"},
 }
 
-DEMO = {  # the newcomer's first run: four variants, one seed, ~15 minutes on 2 cores
+DEMO = {  # the newcomer's first run: four variants, one seed, <= 15 minutes on 2 cores
     "experiments": ("factorial",), "variants": ("V", "VF", "VX_t", "VFX"), "seeds": (0,),
-    "num_episodes": 1200, "mlp_probes": False, "untrained": False,
-    "certify_estimators": ("gru", "linear", "drag"),
+    "num_episodes": 1200, "train_steps": 900, "mlp_probes": False, "untrained": False,
+    "certify_estimators": ("gru", "linear", "drag", "gru_notouch"),
 }
 
 
@@ -139,8 +141,8 @@ def exp_factorial(c: MapConfig) -> list[RunSpec]:
 
 def exp_lazy(c: MapConfig) -> list[RunSpec]:
     """Single-step vs multi-horizon x vision-only vs cross-modal targets (single-horizon factorial column)."""
-    runs = [_spec("lazy", v, c.seeds[0], c.sigreg_weight, horizons=(1,)) for v in ("V", "VX_p", "VX_t", "VX", "VFX")]
-    runs += [_spec("lazy", v, c.seeds[0], c.sigreg_weight) for v in ("V", "VX", "VFX")]
+    runs = [_spec("lazy", v, c.seeds[0], c.sigreg_weight, horizons=(1,)) for v in c.lazy_variants]
+    runs += [_spec("lazy", v, c.seeds[0], c.sigreg_weight) for v in ("V", "VX", "VFX") if v in c.variants]
     return runs
 
 

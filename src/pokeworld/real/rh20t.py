@@ -51,7 +51,7 @@ from tqdm.auto import tqdm
 
 from .. import __version__
 from ..config import from_preset, to_dict
-from ..data import Dataset, is_complete, load, save
+from ..data import Dataset, save, store_is_current
 from ..errors import ConfigError, DataError
 from ..io import atomic_path, write_json
 
@@ -798,13 +798,9 @@ def run(cfg: ConvertConfig) -> Path:
         raise ConfigError("root is required: the RH20T folder (RH20T_cfgN or its parent)")
     out = out_dir(cfg)
     report_path = out / "conversion_report.json"
-    if is_complete(out) and not cfg.overwrite:
-        existing = load(out, verify=False).manifest
-        if existing.get("config") == content_config(cfg):
-            print(f"[rh20t] {out} already holds this conversion; skipping")
-            return out
-        raise ConfigError(f"{out} holds a store converted with a different config; "
-                          "pass --overwrite or choose another --out")
+    if store_is_current(out, content_config(cfg), cfg.overwrite):
+        print(f"[rh20t] {out} already holds this conversion; skipping")
+        return out
     cdir = cache_dir(cfg)
     if cfg.overwrite and cdir.exists():
         shutil.rmtree(cdir)

@@ -9,7 +9,6 @@ that sub-environment and returns its first observation with reward 0.
 
 from __future__ import annotations
 
-from typing import Any
 
 import gymnasium as gym
 import numpy as np

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -11,7 +10,7 @@ from tqdm.auto import tqdm
 
 from .. import __version__
 from ..config import apply_overrides, from_preset, to_dict
-from ..data import Dataset, assign_splits, is_complete, load, save
+from ..data import Dataset, assign_splits, save, store_is_current
 from ..errors import ConfigError
 from .core import PARAM_NAMES, ParamRanges, PhysicsConfig, PokeWorldSim
 from .policy import MixedPolicy, PolicyConfig
@@ -140,13 +139,9 @@ def simulate(cfg: GenerateConfig, progress: bool = True) -> Dataset:
 def run(cfg: GenerateConfig) -> Path:
     """Generate and write the corpus described by ``cfg``; skip if an identical one already exists."""
     out = Path(cfg.out)
-    if is_complete(out) and not cfg.overwrite:
-        existing = load(out, verify=False).manifest
-        if existing.get("config") == content_config(cfg):
-            print(f"[generate] {out} already holds this corpus; skipping")
-            return out
-        raise ConfigError(f"{out} holds a dataset generated with a different config; "
-                          "pass --overwrite or choose another --out")
+    if store_is_current(out, content_config(cfg), cfg.overwrite):
+        print(f"[generate] {out} already holds this corpus; skipping")
+        return out
     ds = simulate(cfg)
     save(ds, out)
     counts = ds.manifest["split_counts"]
@@ -159,4 +154,4 @@ def episode_contact_fraction(ds: Dataset) -> float:
     return float((ds.labels["contact"].max(axis=1) > 0).mean())
 
 
-__all__ = ["GenerateConfig", "CORPORA", "PRESETS", "make_config", "simulate", "run", "dataclasses"]
+__all__ = ["GenerateConfig", "CORPORA", "PRESETS", "make_config", "simulate", "run"]
