@@ -124,14 +124,16 @@ def lazy_table(results: dict) -> list[str]:
     if "lazy" not in results["experiments"]:
         return []
     lines = ["## The lazy equilibrium (object-position ridge R², contact windows; 16-step decoded error in arena units)", "",
-             "| run | position (ours) | position (paper) | direct-16 | rollout-16 | static-16 |", "|---|---|---|---|---|---|"]
+             "| run | position (ours) | position (paper) | untrained position | direct-16 | rollout-16 | static-16 |",
+             "|---|---|---|---|---|---|---|"]
     for name in results["experiments"]["lazy"]:
         r = results["runs"][name]
         h = tuple(r["train"]["horizons"])
         key = f"{r['train']['variant']}-{'h1' if h == (1,) else 'h3'}"
         paper = P.LAZY.get(key, P.FACTORIAL.get(r["train"]["variant"], {}).get("object_pos_h1") if h == (1,) else None)
         pr = r["prediction"]
-        lines.append(f"| {key} | {fmt(probe(r, 'object_pos'))} | {fmt(paper)} | {fmt(pr.get('direct16'), 3)} | "
+        unt = r.get("untrained", {}).get("ridge", {}).get("contact", {}).get("object_pos")
+        lines.append(f"| {key} | {fmt(probe(r, 'object_pos'))} | {fmt(paper)} | {fmt(unt)} | {fmt(pr.get('direct16'), 3)} | "
                      f"{fmt(pr.get('rollout16'), 3)} | {fmt(pr.get('static16'), 3)} |")
     lines.append(f"\nPaper: direct-16 {P.PREDICTION['direct16']}, rollout-16 {P.PREDICTION['rollout16']}, "
                  f"static {P.PREDICTION['static16']} arena units.")
