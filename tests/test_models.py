@@ -131,3 +131,14 @@ def test_control_variants_train_step(kw):
 def test_no_trailing_layernorm_latent_is_batchnormed():
     m = make()
     assert isinstance(m.encoder.norm, torch.nn.BatchNorm1d)
+
+
+def test_pooled_encoder_builds_and_is_smaller():
+    from pokeworld.models import XJEPA
+
+    flat = XJEPA("V", image_size=32, channels=(4, 8, 8, 8), latent_dim=16, width=16, depth=1, heads=2)
+    pooled = XJEPA("V", image_size=32, channels=(4, 8, 8, 8), latent_dim=16, width=16, depth=1, heads=2, pool=True)
+    frames = torch.rand(2, 3, 32, 32)
+    assert pooled.encode(frames).shape == flat.encode(frames).shape == (2, 3, 16)
+    assert pooled.encoder.proj.in_features == 8 and flat.encoder.proj.in_features == 8 * 4
+    assert pooled.config["pool"] is True

@@ -80,6 +80,9 @@ class TrainConfig:
     """Dropout in the predictor."""
     vec_dim: int = 64
     """Hidden/output width of the proprio and touch MLP encoders."""
+    pool: bool = False
+    """Average the CNN's last feature map over space instead of flattening it (position then has
+    to be learned into the channels; tests whether a latent can discard visible state)."""
     sigreg_weight: float = 0.02
     """SIGReg weight λ."""
     sigreg_dirs: int = 1024
@@ -305,7 +308,7 @@ def model_kwargs(cfg: TrainConfig, dims: tuple[int, int, int]) -> dict[str, Any]
                 depth=cfg.depth, heads=cfg.heads, dropout=cfg.dropout,
                 horizons=(1,) if cfg.tokens else tuple(cfg.horizons), objective=cfg.objective, tokens=cfg.tokens,
                 sysid=cfg.sysid_weight > 0, max_len=max(128, cfg.window), vec_dim=cfg.vec_dim,
-                contact_channel=cfg.contact_channel)
+                contact_channel=cfg.contact_channel, pool=cfg.pool)
 
 
 def lr_lambda(step: int, warmup: int, total: int) -> float:

@@ -50,7 +50,9 @@ class FusedEncoder(nn.Module):
     """Frame (+ proprio) (+ touch) -> latent.
 
     Global mode: the CNN's last map is flattened (keeps *where* things are), fused with the
-    vector features and projected by Linear + BatchNorm1d to ``latent_dim``.
+    vector features and projected by Linear + BatchNorm1d to ``latent_dim``. With ``pool=True``
+    the map is averaged over space instead, so position is linearly available only if the
+    CNN learns to encode it in its channels (the setting in which a latent can discard it).
 
     Token mode (``tokens=True``): every cell of the last CNN map becomes a token, projected
     (with the vector features broadcast to all tokens and a learned spatial embedding) by
@@ -59,9 +61,10 @@ class FusedEncoder(nn.Module):
 
     def __init__(self, image_size: int, channels: tuple[int, ...], dp: int, dt: int,
                  use_proprio: bool, use_touch: bool, latent_dim: int = 128, vec_dim: int = 64,
-                 tokens: bool = False):
+                 tokens: bool = False, pool: bool = False):
         super().__init__()
         self.cnn = FrameCNN(channels)
+        self.pool = pool and not tokens
         side = max(1, image_size // (2 ** len(channels)))
         self.num_tokens = side * side
         self.tokens = tokens
@@ -75,7 +78,7 @@ class FusedEncoder(nn.Module):
             nn.init.normal_(self.pos, std=0.02)
             self.proj = nn.Linear(c + vec, latent_dim)
         else:
-            self.proj = nn.Linear(c * self.num_tokens + vec, latent_dim)
+            self.proj = nn.Linear(c * (1 if self.pool else self.num_tokens) + vec, latent_dim)
         self.norm = nn.BatchNorm1d(latent_dim)
 
     def forward(self, img: torch.Tensor, proprio: torch.Tensor | None, touch: torch.Tensor | None) -> torch.Tensor:
@@ -89,7 +92,8 @@ class FusedEncoder(nn.Module):
         if self.use_touch:
             vecs.append(self.touch(touch))
         if not self.tokens:
-            feats = torch.cat([fmap.flatten(1)] + vecs, dim=-1)
+            spatial = fmap.mean((2, 3)) if self.pool else fmap.flatten(1)
+            feats = torch.cat([spatial] + vecs, dim=-1)
             return self.norm(self.proj(feats))
         tok = fmap.flatten(2).transpose(1, 2) + self.pos  # (N, S, C)
         if vecs:

@@ -108,7 +108,7 @@ class XJEPA(nn.Module):
                  width: int = 192, depth: int = 4, heads: int = 8, dropout: float = 0.1,
                  horizons: tuple[int, ...] = (1, 4, 16), objective: str = "latent", tokens: bool = False,
                  sysid: bool = False, max_len: int = 128, vec_dim: int = 64, contact_channel: int = 6,
-                 recon_positions: int = 8):
+                 recon_positions: int = 8, pool: bool = False):
         super().__init__()
         check_variant(variant)
         if objective not in OBJECTIVES:
@@ -122,7 +122,8 @@ class XJEPA(nn.Module):
             variant=variant, proprio_dim=proprio_dim, touch_dim=touch_dim, action_dim=action_dim,
             image_size=image_size, channels=tuple(channels), latent_dim=latent_dim, width=width, depth=depth,
             heads=heads, dropout=dropout, horizons=horizons, objective=objective, tokens=tokens, sysid=sysid,
-            max_len=max_len, vec_dim=vec_dim, contact_channel=contact_channel, recon_positions=recon_positions)
+            max_len=max_len, vec_dim=vec_dim, contact_channel=contact_channel, recon_positions=recon_positions,
+            pool=pool)
         self.variant, self.horizons, self.latent_dim, self.width = variant, horizons, latent_dim, width
         self.inputs, self.targets = VARIANTS[variant]
         self.objective, self.tokens, self.image_size = objective, tokens, image_size
@@ -131,7 +132,8 @@ class XJEPA(nn.Module):
         self.action_dim = action_dim
 
         self.encoder = FusedEncoder(image_size, tuple(channels), proprio_dim, touch_dim,
-                                    "proprio" in self.inputs, "touch" in self.inputs, latent_dim, vec_dim, tokens)
+                                    "proprio" in self.inputs, "touch" in self.inputs, latent_dim, vec_dim, tokens,
+                                    pool=pool)
         self.num_tokens = self.encoder.num_tokens if tokens else 1
         self.predictor = CausalPredictor(latent_dim, action_dim, width, depth, heads, dropout, max_len,
                                          self.num_tokens)
