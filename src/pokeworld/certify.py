@@ -159,12 +159,6 @@ def _glide_pairs(ds: Dataset, w: Windows) -> np.ndarray:
     return free[:, :-1] & free[:, 1:]
 
 
-def _subsample(w: Windows, cap: int, rng: np.random.Generator) -> Windows:
-    if len(w) <= cap:
-        return w
-    return w.select(np.sort(rng.choice(len(w), cap, replace=False)))
-
-
 # --------------------------------------------------------------------------- main
 def certify(ds: Dataset, cfg: CertifyConfig) -> dict:
     """Run every requested estimator; return the certificates dictionary."""
@@ -191,7 +185,7 @@ def certify(ds: Dataset, cfg: CertifyConfig) -> dict:
     Y_all = np.stack([ds.params[t] for t in cfg.targets], 1).astype(np.float64)
     results: dict = {"estimators": {}, "counts": {}}
     for kind in cfg.kinds:
-        w_fit = _subsample(make_windows(ds, fit_eps, cfg.window, cfg.stride).kind(kind), cfg.max_windows, rng)
+        w_fit = make_windows(ds, fit_eps, cfg.window, cfg.stride).kind(kind).subsample(cfg.max_windows, rng)
         w_test = make_windows(ds, test_eps, cfg.window, cfg.stride).kind(kind)
         results["counts"][kind] = {"fit": len(w_fit), "test": len(w_test)}
         if len(w_fit) < 10 or len(w_test) < 10:

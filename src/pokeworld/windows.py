@@ -39,6 +39,12 @@ class Windows:
     def select(self, mask: np.ndarray) -> "Windows":
         return Windows(self.episode[mask], self.start[mask], self.length, self.contact[mask], self.glide[mask])
 
+    def subsample(self, cap: int, rng: np.random.Generator) -> "Windows":
+        """At most ``cap`` windows drawn without replacement (order kept); bounds CPU time of fits."""
+        if len(self) <= cap:
+            return self
+        return self.select(np.sort(rng.choice(len(self), cap, replace=False)))
+
     def kind(self, kind: str) -> "Windows":
         """Subset of ``kind`` 'contact', 'glide' or 'all'."""
         if kind == "all":

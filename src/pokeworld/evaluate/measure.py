@@ -147,12 +147,6 @@ def fit_probes(X_fit, g_fit, T_fit, X_test, T_test, mlp: bool, seed: int) -> dic
     return res
 
 
-def _subsample(w, cap, rng):
-    if len(w) <= cap:
-        return w
-    return w.select(np.sort(rng.choice(len(w), cap, replace=False)))
-
-
 def probe_model(model, ds: Dataset, cfg: MeasureConfig, mlp: bool) -> dict:
     rng = np.random.default_rng(cfg.seed)
     fit_eps, test_eps = ds.episodes("probe_fit"), ds.episodes("probe_test")
@@ -163,7 +157,7 @@ def probe_model(model, ds: Dataset, cfg: MeasureConfig, mlp: bool) -> dict:
     lat_test = EpisodeLatents(model, ds, test_eps, cfg.batch_episodes)
     out = {"counts": {}}
     for kind in cfg.kinds:
-        wf = _subsample(make_windows(ds, fit_eps, cfg.window, cfg.stride).kind(kind), cfg.max_windows, rng)
+        wf = make_windows(ds, fit_eps, cfg.window, cfg.stride).kind(kind).subsample(cfg.max_windows, rng)
         wt = make_windows(ds, test_eps, cfg.window, cfg.stride).kind(kind)
         out["counts"][kind] = {"fit": len(wf), "test": len(wt)}
         if len(wf) < 10 or len(wt) < 10 or np.unique(wf.episode).size < 5:
