@@ -57,7 +57,7 @@ def test_gru_recovers_a_planted_temporally_gated_parameter(rng):
 def test_certify_on_tiny_corpus_reports_every_estimator(tiny_dataset):
     cfg = make_config("tiny", kinds=("contact",))
     res = certify(tiny_dataset, cfg)
-    assert set(res["estimators"]) == {"gru", "linear", "mlp", "drag", "gru_pixel", "drag_pixel", "gru_notouch"}
+    assert set(res["estimators"]) == {"gru", "gru_geom", "linear", "mlp", "drag", "gru_pixel", "drag_pixel", "gru_notouch"}
     assert set(res["gate"]) == {"log_m", "gamma", "log_k"}
     best = res["certificate"]["contact"]["gamma"]
     assert best["r2"] == max(r["contact"]["gamma"] for r in res["estimators"].values() if "contact" in r)
@@ -104,3 +104,22 @@ def test_windows_are_split_by_episode(tiny_dataset):
     assert not (wf.contact & wf.glide).any()
 
 
+
+
+def test_geometry_features_measure_the_disk_overlap(tiny_dataset):
+    from pokeworld.certify import NO_TOUCH, TOUCH_COLUMNS, window_features
+
+    ds = tiny_dataset
+    w = make_windows(ds, np.arange(ds.num_episodes))
+    X = window_features(ds, w, ds.labels["object_pos"], ds.labels["object_vel"], geometry=True)
+    assert X.shape == (len(w), w.length, 20)
+    np.testing.assert_allclose(X[..., :17], window_features(ds, w, ds.labels["object_pos"], ds.labels["object_vel"]))
+    rel = w.gather(ds.labels["object_pos"]) - w.gather(ds.labels["finger_pos"])
+    np.testing.assert_allclose(X[..., 17:19], rel, atol=1e-6)
+    overlap = X[..., 19]
+    assert (overlap >= 0).all() and (overlap > 0).any()
+    # an overlap at observation t is sensed by the first sub-step of the step that follows it
+    rf, ro = 0.06, 0.09
+    d = rf + ro - np.linalg.norm(ds.labels["object_pos"] - ds.labels["finger_pos"], axis=-1)
+    assert (ds.labels["contact"][:, 1:][d[:, :-1] > 1e-6] > 0).all()
+    assert not set(TOUCH_COLUMNS) & set(NO_TOUCH) and len(NO_TOUCH) == 13

@@ -11,7 +11,12 @@ probe-fit episodes and scored by held-out R^2 on probe-test episodes:
               window's glide frames (no fitting; population median where a window has none);
 * ``gru_pixel`` / ``drag_pixel``: the same with object state replaced by pixel
               centroids (finger disk masked using proprioception, 3-frame smoothing);
-* ``gru_notouch`` the GRU without the touch channels: what a model whose inputs are
+* ``gru_geom``  the GRU with the contact geometry made explicit: the object-minus-finger
+              displacement and the disk overlap, computed from the same raw observations.
+              Penetration depth under a known contact force is how stiffness shows in
+              kinematics (quasi-static d = (F/k)^(2/3)); a GRU fed absolute positions does
+              not learn that millimetre-scale difference from a few thousand windows;
+* ``gru_notouch`` ``gru_geom`` without the touch channels: what a model whose inputs are
               vision and proprioception could know at best (the bound of the vision-input arms).
 
 A parameter's certificate is the best R^2 of any estimator on contact
@@ -33,9 +38,11 @@ from .regressors import RidgeCV, TorchRegressor, r2_scores
 from .windows import Windows, make_windows, wall_contact
 
 GATES = {"log_m": 0.4, "gamma": 0.4, "log_k": 0.25}
-ESTIMATORS = ("gru", "linear", "mlp", "drag", "gru_pixel", "drag_pixel", "gru_notouch")
-# feature columns of window_features: proprio 0-3, touch 4-10, action 11-12, object position 13-14, velocity 15-16
-NO_TOUCH = [0, 1, 2, 3, 11, 12, 13, 14, 15, 16]
+ESTIMATORS = ("gru", "gru_geom", "linear", "mlp", "drag", "gru_pixel", "drag_pixel", "gru_notouch")
+# feature columns of window_features: proprio 0-3, touch 4-10, action 11-12, object position 13-14,
+# velocity 15-16, and with geometry=True the displacement object - finger 17-18 and the overlap 19
+TOUCH_COLUMNS = range(4, 11)
+NO_TOUCH = [i for i in range(20) if i not in TOUCH_COLUMNS]
 
 
 @dataclass
@@ -49,7 +56,7 @@ class CertifyConfig:
     targets: tuple[str, ...] = ("log_m", "gamma", "log_k")
     """Per-episode parameters to certify (names under params/ in the store)."""
     estimators: tuple[str, ...] = ESTIMATORS
-    """Estimators to run (subset of gru, linear, mlp, drag, gru_pixel, drag_pixel, gru_notouch)."""
+    """Estimators to run (subset of gru, gru_geom, linear, mlp, drag, gru_pixel, drag_pixel, gru_notouch)."""
     kinds: tuple[str, ...] = ("contact", "glide")
     """Window kinds to evaluate on (the gate reads contact windows)."""
     window: int = 16
@@ -126,11 +133,23 @@ def pixel_object_state(ds: Dataset, episodes: np.ndarray, smooth: int = 3) -> tu
     return pos.astype(np.float32), vel.astype(np.float32)
 
 
-def window_features(ds: Dataset, w: Windows, object_pos: np.ndarray, object_vel: np.ndarray) -> np.ndarray:
-    """Raw per-step features (W, L, 17): proprio 4, touch 7, action 2, object position 2, velocity 2."""
+def window_features(ds: Dataset, w: Windows, object_pos: np.ndarray, object_vel: np.ndarray,
+                    geometry: bool = False) -> np.ndarray:
+    """Raw per-step features (W, L, 17): proprio 4, touch 7, action 2, object position 2, velocity 2.
+
+    ``geometry=True`` appends the contact geometry (W, L, 3): displacement object - finger (2) and the
+    disk overlap max(0, r_f + r_o - distance) in units of the object radius (1).
+    """
     actions = np.concatenate([ds.actions, np.zeros_like(ds.actions[:, :1])], 1)
-    return np.concatenate([w.gather(ds.proprio), w.gather(ds.touch), w.gather(actions),
-                           w.gather(object_pos), w.gather(object_vel)], -1).astype(np.float32)
+    proprio, obj = w.gather(ds.proprio), w.gather(object_pos)
+    cols = [proprio, w.gather(ds.touch), w.gather(actions), obj, w.gather(object_vel)]
+    if geometry:
+        cfg = ds.manifest.get("config", {}).get("physics", {})
+        rf, ro = cfg.get("finger_radius", 0.06), cfg.get("object_radius", 0.09)
+        rel = obj - proprio[..., 0:2]
+        overlap = np.maximum(rf + ro - np.linalg.norm(rel, axis=-1, keepdims=True), 0.0) / ro
+        cols += [rel, overlap]
+    return np.concatenate(cols, -1).astype(np.float32)
 
 
 def drag_estimates(speed: np.ndarray, glide: np.ndarray, dt: float, fallback: float,
@@ -208,8 +227,9 @@ def certify(ds: Dataset, cfg: CertifyConfig) -> dict:
                 pred = np.clip(pred, y_fit[:, g_idx].min(), y_fit[:, g_idx].max())
                 r2 = {"gamma": float(r2_scores(y_test[:, g_idx], pred)[0])}
             else:
-                X_fit = window_features(ds, w_fit, pos, vel)
-                X_test = window_features(ds, w_test, pos, vel)
+                geometry = est in ("gru_geom", "gru_notouch")
+                X_fit = window_features(ds, w_fit, pos, vel, geometry)
+                X_test = window_features(ds, w_test, pos, vel, geometry)
                 if est == "gru_notouch":
                     X_fit, X_test = X_fit[..., NO_TOUCH], X_test[..., NO_TOUCH]
                 if est == "linear":

@@ -83,6 +83,29 @@ def ep_knots(num_knots: int = 17, t_max: float = 3.0, device=None) -> tuple[torc
     return t, 2.0 * trap * phi, phi
 
 
+class _ECF(torch.autograd.Function):
+    """Empirical characteristic function (mean over dim -3 of cos / sin of ``x ⊗ t``) with a fused backward.
+
+    Autograd through ``cos``/``sin`` recomputes both transcendentals in the backward pass; the
+    derivative of each is the other, so keeping the forward values halves that work. This is the
+    regulariser's hot spot (≈ 20 % of a ``cpu``-preset step)."""
+
+    @staticmethod
+    def forward(ctx, x, t):
+        xt = x.unsqueeze(-1) * t  # (..., N, K, knots)
+        c, s = torch.cos(xt), torch.sin(xt)
+        ctx.save_for_backward(c, s, t)
+        ctx.n = x.shape[-2]
+        return c.mean(-3), s.mean(-3)
+
+    @staticmethod
+    def backward(ctx, grad_cos, grad_sin):
+        c, s, t = ctx.saved_tensors
+        gc = (grad_cos * t / ctx.n).unsqueeze(-3)
+        gs = (grad_sin * t / ctx.n).unsqueeze(-3)
+        return (c * gs - s * gc).sum(-1), None
+
+
 def epps_pulley(x: torch.Tensor, num_knots: int = 17, t_max: float = 3.0) -> torch.Tensor:
     """Epps–Pulley normality statistic of 1-d samples along dim -2.
 
@@ -93,9 +116,8 @@ def epps_pulley(x: torch.Tensor, num_knots: int = 17, t_max: float = 3.0) -> tor
         (N is then the global sample count).
     """
     t, w, phi = ep_knots(num_knots, t_max, x.device)
-    xt = x.float().unsqueeze(-1) * t  # (..., N, K, knots)
-    cos_m = _dist_mean(torch.cos(xt).mean(-3))
-    sin_m = _dist_mean(torch.sin(xt).mean(-3))
+    cos_m, sin_m = _ECF.apply(x.float(), t)  # (..., K, knots) each
+    cos_m, sin_m = _dist_mean(cos_m), _dist_mean(sin_m)
     err = (cos_m - phi) ** 2 + sin_m ** 2  # (..., K, knots)
     n = x.shape[-2] * _dist_world()
     return (err @ w) * n

@@ -11,6 +11,7 @@ CERTIFICATES = {  # App. A "instrument hierarchy", App. C "pixel-derived certifi
     "mlp": {"log_m": 0.45, "gamma": 0.0},
     "gru_pixel": {"log_m": 0.72, "gamma": 0.43, "log_k": 0.78},
     "drag_pixel": {"gamma": 0.05},
+    "gru_geom": {},  # ours: the GRU with explicit contact geometry; not in the paper
     "gru_notouch": {},  # not reported by the paper
 }
 

@@ -130,12 +130,13 @@ class TrainConfig:
 
 
 #: Field overrides per preset. ``paper`` = App. B. ``cpu``: a model in ≤ 10 min on 2 CPU cores
-#: (32×32 frames, narrower CNN/predictor, batch 32, 256 SIGReg directions). ``tiny``: unit tests.
+#: (32×32 frames, narrower CNN/predictor, batch 32, 256 SIGReg directions, 4,000 steps: stiffness
+#: enters the VFX latent only after ~2,000 steps at this size, docs/model.md). ``tiny``: unit tests.
 PRESETS: dict[str, dict[str, Any]] = {
     "paper": {},
     "cpu": dict(image_size=32, channels=(16, 32, 64, 64), width=128, depth=2, heads=4, vec_dim=32,
-                batch_size=32, steps=1500, warmup=100, lr=1e-3, sigreg_dirs=256, token_rows=1024,
-                token_dirs=128, ckpt_every=250, log_every=25),
+                batch_size=32, steps=4000, warmup=100, lr=1e-3, sigreg_dirs=256, token_rows=1024,
+                token_dirs=128, ckpt_every=500, log_every=50),
     "tiny": dict(image_size=16, channels=(4, 8, 8, 8), latent_dim=16, width=16, depth=1, heads=2, vec_dim=8,
                  batch_size=4, window=18, steps=10, warmup=2, sigreg_dirs=16, token_rows=64, token_dirs=16,
                  ckpt_every=5, log_every=5, tensorboard=False, progress=False, device="cpu"),

@@ -52,7 +52,8 @@ class MapConfig:
     """Override of episodes per corpus (0 keeps the preset's)."""
     data_seed: int = 0
     """Seed of the generated corpora."""
-    certify_estimators: tuple[str, ...] = ("gru", "linear", "mlp", "drag", "gru_pixel", "drag_pixel", "gru_notouch")
+    certify_estimators: tuple[str, ...] = ("gru", "gru_geom", "linear", "mlp", "drag", "gru_pixel", "drag_pixel",
+                                           "gru_notouch")
     """Certificate estimators to run."""
     mlp_probes: bool = True
     """Fit early-stopped MLP probes besides ridge."""
@@ -94,7 +95,7 @@ PRESETS: dict[str, dict] = {
 DEMO = {  # the newcomer's first run: four variants, one seed, <= 15 minutes on 2 cores
     "experiments": ("factorial",), "variants": ("V", "VF", "VX_t", "VFX"), "seeds": (0,),
     "num_episodes": 1200, "train_steps": 900, "mlp_probes": False, "untrained": False,
-    "certify_estimators": ("gru", "linear", "drag", "gru_notouch"),
+    "certify_estimators": ("gru", "gru_geom", "linear", "drag", "gru_notouch"),
 }
 
 
