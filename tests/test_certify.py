@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from pokeworld.certify import certify, drag_estimates, make_config, pixel_object_state
+from pokeworld.certify import ESTIMATORS, certify, drag_estimates, make_config, pixel_object_state
 
 from pokeworld.errors import ConfigError, DataError
 from pokeworld.regressors import RidgeCV, TorchRegressor, r2_scores
@@ -57,7 +57,7 @@ def test_gru_recovers_a_planted_temporally_gated_parameter(rng):
 def test_certify_on_tiny_corpus_reports_every_estimator(tiny_dataset):
     cfg = make_config("tiny", kinds=("contact",))
     res = certify(tiny_dataset, cfg)
-    assert set(res["estimators"]) == {"gru", "gru_geom", "linear", "mlp", "drag", "gru_pixel", "drag_pixel", "gru_notouch"}
+    assert set(res["estimators"]) == set(ESTIMATORS)
     assert set(res["gate"]) == {"log_m", "gamma", "log_k"}
     best = res["certificate"]["contact"]["gamma"]
     assert best["r2"] == max(r["contact"]["gamma"] for r in res["estimators"].values() if "contact" in r)
@@ -123,3 +123,14 @@ def test_geometry_features_measure_the_disk_overlap(tiny_dataset):
     d = rf + ro - np.linalg.norm(ds.labels["object_pos"] - ds.labels["finger_pos"], axis=-1)
     assert (ds.labels["contact"][:, 1:][d[:, :-1] > 1e-6] > 0).all()
     assert not set(TOUCH_COLUMNS) & set(NO_TOUCH) and len(NO_TOUCH) == 13
+
+
+def test_pixel_centroids_at_a_model_resolution(tiny_dataset):
+    ds = tiny_dataset
+    eps = np.arange(8)
+    true = ds.labels["object_pos"][eps]
+    far = np.linalg.norm(true - ds.labels["finger_pos"][eps], axis=-1) > 0.2
+    pos32, _ = pixel_object_state(ds, eps, smooth=1, size=32)
+    assert np.median(np.abs(pos32 - true)[far]) < 0.005  # anti-aliasing keeps sub-pixel precision
+    with pytest.raises(ConfigError, match="pixel_size"):
+        make_config("tiny", pixel_size=4)

@@ -113,6 +113,25 @@ def test_quasi_static_push_force_is_stiffness_independent():
     assert forces[0] == pytest.approx(forces[1], rel=0.05)
 
 
+def test_quasi_static_penetration_follows_hertz_and_reveals_stiffness():
+    # The push force is k-independent, but the overlap it holds is d = (F/k)^(2/3): this is how
+    # stiffness reaches kinematics (and sub-pixel vision), the channel the gru_geom certificate reads.
+    overlaps, forces = [], []
+    for k in (500.0, 6000.0):
+        s = _sim(cfg=PhysicsConfig(touch_noise=0.0), params={"gamma": 2.0, "mass": 2.0, "stiffness": k},
+                 finger_pos=[0.2, 0.5], object_pos=[0.2 + 0.15, 0.5])
+        for _ in range(14):
+            s.step(np.array([[0.5, 0.0]]))
+        f = np.linalg.norm(s.touch_clean[0, 3:5]) * s.cfg.force_max  # end-of-step force, simulator units
+        d = 0.15 - np.linalg.norm(s.state[0, 4:6] - s.state[0, 0:2])
+        overlaps.append(d)
+        forces.append(f)
+        assert d == pytest.approx((f / k) ** (2 / 3), rel=0.05)
+    assert overlaps[0] / overlaps[1] == pytest.approx((6000 / 500) ** (2 / 3) * (forces[0] / forces[1]) ** (2 / 3),
+                                                      rel=0.05)
+    assert overlaps[0] * 64 > 1.0 > overlaps[1] * 64  # about 1 px apart on the 64-px frame
+
+
 def test_renders_identical_across_hidden_parameters():
     frames = []
     for p in ({"mass": 0.5, "gamma": 0.5, "stiffness": 500.0}, {"mass": 3.0, "gamma": 4.0, "stiffness": 6000.0}):

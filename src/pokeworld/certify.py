@@ -17,7 +17,9 @@ probe-fit episodes and scored by held-out R^2 on probe-test episodes:
               kinematics (quasi-static d = (F/k)^(2/3)); a GRU fed absolute positions does
               not learn that millimetre-scale difference from a few thousand windows;
 * ``gru_notouch`` ``gru_geom`` without the touch channels: what a model whose inputs are
-              vision and proprioception could know at best (the bound of the vision-input arms).
+              vision and proprioception could know at best (the bound of the vision-input arms);
+* ``gru_pixel_notouch`` the same from pixel-derived object state (optionally at a model's
+              smaller ``pixel_size``): the vision-input bound without privileged object state.
 
 A parameter's certificate is the best R^2 of any estimator on contact
 windows; the gate requires log m / gamma / log k >= 0.4 / 0.4 / 0.25.
@@ -38,7 +40,9 @@ from .regressors import RidgeCV, TorchRegressor, r2_scores
 from .windows import Windows, make_windows, wall_contact
 
 GATES = {"log_m": 0.4, "gamma": 0.4, "log_k": 0.25}
-ESTIMATORS = ("gru", "gru_geom", "linear", "mlp", "drag", "gru_pixel", "drag_pixel", "gru_notouch")
+ESTIMATORS = ("gru", "gru_geom", "linear", "mlp", "drag", "gru_pixel", "drag_pixel", "gru_notouch",
+              "gru_pixel_notouch")
+GEOMETRY = ("gru_geom", "gru_notouch", "gru_pixel_notouch")  # estimators fed the contact-geometry channels
 # feature columns of window_features: proprio 0-3, touch 4-10, action 11-12, object position 13-14,
 # velocity 15-16, and with geometry=True the displacement object - finger 17-18 and the overlap 19
 TOUCH_COLUMNS = range(4, 11)
@@ -56,7 +60,11 @@ class CertifyConfig:
     targets: tuple[str, ...] = ("log_m", "gamma", "log_k")
     """Per-episode parameters to certify (names under params/ in the store)."""
     estimators: tuple[str, ...] = ESTIMATORS
-    """Estimators to run (subset of gru, gru_geom, linear, mlp, drag, gru_pixel, drag_pixel, gru_notouch)."""
+    """Estimators to run (subset of ESTIMATORS: gru, gru_geom, linear, mlp, drag, gru_pixel, drag_pixel,
+    gru_notouch, gru_pixel_notouch)."""
+    pixel_size: int = 0
+    """Frame side the pixel-derived estimators read (frames area-pooled to it first; 0 = stored size).
+    Set it to a model's ``image_size`` to bound what that model's input resolution reveals."""
     kinds: tuple[str, ...] = ("contact", "glide")
     """Window kinds to evaluate on (the gate reads contact windows)."""
     window: int = 16
@@ -84,6 +92,8 @@ class CertifyConfig:
             raise ConfigError(f"kinds must be among contact, glide, all; got {self.kinds}")
         if self.window < 3 or self.stride < 1:
             raise ConfigError("window must be >= 3 and stride >= 1")
+        if self.pixel_size < 0 or 0 < self.pixel_size < 8:
+            raise ConfigError(f"pixel_size must be 0 (stored size) or >= 8, got {self.pixel_size}")
 
 
 PRESETS = {
@@ -98,18 +108,27 @@ def make_config(preset: str = "cpu", **overrides) -> CertifyConfig:
 
 
 # --------------------------------------------------------------------------- observables
-def pixel_object_state(ds: Dataset, episodes: np.ndarray, smooth: int = 3) -> tuple[np.ndarray, np.ndarray]:
+def pixel_object_state(ds: Dataset, episodes: np.ndarray, smooth: int = 3,
+                       size: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Object position and velocity estimated from pixels for whole episodes: (E', T+1, 2) each.
 
     The finger disk (known from proprioception) is masked out with a one-pixel
-    margin; the object is the intensity-weighted centroid of what remains;
+    margin; the object is the intensity-weighted centroid of what remains (on frames area-pooled
+    to ``size`` × ``size`` when ``size`` is set);
     positions are smoothed with a centred moving average of ``smooth`` frames
     and velocities are central differences of the smoothed track.
     """
     cfg = ds.manifest.get("config", {}).get("physics", {})
     arena, rf = cfg.get("arena", 1.0), cfg.get("finger_radius", 0.06)
     dt = cfg.get("dt", 0.05)
-    frames = ds.frames[episodes].astype(np.float32)
+    frames = ds.frames[episodes]
+    if size and size != frames.shape[-1]:
+        from .models.xjepa import area_downsample  # the pooling the models apply to their input
+
+        import torch
+
+        frames = area_downsample(torch.from_numpy(np.ascontiguousarray(frames)), size).numpy()
+    frames = frames.astype(np.float32)
     E, T1, H, W = frames.shape
     xs = (np.arange(W) + 0.5) * arena / W
     ys = (np.arange(H) + 0.5) * arena / H
@@ -193,13 +212,13 @@ def certify(ds: Dataset, cfg: CertifyConfig) -> dict:
     rng = np.random.default_rng(cfg.seed)
     dt = ds.manifest.get("config", {}).get("physics", {}).get("dt", 0.05)
     state = {"state": (ds.labels["object_pos"], ds.labels["object_vel"])}
-    if any(e.endswith("_pixel") for e in cfg.estimators):
+    if any("_pixel" in e for e in cfg.estimators):
         pos = np.zeros_like(ds.labels["object_pos"])
         vel = np.zeros_like(ds.labels["object_vel"])
         probe = np.concatenate([fit_eps, test_eps])
         for i in range(0, probe.size, 256):
             chunk = probe[i:i + 256]
-            pos[chunk], vel[chunk] = pixel_object_state(ds, chunk)
+            pos[chunk], vel[chunk] = pixel_object_state(ds, chunk, size=cfg.pixel_size)
         state["pixel"] = (pos, vel)
     Y_all = np.stack([ds.params[t] for t in cfg.targets], 1).astype(np.float64)
     results: dict = {"estimators": {}, "counts": {}}
@@ -213,7 +232,7 @@ def certify(ds: Dataset, cfg: CertifyConfig) -> dict:
         assert not np.intersect1d(w_fit.episode, w_test.episode).size
         y_fit, y_test = Y_all[w_fit.episode], Y_all[w_test.episode]
         for est in cfg.estimators:
-            source = "pixel" if est.endswith("_pixel") else "state"
+            source = "pixel" if "_pixel" in est else "state"
             pos, vel = state[source]
             if est.startswith("drag"):
                 if "gamma" not in cfg.targets:
@@ -227,10 +246,10 @@ def certify(ds: Dataset, cfg: CertifyConfig) -> dict:
                 pred = np.clip(pred, y_fit[:, g_idx].min(), y_fit[:, g_idx].max())
                 r2 = {"gamma": float(r2_scores(y_test[:, g_idx], pred)[0])}
             else:
-                geometry = est in ("gru_geom", "gru_notouch")
+                geometry = est in GEOMETRY
                 X_fit = window_features(ds, w_fit, pos, vel, geometry)
                 X_test = window_features(ds, w_test, pos, vel, geometry)
-                if est == "gru_notouch":
+                if est.endswith("_notouch"):
                     X_fit, X_test = X_fit[..., NO_TOUCH], X_test[..., NO_TOUCH]
                 if est == "linear":
                     model = RidgeCV().fit(X_fit.reshape(len(X_fit), -1), y_fit, w_fit.episode)

@@ -13,6 +13,7 @@ CERTIFICATES = {  # App. A "instrument hierarchy", App. C "pixel-derived certifi
     "drag_pixel": {"gamma": 0.05},
     "gru_geom": {},  # ours: the GRU with explicit contact geometry; not in the paper
     "gru_notouch": {},  # not reported by the paper
+    "gru_pixel_notouch": {},  # ours only
 }
 
 FACTORIAL = {  # Table "targets" (mean of the two seeds) and single-horizon position column

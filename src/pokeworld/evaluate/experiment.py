@@ -53,7 +53,7 @@ class MapConfig:
     data_seed: int = 0
     """Seed of the generated corpora."""
     certify_estimators: tuple[str, ...] = ("gru", "gru_geom", "linear", "mlp", "drag", "gru_pixel", "drag_pixel",
-                                           "gru_notouch")
+                                           "gru_notouch", "gru_pixel_notouch")
     """Certificate estimators to run."""
     mlp_probes: bool = True
     """Fit early-stopped MLP probes besides ridge."""
