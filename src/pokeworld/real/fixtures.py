@@ -3,7 +3,7 @@
 Layout written under ``<root>/RH20T_cfg<N>/`` (see docs/rh20t.md for where each fact comes from)::
 
     calib/<calib_ts>/{intrinsics,extrinsics}.npy, tcp.npy
-    task_XXXX_user_XXXX_scene_XXXX_cfg_XXXX[_human]/
+    task_NNNN_user_NNNN_scene_NNNN_cfg_NNNN[_human]/
         metadata.json                       {"calib", "rating", "start_time", "finish_time", ...}
         cam_<serial>/color.mp4 + timestamps.npy   (pickled {'color': [ms], 'depth': [ms]})
         cam_<serial>/color/<13-digit ms>.jpg      (the "extracted" variant)

@@ -3,7 +3,7 @@
 Pipeline, one scene at a time (docs/rh20t.md lists every format fact and choice):
 
 1. **scan** ``ROOT`` (an ``RH20T_cfgN`` folder or a folder holding them) for scene folders
-   ``task_XXXX_user_XXXX_scene_XXXX_cfg_XXXX``; ``*_human`` demonstration folders, other
+   ``task_NNNN_user_NNNN_scene_NNNN_cfg_NNNN``; ``*_human`` demonstration folders, other
    configurations and unknown configurations are skipped with a counted reason.
 2. **read** ``metadata.json`` (rating, calibration id, start/finish time), the pickled
    ``transformed/{tcp_base,force_torque_base,gripper}.npy`` dicts and the chosen camera(s)
