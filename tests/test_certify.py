@@ -134,3 +134,62 @@ def test_pixel_centroids_at_a_model_resolution(tiny_dataset):
     assert np.median(np.abs(pos32 - true)[far]) < 0.005  # anti-aliasing keeps sub-pixel precision
     with pytest.raises(ConfigError, match="pixel_size"):
         make_config("tiny", pixel_size=4)
+
+
+def _planted_certificates(gru: dict, drag_gamma: float | None) -> dict:
+    from pokeworld.certify import certificate_table
+
+    estimators = {"gru": {"contact": gru}} if gru else {}
+    if drag_gamma is not None:
+        estimators["drag"] = {"contact": {"gamma": drag_gamma}}
+    estimators["linear"] = {"contact": {"log_m": 0.01, "gamma": 0.0, "log_k": 0.02}}
+    return {"estimators": estimators, "certificate": certificate_table(estimators, ("log_m", "gamma", "log_k")),
+            "counts": {"contact": {"fit": 100, "test": 50}}}
+
+
+def test_gate_is_the_gru_oracle_rule_not_the_best_estimator():
+    from pokeworld.certify import gate
+
+    res = _planted_certificates({"log_m": 0.86, "gamma": 0.27, "log_k": 0.87}, drag_gamma=0.71)
+    g = gate(res["certificate"], res["estimators"])
+    assert not g["gamma"]["passed"] and g["gamma"]["best_passed"] and not g["gamma"]["agree"]
+    assert g["gamma"]["oracle"] == 0.27 and g["gamma"]["certificate"] == 0.71 and g["gamma"]["estimator"] == "drag"
+    assert "passes only through the drag estimator" in g["gamma"]["note"]
+    assert "GRU-oracle rule fails" in g["gamma"]["note"]
+    assert g["log_k"]["passed"] and g["log_k"]["agree"] and g["log_m"]["passed"]
+
+    res = _planted_certificates({"log_m": 0.86, "gamma": 0.70, "log_k": 0.87}, drag_gamma=0.89)
+    g = gate(res["certificate"], res["estimators"])
+    assert all(v["passed"] and v["agree"] for v in g.values())
+    assert g["gamma"]["estimator"] == "drag" and g["gamma"]["oracle"] == 0.70
+
+    res = _planted_certificates({"log_m": 0.86, "gamma": 0.70, "log_k": 0.20}, drag_gamma=None)
+    g = gate(res["certificate"], res["estimators"])
+    assert not g["log_k"]["passed"] and not g["log_k"]["best_passed"] and g["log_k"]["agree"]
+    assert g["log_k"]["note"].startswith("fails: GRU oracle 0.20 < 0.25")
+
+
+def test_gate_fails_when_the_oracle_was_not_run_and_format_table_says_why():
+    from pokeworld.certify import format_table, gate
+
+    res = _planted_certificates({}, drag_gamma=0.89)
+    res["gate"] = gate(res["certificate"], res["estimators"])
+    assert not any(v["passed"] for v in res["gate"].values())
+    assert "GRU oracle was not run" in res["gate"]["gamma"]["note"] and not res["gate"]["gamma"]["agree"]
+    text = format_table(res)
+    assert "gate gamma: GRU oracle not run >= 0.4 -> FAIL (best estimator drag 0.890); NOTE: passes only through" \
+        in text
+
+
+def test_load_gate_regates_a_file_written_under_the_best_estimator_rule(tmp_path):
+    import json
+
+    from pokeworld.certify import load_gate
+
+    res = _planted_certificates({"log_m": 0.86, "gamma": 0.27, "log_k": 0.87}, drag_gamma=0.71)
+    res["gate"] = {"gamma": {"threshold": 0.4, "certificate": 0.71, "passed": True}}  # old format
+    (tmp_path / "certificates.json").write_text(json.dumps(res))
+    g = load_gate(tmp_path / "certificates.json")
+    assert not g["gamma"]["passed"] and g["log_k"]["passed"]
+    with pytest.raises(DataError, match="no certificates"):
+        load_gate(tmp_path / "missing.json")

@@ -2,7 +2,7 @@
 
 import pytest
 
-from pokeworld.cli import _flag_arity, main, split_args
+from pokeworld.cli import COMMANDS, PRESET_COSTS, _flag_arity, main, split_args
 from pokeworld.evaluate.experiment import MapConfig
 
 
@@ -37,3 +37,18 @@ def test_every_command_has_help(cmd, capsys):
         main([cmd, "--help"])
     assert e.value.code == 0
     assert "usage" in capsys.readouterr().out.lower()
+
+
+def test_top_level_help_lists_commands_and_preset_costs(capsys):
+    from pokeworld.train import PRESETS
+
+    for argv in ([], ["--help"], ["-h"]):
+        assert main(argv) == 0
+        out = capsys.readouterr().out
+        lines = out.splitlines()
+        for name, cmd in COMMANDS.items():  # one line per command, with its help
+            assert sum(line.split()[:1] == [name] and cmd.help in line for line in lines) == 1, name
+        assert set(PRESET_COSTS) == set(PRESETS)
+        for name in PRESETS:
+            assert any(line.split()[:1] == [name] and PRESET_COSTS[name] in line for line in lines), name
+        assert "H100" in out and "2 CPU cores" in out

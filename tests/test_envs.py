@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
-import pokeworld.sim  # noqa: F401  (registers the ids)
+import pokeworld.sim
 from pokeworld.errors import ConfigError
 
 
@@ -59,3 +59,51 @@ def test_same_seed_same_episode():
     ob, ib = b.reset(seed=11)
     np.testing.assert_array_equal(oa["vision"], ob["vision"])
     assert ia["stiffness"] == ib["stiffness"]
+
+
+def test_import_pokeworld_alone_registers_without_loading_numba_or_torch():
+    import subprocess
+    import sys
+
+    code = ("import sys, gymnasium, pokeworld\n"
+            "assert not {'numba', 'torch', 'pokeworld.sim'} & set(sys.modules), sorted(sys.modules)\n"
+            "env = gymnasium.make(pokeworld.ENV_ID)\n"
+            "obs, info = env.reset(seed=0)\n"
+            "assert obs['vision'].shape == (64, 64)\n"
+            "venv = gymnasium.make_vec(pokeworld.ENV_ID, num_envs=2, vectorization_mode='vector_entry_point')\n"
+            "assert venv.reset(seed=0)[0]['vision'].shape == (2, 64, 64)\n"
+            "import pokeworld.sim\n"
+            "pokeworld.register_envs(); pokeworld.sim.register()  # idempotent\n"
+            "print('ok')\n")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.strip() == "ok"
+
+
+def test_initial_velocities_are_bounded_by_the_observation_space():
+    env = gym.make("pokeworld/PokeWorld-v0")
+    vmax = float(env.observation_space["proprio"].high[2])
+    assert vmax == float(-env.observation_space["proprio"].low[3]) == pokeworld.sim.PokeWorldSim.MAX_VEL
+    for key in ("object_vel", "finger_vel"):
+        for bad in ([1e9, 0.0], [0.0, -1.01 * vmax]):
+            with pytest.raises(ConfigError, match=rf"{key} must lie in \[-50.000, 50.000\] per component"):
+                env.reset(seed=0, options={key: bad})
+        obs, info = env.reset(seed=0, options={key: [vmax, -vmax]})  # the bound itself is allowed
+        np.testing.assert_allclose(info[key], [vmax, -vmax])
+    obs, _ = env.reset(seed=0, options={"finger_vel": [vmax, -vmax]})
+    assert env.observation_space.contains(obs)
+    venv = pokeworld.sim.PokeWorldVectorEnv(num_envs=2)
+    with pytest.raises(ConfigError, match="object_vel"):
+        venv.reset(seed=0, options={"object_vel": [[0.0, 0.0], [60.0, 0.0]]})
+
+
+def test_reset_accepts_the_papers_short_parameter_names():
+    env = gym.make("pokeworld/PokeWorld-v0")
+    _, info = env.reset(seed=0, options={"params": {"m": 2.0, "gamma": 1.5, "k": 1200.0}})
+    assert (info["mass"], info["gamma"], info["stiffness"]) == (2.0, 1.5, 1200.0)
+    with pytest.raises(ConfigError, match="given twice"):
+        env.reset(options={"params": {"m": 2.0, "mass": 3.0}})
+    with pytest.raises(ConfigError, match="'m' must be > 0|'mass' must be > 0"):
+        env.reset(options={"params": {"m": -1.0}})
+    with pytest.raises(ConfigError, match="unknown parameter 'q'"):
+        env.reset(options={"params": {"q": 1.0}})

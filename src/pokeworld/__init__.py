@@ -6,3 +6,23 @@ envs), ``models`` (X-JEPA), ``evaluate`` (probes and the identifiability map),
 """
 
 __version__ = "0.1.0"
+
+#: Gymnasium id of the PokeWorld env (``gymnasium.make`` / ``make_vec`` with ``vectorization_mode="vector_entry_point"``).
+ENV_ID = "pokeworld/PokeWorld-v0"
+
+
+def register_envs() -> None:
+    """Register :data:`ENV_ID` with gymnasium (idempotent).
+
+    Runs on ``import pokeworld``, as gym-pusht does, so ``import pokeworld; gymnasium.make(ENV_ID)``
+    works; the entry points are strings, so the simulator (numba) loads only when an env is made.
+    """
+    import gymnasium
+
+    if ENV_ID not in gymnasium.registry:
+        gymnasium.register(id=ENV_ID, entry_point="pokeworld.sim.envs:PokeWorldEnv",
+                           vector_entry_point="pokeworld.sim.envs:PokeWorldVectorEnv",
+                           max_episode_steps=None, disable_env_checker=False)
+
+
+register_envs()

@@ -29,6 +29,8 @@ class Command:
 
 COMMANDS: dict[str, Command] = {
     "generate": Command("pokeworld.sim.generate", "GenerateConfig", "simulate a PokeWorld corpus", "out"),
+    "stats": Command("pokeworld.sim.stats", "StatsConfig", "a corpus's observable statistics beside the paper's",
+                     "data"),
     "certify": Command("pokeworld.certify", "CertifyConfig", "recoverability certificates for a corpus", "data"),
     "train": Command("pokeworld.train", "TrainConfig", "train one X-JEPA variant"),
     "probe": Command("pokeworld.evaluate.measure", "MeasureConfig", "probe and evaluate one trained run", "run_dir"),
@@ -39,6 +41,23 @@ COMMANDS: dict[str, Command] = {
     "plan": Command("pokeworld.plan", "PlanConfig", "CEM push-to-goal with trained runs", "out"),
     "rh20t-convert": Command("pokeworld.real.rh20t", "ConvertConfig", "convert RH20T scenes to a store", "root"),
 }
+
+#: What ``--preset`` costs, shown by ``pokeworld --help`` (timings: README "Benchmarks").
+PRESET_COSTS: dict[str, str] = {
+    "tiny": "seconds; smoke runs and the unit tests (too small for meaningful numbers)",
+    "cpu": "2 CPU cores; minutes per stage, ≈ 20 min per 4,000-step model (the default)",
+    "paper": "GPU; the paper's sizes, ≈ 13 min per model on one H100 at the current speed",
+}
+
+
+def usage() -> str:
+    """Top-level help: the module docstring, one line per command, the cost of each preset."""
+    width = max(map(len, COMMANDS)) + 2
+    lines = [__doc__.strip(), "", "commands:"]
+    lines += [f"  {name:{width}s}{c.help}" for name, c in COMMANDS.items()]
+    lines += ["", "presets (--preset):"]
+    lines += [f"  {name:{width}s}{cost}" for name, cost in PRESET_COSTS.items()]
+    return "\n".join(lines)
 
 
 def _flag_arity(cls) -> dict[str, int]:
@@ -101,10 +120,7 @@ def main(argv: list[str] | None = None) -> int:
 
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv or argv[0] in ("-h", "--help"):
-        print(__doc__)
-        print("commands:")
-        for name, c in COMMANDS.items():
-            print(f"  {name:14s} {c.help}")
+        print(usage())
         return 0
     name, argv = argv[0], argv[1:]
     if name not in COMMANDS:

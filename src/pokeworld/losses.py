@@ -188,6 +188,36 @@ def gaussian_nll(mean: torch.Tensor, logvar: torch.Tensor, target: torch.Tensor,
     return (nll * weight).sum() / weight.sum().clamp_min(1e-8)
 
 
+def glide_weights(glide: torch.Tensor, weight: float) -> torch.Tensor:
+    """Per-frame prediction-loss weights: ``weight`` on glide frames (``glide`` True), 1 elsewhere."""
+    return 1.0 + (float(weight) - 1.0) * glide.float()
+
+
+def glide_loss_share(glide: torch.Tensor, weight: float, horizons) -> torch.Tensor:
+    """Share of the prediction-loss weight mass on glide target frames, Σ w·glide / Σ w.
+
+    Args:
+        glide: (B, L) bool glide mask of a batch of windows.
+        weight: the glide-frame loss weight W (1 elsewhere).
+        horizons: prediction horizons Δ; the targets of horizon Δ are frames Δ..L-1.
+    Returns:
+        scalar: the share per horizon (pooled over the batch's target frames), averaged over the
+        horizons shorter than L — each horizon's loss is its own weighted mean, so this is the
+        glide share of the loss the optimiser sees. With base share s it is W·s / (W·s + 1 − s).
+    """
+    L = glide.shape[1]
+    shares = []
+    for d in horizons:
+        if d >= L:
+            continue
+        g = glide[:, d:].float()
+        w = glide_weights(glide[:, d:], weight)
+        shares.append((w * g).sum() / w.sum().clamp_min(1e-8))
+    if not shares:
+        raise ValueError(f"no horizon in {tuple(horizons)} is shorter than the window ({L})")
+    return torch.stack(shares).mean()
+
+
 def expected_null_ep(num_knots: int = 17, t_max: float = 3.0) -> float:
     """Expected EP statistic for N(0,1) samples: N·E|ECF−φ|² = ∫ (1 − φ(t)²) w(t) dt."""
     t, w, phi = ep_knots(num_knots, t_max)
@@ -195,4 +225,4 @@ def expected_null_ep(num_knots: int = 17, t_max: float = 3.0) -> float:
 
 
 __all__ = ["sigreg", "epps_pulley", "random_directions", "ep_knots", "masked_mse", "gaussian_nll",
-           "expected_null_ep"]
+           "glide_weights", "glide_loss_share", "expected_null_ep"]

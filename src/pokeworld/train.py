@@ -30,7 +30,7 @@ import numpy as np
 import torch
 
 from .config import from_preset, to_dict
-from .errors import ConfigError
+from .errors import ConfigError, DataError
 from .models.xjepa import OBJECTIVES, SYSID_PARAMS, XJEPA, area_downsample, check_variant
 
 
@@ -101,8 +101,12 @@ class TrainConfig:
     """Weight of the proprio forecasting loss (variants with a proprio target)."""
     touch_weight: float = 1.0
     """Weight of the touch forecasting loss (variants with a touch target)."""
-    glide_episode_weight: float = 1.0
-    """Relative sampling weight of zero-contact training episodes (contact flag 0 throughout)."""
+    glide_loss_weight: float = 1.0
+    """Weight W of glide target frames in every prediction-loss term (latent/recon Δ-heads, proprio and
+    touch heads; not SIGReg), 1 on other frames; each term stays a weighted mean. Raises the glide share
+    of the loss from s to W·s / (W·s + 1 − s) without changing the data (paper App. C dose–response 1:
+    s ≈ 0.32 -> 0.65 / 0.88 / 0.97 at W = 4 / 16 / 64). Glide frame: no finger contact, object speed >
+    0.02 and no wall contact (simulator labels; ``windows.glide_frames``), else touch contact flag off."""
     lr: float = 3e-4
     """Peak AdamW learning rate."""
     warmup: int = 500
@@ -145,6 +149,11 @@ PRESETS: dict[str, dict[str, Any]] = {
 #: Fields that may differ when re-running into an existing run directory.
 RESUMABLE_FIELDS = ("steps", "stop_at", "ckpt_every", "log_every", "tensorboard", "progress", "threads", "device")
 
+#: Fields removed from TrainConfig -> the value with which a run made before the removal behaves
+#: exactly like the current code; a run that set anything else conflicts. (Fields added later are
+#: compared at their default, which by convention reproduces the behaviour before they existed.)
+RETIRED_FIELDS: dict[str, Any] = {"glide_episode_weight": 1.0}
+
 
 def make_config(preset: str = "cpu", **overrides: Any) -> TrainConfig:
     """``TrainConfig`` from a named preset plus field overrides; validated."""
@@ -172,8 +181,10 @@ def validate(cfg: TrainConfig) -> None:
     for name in ("steps", "batch_size", "log_every", "ckpt_every"):
         if getattr(cfg, name) < 1:
             raise ConfigError(f"{name} must be ≥ 1, got {getattr(cfg, name)}")
-    if cfg.glide_episode_weight < 0 or cfg.sysid_weight < 0 or cfg.sigreg_weight < 0:
+    if cfg.glide_loss_weight < 0 or cfg.sysid_weight < 0 or cfg.sigreg_weight < 0:
         raise ConfigError("weights must be non-negative")
+    if not math.isfinite(cfg.glide_loss_weight):
+        raise ConfigError(f"glide_loss_weight must be finite, got {cfg.glide_loss_weight}")
 
 
 # ---------------------------------------------------------------------- data in memory
@@ -182,13 +193,14 @@ def validate(cfg: TrainConfig) -> None:
 class WindowSampler:
     """Holds a dataset's train episodes as (device) tensors and samples random windows.
 
-    Episodes are drawn with replacement, zero-contact ("glide") episodes weighted by
-    ``glide_weight``; the start step is uniform. Randomness comes from a dedicated CPU
-    ``torch.Generator`` whose state is checkpointed, so resumption is exact.
+    Episodes are drawn uniformly with replacement and the start step is uniform. Every batch carries
+    the per-frame glide mask (``glide``, computed once per episode by :func:`pokeworld.windows.glide_frames`)
+    for the glide-frame loss weight. Randomness comes from a dedicated CPU ``torch.Generator`` whose
+    state is checkpointed, so resumption is exact.
     """
 
     def __init__(self, ds, episodes: np.ndarray, image_size: int, window: int, device: torch.device,
-                 glide_weight: float = 1.0, contact_channel: int = 6, seed: int = 0, with_params: bool = False):
+                 contact_channel: int = 6, seed: int = 0, with_params: bool = False):
         ep = np.asarray(episodes)
         if ep.size == 0:
             raise ConfigError("the dataset has no training episodes (split == 0)")
@@ -209,15 +221,17 @@ class WindowSampler:
             if missing:
                 raise ConfigError(f"sysid control needs params {list(SYSID_PARAMS)}; the dataset lacks {missing}")
             self.params = torch.from_numpy(np.stack([ds.params[k][ep] for k in SYSID_PARAMS], -1)).float().to(device)
-        if 0 <= contact_channel < ds.touch.shape[-1]:
-            glide = ds.touch[ep][..., contact_channel].max(1) <= 0.5
-        else:
-            glide = np.zeros(len(ep), bool)
-        self.num_glide = int(glide.sum())
-        w = np.where(glide, glide_weight, 1.0)
-        if w.sum() <= 0:
-            raise ConfigError("glide_episode_weight=0 but every training episode is zero-contact")
-        self.weights = torch.as_tensor(w / w.sum(), dtype=torch.float64)
+        from .windows import glide_frames
+
+        try:
+            glide = glide_frames(ds, contact_channel=contact_channel)[ep]
+        except DataError:  # no labels and no contact channel: nothing can be called a glide frame
+            glide = np.zeros((len(ep), T1), bool)
+        self.glide_np = glide
+        self.glide = torch.from_numpy(glide).to(device)
+        # uniform multinomial (not randint) keeps the sampling stream of runs made before the glide
+        # loss weight existed, so they resume exactly
+        self.weights = torch.full((len(ep),), 1.0 / len(ep), dtype=torch.float64)
         self.num_starts = T1 - window + 1
         self.gen = torch.Generator(device="cpu")
         self.gen.manual_seed(seed)
@@ -231,10 +245,33 @@ class WindowSampler:
         t = s[:, None] + self.offsets[None]
         ee = e[:, None]
         out = {"frames": self.frames[ee, t], "proprio": self.proprio[ee, t], "touch": self.touch[ee, t],
-               "actions": self.actions[ee, t]}
+               "actions": self.actions[ee, t], "glide": self.glide[ee, t]}
         if self.params is not None:
             out["params"] = self.params[e]
         return out
+
+    def glide_share(self, horizons, weight: float = 1.0) -> dict[str, float]:
+        """Corpus-level glide shares of the prediction loss under this sampler's window distribution.
+
+        ``glide_frame_share``: expected fraction s of target frames (t+Δ, Δ in ``horizons``) that are
+        glide frames, i.e. the glide loss share at weight 1; ``glide_loss_share_expected``: the share
+        of the loss weight mass at ``weight`` W, W·s_Δ / (W·s_Δ + 1 − s_Δ) averaged over horizons
+        (ratio of expected masses, which the per-batch share approaches for large batches).
+        """
+        g = self.glide_np.astype(np.float64)
+        c = np.concatenate([np.zeros((g.shape[0], 1)), np.cumsum(g, 1)], 1)
+        st = np.arange(self.num_starts)
+        base, share = [], []
+        for d in horizons:
+            if d >= self.window:
+                continue
+            s = float((c[:, st + self.window] - c[:, st + d]).mean() / (self.window - d))
+            base.append(s)
+            mass = weight * s + (1.0 - s)
+            share.append(weight * s / mass if mass > 0 else 0.0)
+        if not base:
+            raise ConfigError(f"no horizon in {tuple(horizons)} is shorter than the window {self.window}")
+        return {"glide_frame_share": float(np.mean(base)), "glide_loss_share_expected": float(np.mean(share))}
 
 
 def data_stats(ds, episodes: np.ndarray) -> dict[str, np.ndarray]:
@@ -389,7 +426,10 @@ def run(cfg: TrainConfig) -> Path:
     cfg_dict = to_dict(cfg)
     if (out / "config.json").exists():
         old = json.loads((out / "config.json").read_text())
-        diff = {k: (old.get(k), v) for k, v in cfg_dict.items() if k not in RESUMABLE_FIELDS and old.get(k) != v}
+        default = to_dict(TrainConfig())
+        diff = {k: (old.get(k, default[k]), v) for k, v in cfg_dict.items()
+                if k not in RESUMABLE_FIELDS and old.get(k, default[k]) != v}
+        diff.update({k: (old[k], "(removed)") for k, same in RETIRED_FIELDS.items() if old.get(k, same) != same})
         if diff:
             raise ConfigError(f"{out} already holds a run with a different config {diff} (old, new); "
                               "use another --out or delete the directory")
@@ -423,8 +463,9 @@ def run(cfg: TrainConfig) -> Path:
     ds = data_mod.load(cfg.data)
     train_ep = ds.episodes("train")
     dims = (ds.proprio.shape[-1], ds.touch.shape[-1], ds.actions.shape[-1])
-    sampler = WindowSampler(ds, train_ep, cfg.image_size, cfg.window, dev, cfg.glide_episode_weight,
-                            cfg.contact_channel, seed=cfg.seed * 1000 + 1 + rank, with_params=cfg.sysid_weight > 0)
+    sampler = WindowSampler(ds, train_ep, cfg.image_size, cfg.window, dev, cfg.contact_channel,
+                            seed=cfg.seed * 1000 + 1 + rank, with_params=cfg.sysid_weight > 0)
+    train_horizons = (1,) if cfg.tokens else tuple(cfg.horizons)
     stats = data_stats(ds, train_ep)
     del ds
 
@@ -459,6 +500,9 @@ def run(cfg: TrainConfig) -> Path:
 
             rows = [r for r in read_jsonl(out / "metrics.jsonl") if r.get("step", 0) <= step]
             (out / "metrics.jsonl").write_text("".join(json.dumps(r, sort_keys=True) + "\n" for r in rows))
+    elif main:  # fresh start: the step-0 row describes the corpus the loss will see (and drops stale rows)
+        start_row = {"step": 0, **sampler.glide_share(train_horizons, cfg.glide_loss_weight)}
+        (out / "metrics.jsonl").write_text(json.dumps(start_row, sort_keys=True) + "\n")
 
     net: torch.nn.Module = model
     if cfg.ddp:
@@ -488,7 +532,8 @@ def run(cfg: TrainConfig) -> Path:
     end = min(cfg.steps, cfg.stop_at) if cfg.stop_at > 0 else cfg.steps
     loss_kw = dict(sigreg_weight=cfg.sigreg_weight, sigreg_dirs=cfg.sigreg_dirs, sigreg_knots=cfg.sigreg_knots,
                    token_rows=cfg.token_rows, token_dirs=cfg.token_dirs, touch_contact_weight=cfg.touch_contact_weight,
-                   proprio_weight=cfg.proprio_weight, touch_weight=cfg.touch_weight, sysid_weight=cfg.sysid_weight)
+                   proprio_weight=cfg.proprio_weight, touch_weight=cfg.touch_weight, sysid_weight=cfg.sysid_weight,
+                   glide_loss_weight=cfg.glide_loss_weight)
     acc: dict[str, torch.Tensor] = {}
     n_acc, t0 = 0, time.perf_counter()
     model.train()

@@ -75,6 +75,21 @@ def wall_contact(ds: Dataset, margin: float = 0.005) -> np.ndarray:
     return ((p < r + margin) | (p > arena - r - margin)).any(-1)
 
 
+def glide_frames(ds: Dataset, min_speed: float = 0.02, contact_channel: int = 6) -> np.ndarray:
+    """(E, T+1) bool: observations at which the object glides freely.
+
+    Simulator stores: no finger contact (``labels/contact``), object speed > ``min_speed`` and no
+    wall contact — the frame-level version of the pure-glide window. Stores without object labels
+    (real data) fall back to "no contact" from the touch stream's contact flag.
+    """
+    if {"contact", "object_vel", "object_pos"} <= set(ds.labels):
+        speed = np.linalg.norm(ds.labels["object_vel"], axis=-1)
+        return (ds.labels["contact"] <= 0) & (speed > min_speed) & ~wall_contact(ds)
+    if not 0 <= contact_channel < ds.touch.shape[-1]:
+        raise DataError(f"no object labels and no touch contact channel {contact_channel} to find glide frames")
+    return ds.touch[..., contact_channel] <= 0.5
+
+
 def make_windows(ds: Dataset, episodes: np.ndarray, length: int = 16, stride: int = 4,
                  min_speed: float = 0.02) -> Windows:
     """All windows of ``length`` at ``stride`` in ``episodes``, classified as contact / glide."""

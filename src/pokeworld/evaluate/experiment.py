@@ -172,7 +172,21 @@ def exp_dose_touch(c: MapConfig) -> list[RunSpec]:
 
 
 def exp_dose_glide(c: MapConfig) -> list[RunSpec]:
-    return [_spec("dose_glide", "VFX", c.seeds[0], c.sigreg_weight, glide_episode_weight=w) for w in (1.0, 4.0, 16.0, 64.0)]
+    """Dose-response 1 (paper App. C): glide-frame loss weight 1/4/16/64 (glide loss share 32% -> 97% there)."""
+    return [_spec("dose_glide", "VFX", c.seeds[0], c.sigreg_weight, glide_loss_weight=w) for w in (1.0, 4.0, 16.0, 64.0)]
+
+
+def dose_glide_label(results: dict, run: dict) -> str:
+    """Row label of a dose-glide run: its glide loss weight and the glide loss share its training realised
+    (mean of the per-step ``glide_loss_share`` in the run's metrics.jsonl; "—" when the run is not on disk)."""
+    w = run["train"].get("glide_loss_weight", 1.0)
+    name = next((n for n, r in results["runs"].items() if r is run), None)
+    path = Path(results.get("map_config", {}).get("out", "")) / "runs" / str(name) / "metrics.jsonl"
+    shares = []
+    if name is not None and path.exists():
+        shares = [r["glide_loss_share"] for r in map(json.loads, path.read_text().splitlines()) if "glide_loss_share" in r]
+    share = f"{100 * sum(shares) / len(shares):.0f}%" if shares else "—"
+    return f"glide loss weight {w:g} (glide loss share {share})"
 
 
 def exp_attributes(c: MapConfig) -> list[RunSpec]:

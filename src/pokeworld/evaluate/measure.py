@@ -5,14 +5,25 @@ held-out R^2 on probe-test episodes (paper §3 "Measurement", §4, App. C).
 
 * Probes: ridge (alpha by episode-grouped CV) and an early-stopped MLP, from the
   predictor state at the last observation of 16-step windows, to log m, gamma,
-  log k (and b, g when present), object position and object velocity; on contact,
+  log k (and b, g when present), object position and velocity, finger position and
+  the object-minus-finger position (the composition probes, App. C); on contact,
   glide and all windows.
+* Leak-free readout: trunk state t is conditioned on the action taken *after*
+  observation t, and the scripted policy computes that action from the privileged
+  object state. The primary probes (``probes``) therefore read the state with the
+  last window step's action replaced by the neutral action (raw zeros, the padding
+  every training episode ends with); the action-conditioned readout is kept as a
+  labelled secondary (``probes_action_conditioned``, ridge only).
 * Prediction: from 8 context observations, the direct Δ=16 head, the
   autoregressive composition of the Δ=1 head and a static latent, all decoded
-  to arena units through a ridge position probe fit on encoder latents.
+  to arena units through a ridge position probe fit on encoder latents; the static
+  baseline is decoded through the same probe (``static16``; ``static16_true`` is the
+  undecoded true-position one).
 * Functional glide test: the model's own direct 16-step prediction on pure-glide
-  windows against analytic references (true gamma, population-median gamma, static).
-* Untrained bound: the same ridge probes on a randomly initialised model.
+  windows against analytic references (true gamma, population-median gamma, static),
+  every candidate carrying the same decoder residual so the comparison is in one space.
+* Untrained bound: the same ridge probes on a randomly initialised model that shares
+  only the trained model's input-normalisation statistics.
 """
 
 from __future__ import annotations
@@ -32,7 +43,14 @@ from ..regressors import RidgeCV, TorchRegressor, r2_scores
 from ..windows import make_windows, wall_contact
 
 PARAM_TARGETS = ("log_m", "gamma", "log_k", "bias_x", "bias_y", "gain")
-STATE_TARGETS = ("object_pos", "object_vel")
+STATE_TARGETS = ("object_pos", "object_vel", "finger_pos", "object_rel")
+KINDS = ("contact", "glide", "all")
+READOUT = {
+    "probes": "state at the window's last observation with the action after it replaced by the neutral "
+              "(raw zero) action: leak-free, the primary readout",
+    "probes_action_conditioned": "state conditioned on the real action after the last observation, which the "
+                                 "scripted policy computed from the object state: an upper, leaky readout",
+}
 CONTEXT, HORIZON = 8, 16
 
 
@@ -48,8 +66,10 @@ class MeasureConfig:
     """Probe window length (observations); the state at its last observation is probed."""
     stride: int = 4
     """Step between probe windows."""
-    kinds: tuple[str, ...] = ("contact", "glide", "all")
+    kinds: tuple[str, ...] = KINDS
     """Window kinds to probe."""
+    action_conditioned_kinds: tuple[str, ...] = ("contact",)
+    """Window kinds of the secondary, action-conditioned ridge readout (empty: skip it)."""
     max_windows: int = 6000
     """Cap on fit windows per kind (episode-preserving random subsample)."""
     mlp: bool = True
@@ -62,6 +82,11 @@ class MeasureConfig:
     """Seed for subsampling and MLP probes."""
     overwrite: bool = False
     """Recompute even if measure.json is up to date."""
+
+    def __post_init__(self) -> None:
+        bad = (set(self.kinds) | set(self.action_conditioned_kinds)) - set(KINDS)
+        if bad:
+            raise ConfigError(f"unknown window kinds {sorted(bad)}; choose from {list(KINDS)}")
 
 
 PRESETS = {"tiny": {"max_windows": 400, "mlp": False}, "cpu": {}, "paper": {"max_windows": 100000}}
@@ -114,20 +139,37 @@ class EpisodeLatents:
         return self.z[rows[:, None], t]
 
 
-def window_states(model, ds: Dataset, lat: EpisodeLatents, w, acts: np.ndarray) -> np.ndarray:
-    """Predictor state at the last observation of every window: (W, width)."""
-    return _trunk_at(model, lat.gather(w), w.gather(acts), w.length - 1)
+def window_states(model, ds: Dataset, lat: EpisodeLatents, w, acts: np.ndarray,
+                  neutral_last_action: bool = True) -> np.ndarray:
+    """Predictor state at the last observation of every window: (W, width).
+
+    ``neutral_last_action`` replaces the action taken after that observation by raw zeros before the
+    trunk sees it: the policy chose that action from the privileged object state, so a state conditioned
+    on it can expose the object state without the model having inferred anything. Zeros are the padding
+    every training episode ends with, so the trunk has seen this input.
+    """
+    a = w.gather(acts)
+    if neutral_last_action:
+        a[:, -1] = 0.0  # gather returns a copy: the dataset's actions are untouched
+    return _trunk_at(model, lat.gather(w), a, w.length - 1)
 
 
 # --------------------------------------------------------------------------- probes
 def probe_targets(ds: Dataset, w) -> dict[str, np.ndarray]:
-    """Targets per window: per-episode parameters and the object state at the last observation."""
+    """Targets per window: per-episode parameters and the object / finger state at the last observation.
+
+    ``object_rel`` (object minus finger position) is derived when both positions are labelled.
+    """
     out = {}
     for name in PARAM_TARGETS:
         if name in ds.params and np.ptp(ds.params[name]) > 0:
             out[name] = ds.params[name][w.episode][:, None].astype(np.float64)
     for name in STATE_TARGETS:
-        if name in ds.labels:
+        if name == "object_rel":
+            if {"object_pos", "finger_pos"} <= set(ds.labels):
+                out[name] = (w.last(ds.labels["object_pos"]) - w.last(ds.labels["finger_pos"])).reshape(
+                    len(w), -1).astype(np.float64)
+        elif name in ds.labels:
             out[name] = w.last(ds.labels[name]).reshape(len(w), -1).astype(np.float64)
     return out
 
@@ -147,24 +189,34 @@ def fit_probes(X_fit, g_fit, T_fit, X_test, T_test, mlp: bool, seed: int) -> dic
     return res
 
 
-def probe_model(model, ds: Dataset, cfg: MeasureConfig, mlp: bool) -> dict:
-    rng = np.random.default_rng(cfg.seed)
+def probe_latents(model, ds: Dataset, cfg: MeasureConfig) -> tuple[EpisodeLatents, EpisodeLatents]:
+    """Encoder latents of the probe-fit and probe-test episodes (shared by every readout of one model)."""
     fit_eps, test_eps = ds.episodes("probe_fit"), ds.episodes("probe_test")
     if np.intersect1d(fit_eps, test_eps).size:
         raise DataError("probe-fit and probe-test episodes overlap")
+    return (EpisodeLatents(model, ds, fit_eps, cfg.batch_episodes),
+            EpisodeLatents(model, ds, test_eps, cfg.batch_episodes))
+
+
+def probe_model(model, ds: Dataset, cfg: MeasureConfig, mlp: bool, kinds: tuple[str, ...] | None = None,
+                neutral_last_action: bool = True, latents=None) -> tuple[dict, tuple]:
+    """Probe R^2 per family and window kind: ``({"counts", "ridge", ["mlp"]}, (lat_fit, lat_test))``."""
+    kinds = cfg.kinds if kinds is None else kinds
+    fit_eps, test_eps = ds.episodes("probe_fit"), ds.episodes("probe_test")
+    lat_fit, lat_test = latents if latents is not None else probe_latents(model, ds, cfg)
     acts = padded_actions(ds)
-    lat_fit = EpisodeLatents(model, ds, fit_eps, cfg.batch_episodes)
-    lat_test = EpisodeLatents(model, ds, test_eps, cfg.batch_episodes)
     out = {"counts": {}}
-    for kind in cfg.kinds:
+    for kind in kinds:
+        # one generator per kind, so readouts that probe different kind sets use identical windows
+        rng = np.random.default_rng([cfg.seed, KINDS.index(kind)])
         wf = make_windows(ds, fit_eps, cfg.window, cfg.stride).kind(kind).subsample(cfg.max_windows, rng)
         wt = make_windows(ds, test_eps, cfg.window, cfg.stride).kind(kind)
         out["counts"][kind] = {"fit": len(wf), "test": len(wt)}
         if len(wf) < 10 or len(wt) < 10 or np.unique(wf.episode).size < 5:
             continue
         assert not np.intersect1d(wf.episode, wt.episode).size
-        Xf = window_states(model, ds, lat_fit, wf, acts)
-        Xt = window_states(model, ds, lat_test, wt, acts)
+        Xf = window_states(model, ds, lat_fit, wf, acts, neutral_last_action)
+        Xt = window_states(model, ds, lat_test, wt, acts, neutral_last_action)
         res = fit_probes(Xf, wf.episode, probe_targets(ds, wf), Xt, probe_targets(ds, wt), mlp, cfg.seed)
         for fam, r in res.items():
             out.setdefault(fam, {})[kind] = r
@@ -182,7 +234,13 @@ def _position_decoder(ds: Dataset, lat_fit: EpisodeLatents, fit_eps: np.ndarray,
 
 @torch.no_grad()
 def prediction_quality(model, ds: Dataset, lat_fit: EpisodeLatents, lat_test: EpisodeLatents, seed: int) -> dict:
-    """Decoded 16-step errors (arena units) of direct, autoregressive and static predictions; glide test."""
+    """Decoded 16-step errors (arena units) of direct, autoregressive and static predictions; glide test.
+
+    Every prediction, the static baseline included, goes through the same position decoder, so all
+    candidates carry its error; ``probe_error`` is that decoder's error on the true future latent (the
+    floor no decoded prediction can beat on average). ``static16_true`` / ``static8_true`` are the
+    undecoded static errors in true position space, for reference only.
+    """
     if model.objective == "recon":
         return {"note": "reconstruction objective: latent heads receive no gradient"}
     rng = np.random.default_rng(seed)
@@ -193,11 +251,14 @@ def prediction_quality(model, ds: Dataset, lat_fit: EpisodeLatents, lat_test: Ep
     acts = w.gather(padded_actions(ds))
     z = lat_test.gather(w)
     pos = w.gather(ds.labels["object_pos"])
-    truth, ctx_pos = pos[:, -1], pos[:, CONTEXT - 1]
-    out = {"windows": len(w), "static16": float(np.linalg.norm(ctx_pos - truth, axis=-1).mean())}
-    dist = lambda zz, p: float(np.linalg.norm(dec.predict(zz) - p, axis=-1).mean())  # noqa: E731
-    out["static16_decoded"] = dist(z[:, CONTEXT - 1], truth)
-    out["probe_error"] = dist(z[:, -1], truth)  # decoder floor: true latent at t+16
+    truth, truth8, ctx_pos = pos[:, -1], pos[:, CONTEXT + 7], pos[:, CONTEXT - 1]
+    err = lambda p, q: float(np.linalg.norm(p - q, axis=-1).mean())  # noqa: E731
+    static_decoded = dec.predict(z[:, CONTEXT - 1])
+    truth_decoded = dec.predict(z[:, -1])
+    out = {"windows": len(w),
+           "static16": err(static_decoded, truth), "static16_true": err(ctx_pos, truth),
+           "static8": err(static_decoded, truth8), "static8_true": err(ctx_pos, truth8),
+           "probe_error": err(truth_decoded, truth)}
     direct = None
     if HORIZON in model.horizons:
         preds = []
@@ -206,24 +267,32 @@ def prediction_quality(model, ds: Dataset, lat_fit: EpisodeLatents, lat_test: Ep
             h = model.trunk(zt, acts[i:i + 512])
             zh = model.predict(h, acts[i:i + 512], HORIZON)
             preds.append(zh[:, CONTEXT - 1].float().cpu().numpy())
-        direct = np.concatenate(preds)
-        out["direct16"] = dist(direct, truth)
+        direct = dec.predict(np.concatenate(preds))
+        out["direct16"] = err(direct, truth)
     if 1 in model.horizons and not model.tokens:
         rolls = []
         for i in range(0, len(w), 512):
             r = model.rollout(torch.as_tensor(z[i:i + 512, :CONTEXT]), acts[i:i + 512], HORIZON)
             rolls.append(r.float().cpu().numpy())
         roll = np.concatenate(rolls)
-        out["rollout16"] = dist(roll[:, -1], truth)
-        out["rollout8"] = dist(roll[:, 7], pos[:, CONTEXT + 7])
-        out["static8"] = float(np.linalg.norm(ctx_pos - pos[:, CONTEXT + 7], axis=-1).mean())
+        out["rollout16"] = err(dec.predict(roll[:, -1]), truth)
+        out["rollout8"] = err(dec.predict(roll[:, 7]), truth8)
     if direct is not None:
-        out["glide_test"] = glide_test(ds, w, dec.predict(direct), fit_eps)
+        out["glide_test"] = glide_test(ds, w, direct, fit_eps, residual=truth_decoded - truth)
     return out
 
 
-def glide_test(ds: Dataset, w, predicted_pos: np.ndarray, fit_eps: np.ndarray) -> dict:
-    """Errors of the model's direct 16-step positions on pure-glide futures vs analytic references."""
+def glide_test(ds: Dataset, w, predicted_pos: np.ndarray, fit_eps: np.ndarray,
+               residual: np.ndarray | None = None) -> dict:
+    """The model's direct 16-step positions on pure-glide futures against analytic references.
+
+    ``w`` are (CONTEXT + HORIZON)-observation windows; a window qualifies when the object glides freely
+    (no finger or wall contact, moving) from the last context observation to the end. ``residual`` is
+    the position decoder's error on the true future latent, per window (None: predictions are in true
+    position space already). See :func:`glide_comparison` for the keys.
+    """
+    if "gamma" not in ds.params:
+        return {"windows": 0, "note": "no gamma parameter in this dataset"}
     dt = ds.manifest.get("config", {}).get("physics", {}).get("dt", 0.05)
     contact = w.gather(ds.labels["contact"])[:, CONTEXT - 1:] > 0
     walls = w.gather(wall_contact(ds))[:, CONTEXT - 1:]
@@ -233,38 +302,87 @@ def glide_test(ds: Dataset, w, predicted_pos: np.ndarray, fit_eps: np.ndarray) -
     if ok.sum() < 5:
         return {"windows": int(ok.sum())}
     pos = w.gather(ds.labels["object_pos"])
-    p0, v0, truth = pos[ok, CONTEXT - 1], vel[ok, CONTEXT - 1], pos[ok, -1]
-    T = HORIZON * dt
-    gamma = ds.params["gamma"][w.episode[ok]][:, None]
-    g_med = float(np.median(ds.params["gamma"][fit_eps]))
-    ref = lambda g: p0 + v0 * (1 - np.exp(-g * T)) / g  # noqa: E731
+    residual = np.zeros_like(predicted_pos) if residual is None else residual
+    res = glide_comparison(predicted_pos[ok], residual[ok], pos[ok, -1], pos[ok, CONTEXT - 1], vel[ok, CONTEXT - 1],
+                           ds.params["gamma"][w.episode[ok]], float(np.median(ds.params["gamma"][fit_eps])),
+                           HORIZON * dt)
+    return {"windows": int(ok.sum()), **res}
+
+
+def glide_reference(p0: np.ndarray, v0: np.ndarray, gamma, horizon_time: float) -> np.ndarray:
+    """Exponential-drag glide from (p0, v0) after ``horizon_time``: p0 + v0 (1 - e^(-γT)) / γ."""
+    g = np.broadcast_to(np.asarray(gamma, float).reshape(-1), (len(p0),))[:, None]  # scalar or per window
+    safe = np.maximum(g, 1e-9)
+    travel = np.where(g > 1e-9, -np.expm1(-safe * horizon_time) / safe, horizon_time)  # γ → 0: free flight
+    return p0 + v0 * travel
+
+
+def glide_comparison(predicted: np.ndarray, residual: np.ndarray, truth: np.ndarray, p0: np.ndarray,
+                     v0: np.ndarray, gamma: np.ndarray, gamma_median: float, horizon_time: float) -> dict:
+    """Mean position errors of the model and of analytic references, compared in one (decoded) space.
+
+    The model's prediction is read through a position decoder whose own error on the true future frame
+    is ``residual`` = dec(z_true) - truth. Each analytic reference is displaced by the same residual, so
+    every candidate carries the decoder's error and the comparison cannot be decided by it:
+
+    * ``model``: |predicted - truth|;  ``decoder_floor``: |residual| (the decoded truth);
+    * ``true_gamma`` / ``median_gamma`` / ``static``: |reference + residual - truth| for the glide with the
+      episode's γ, with the population-median γ, and the position at the last context observation;
+    * ``undecoded``: the same references' errors in true position space (no decoder involved);
+    * ``uses_gamma``: the model beats the decoded median-γ reference, i.e. its predictions carry
+      episode-specific drag; ``beats_static``: it beats the decoded static reference.
+    """
+    refs = {"true_gamma": glide_reference(p0, v0, gamma, horizon_time),
+            "median_gamma": glide_reference(p0, v0, gamma_median, horizon_time),
+            "static": p0}
     err = lambda p: float(np.linalg.norm(p - truth, axis=-1).mean())  # noqa: E731
-    return {"windows": int(ok.sum()), "model": err(predicted_pos[ok]), "true_gamma": err(ref(gamma)),
-            "median_gamma": err(ref(g_med)), "static": err(p0)}
+    out = {"model": err(predicted), "decoder_floor": float(np.linalg.norm(residual, axis=-1).mean())}
+    out.update({name: err(ref + residual) for name, ref in refs.items()})
+    out["undecoded"] = {name: err(ref) for name, ref in refs.items()}
+    out["uses_gamma"] = bool(out["model"] < out["median_gamma"])
+    out["beats_static"] = bool(out["model"] < out["static"])
+    return out
 
 
 # --------------------------------------------------------------------------- entry
 def measure(model, ds: Dataset, cfg: MeasureConfig, untrained_model=None) -> dict:
+    """Probes (leak-free primary, action-conditioned secondary), prediction quality and the untrained bound."""
     torch.manual_seed(cfg.seed)
-    probes, (lat_fit, lat_test) = probe_model(model, ds, cfg, cfg.mlp)
-    res = {"probes": probes, "prediction": prediction_quality(model, ds, lat_fit, lat_test, cfg.seed)}
+    probes, latents = probe_model(model, ds, cfg, cfg.mlp)
+    res = {"readout": READOUT, "probes": probes}
+    if cfg.action_conditioned_kinds:
+        res["probes_action_conditioned"], _ = probe_model(model, ds, cfg, mlp=False, kinds=cfg.action_conditioned_kinds,
+                                                          neutral_last_action=False, latents=latents)
+    res["prediction"] = prediction_quality(model, ds, *latents, cfg.seed)
     if untrained_model is not None:
         up, _ = probe_model(untrained_model, ds, cfg, mlp=False)
         res["untrained"] = up
     return res
 
 
-def untrained_like(run_dir: Path, ds: Dataset, seed: int = 12345):
-    """A randomly initialised model with the run's architecture and the run's normalisation statistics."""
-    from ..models.xjepa import XJEPA
-    from ..train import load_model
+def untrained_copy(trained, seed: int = 12345):
+    """A randomly initialised model of ``trained``'s architecture sharing only its input-normalisation buffers.
 
-    trained = load_model(run_dir, map_location="cpu")
-    torch.manual_seed(seed)
-    fresh = XJEPA(**trained.config)
-    stats = {k: v for k, v in trained.state_dict().items() if k.endswith(("_mean", "_std"))}
+    Only the model's own top-level ``*_mean`` / ``*_std`` buffers (proprio, touch, action, param statistics,
+    registered in ``XJEPA.__init__``) are copied: they describe the data, not learning. Nested buffers such
+    as the encoder's BatchNorm running statistics are accumulated during training and stay fresh, or the
+    bound would not be untrained.
+    """
+    from ..models.xjepa import XJEPA
+
+    stats = {k: v.detach().clone() for k, v in trained.named_buffers(recurse=False) if k.endswith(("_mean", "_std"))}
+    with torch.random.fork_rng(devices=[]):  # a fixed initialisation without disturbing the caller's stream
+        torch.manual_seed(seed)
+        fresh = XJEPA(**trained.config)
     fresh.load_state_dict(stats, strict=False)
     return fresh.eval()
+
+
+def untrained_like(run_dir: Path, ds: Dataset | None = None, seed: int = 12345):
+    """:func:`untrained_copy` of the model trained in ``run_dir``."""
+    from ..train import load_model
+
+    return untrained_copy(load_model(run_dir, map_location="cpu"), seed)
 
 
 def run(cfg: MeasureConfig) -> Path:
@@ -298,7 +416,11 @@ def run(cfg: MeasureConfig) -> Path:
 
 def summary_line(res: dict) -> str:
     c = res["probes"].get("ridge", {}).get("contact", {})
-    parts = [f"{k}={c[k]:+.2f}" for k in ("log_k", "log_m", "gamma", "object_pos", "object_vel") if k in c]
+    parts = [f"{k}={c[k]:+.2f}" for k in ("log_k", "log_m", "gamma", "object_pos", "object_vel", "object_rel")
+             if k in c]
+    leaky = res.get("probes_action_conditioned", {}).get("ridge", {}).get("contact", {})
+    if "object_pos" in leaky:
+        parts.append(f"object_pos(action-conditioned)={leaky['object_pos']:+.2f}")
     p = res.get("prediction", {})
     parts += [f"{k}={p[k]:.3f}" for k in ("direct16", "rollout16", "static16") if k in p]
     return " ".join(parts)

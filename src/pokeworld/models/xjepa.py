@@ -26,7 +26,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from ..errors import ConfigError
-from ..losses import gaussian_nll, masked_mse, sigreg
+from ..losses import gaussian_nll, glide_loss_share, glide_weights, masked_mse, sigreg
 from .encoders import FusedEncoder
 from .predictor import CausalPredictor
 
@@ -333,13 +333,17 @@ class XJEPA(nn.Module):
     def loss(self, batch: dict[str, torch.Tensor], *, sigreg_weight: float = 0.02, sigreg_dirs: int = 1024,
              sigreg_seed: int = 0, sigreg_knots: int = 17, token_rows: int = 4096, token_dirs: int = 256,
              touch_contact_weight: float = 4.0, proprio_weight: float = 1.0, touch_weight: float = 1.0,
-             sysid_weight: float = 0.5) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+             sysid_weight: float = 0.5, glide_loss_weight: float = 1.0) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """Training loss on a batch of windows.
 
         Args:
             batch: ``frames`` (B, L, H, W) uint8, ``proprio`` (B, L, Dp), ``touch`` (B, L, Dt), ``actions``
                 (B, L, Da) raw (last action of an episode zero-padded), optional ``params`` (B, 3) raw
-                (log m, γ, log k) for the sysid control.
+                (log m, γ, log k) for the sysid control, optional ``glide`` (B, L) bool glide-frame mask.
+            glide_loss_weight: weight W of a prediction-loss term (latent/recon, proprio, touch; not SIGReg,
+                not sysid) whose target frame t+Δ is a glide frame, 1 otherwise; each term stays a weighted
+                mean. Needs ``batch["glide"]``; with it the term ``glide_loss_share`` (Σ w·glide / Σ w over
+                target frames) is reported.
         Returns:
             (total loss, {term name: detached scalar}).
         """
@@ -351,10 +355,24 @@ class XJEPA(nn.Module):
         terms: dict[str, torch.Tensor] = {}
         total = z.new_zeros((), dtype=torch.float32)
         valid = [d for d in self.horizons if d < L]
+        # (B, L) per-target-frame weights; None at W = 1 keeps the unweighted losses bit-for-bit
+        gw = None
+        if "glide" in batch:
+            if glide_loss_weight != 1.0:
+                gw = glide_weights(batch["glide"], glide_loss_weight)
+            terms["glide_loss_share"] = glide_loss_share(batch["glide"], glide_loss_weight, valid)
+        elif glide_loss_weight != 1.0:
+            raise ValueError("glide_loss_weight != 1 needs batch['glide'] (the glide-frame mask)")
+
+        def at(d: int, pos=None):  # target-frame weights of horizon d (at window positions ``pos``)
+            if gw is None:
+                return None
+            return gw[:, d:] if pos is None else gw[:, pos + d]
 
         if self.tokens:  # dense, spatially aligned Δ=1 token prediction
             pred = self._head_out(hs, actions, 1, self.latent_heads["1"])
-            terms["pred_1"] = masked_mse(pred[:, :-1], z[:, 1:])
+            w1 = at(1)
+            terms["pred_1"] = masked_mse(pred[:, :-1], z[:, 1:], None if w1 is None else w1[..., None].expand(z[:, 1:].shape[:-1]))
             total = total + terms["pred_1"]
             flat = z.reshape(-1, z.shape[-1])
             terms["sigreg"] = sigreg(flat, token_dirs, sigreg_seed, sigreg_knots, max_rows=token_rows)
@@ -363,9 +381,9 @@ class XJEPA(nn.Module):
             for d in valid:
                 mean, logvar = self.predict(h, actions, d, return_logvar=True)
                 if self.objective == "gnll":
-                    l_d = gaussian_nll(mean[:, :L - d], logvar[:, :L - d], z[:, d:])
+                    l_d = gaussian_nll(mean[:, :L - d], logvar[:, :L - d], z[:, d:], at(d))
                 else:
-                    l_d = masked_mse(mean[:, :L - d], z[:, d:])
+                    l_d = masked_mse(mean[:, :L - d], z[:, d:], at(d))
                 terms[f"pred_{d}"] = l_d
                 losses.append(l_d)
             total = total + torch.stack(losses).mean()
@@ -380,7 +398,10 @@ class XJEPA(nn.Module):
                 if d > 1:
                     inp = torch.cat([inp, self.action_window(actions, d)[:, pos]], -1)
                 rec = self.decoder(self.adapters[str(d)](inp)).reshape(h.shape[0], len(pos), *img.shape[-2:])
-                l_d = (rec - img[:, pos + d]).pow(2).mean()
+                if gw is None:
+                    l_d = (rec - img[:, pos + d]).pow(2).mean()
+                else:
+                    l_d = masked_mse(rec.flatten(2), img[:, pos + d].flatten(2), at(d, pos))
                 terms[f"recon_{d}"] = l_d
                 losses.append(l_d)
             total = total + torch.stack(losses).mean()
@@ -395,10 +416,11 @@ class XJEPA(nn.Module):
             losses = []
             for d in valid:
                 pred = self._head_out(h, actions, d, self.modal_heads[m][str(d)])[:, :L - d]
-                weight = None
+                weight = at(d)
                 if m == "touch" and 0 <= self.contact_channel < batch[m].shape[-1]:
                     contact = batch[m][:, d:, self.contact_channel] > 0.5
-                    weight = 1.0 + (touch_contact_weight - 1.0) * contact.float()
+                    cw = 1.0 + (touch_contact_weight - 1.0) * contact.float()
+                    weight = cw if weight is None else cw * weight  # the two reweightings compose
                 losses.append(masked_mse(pred, target[:, d:], weight))
             terms[m] = torch.stack(losses).mean()
             total = total + w * terms[m]

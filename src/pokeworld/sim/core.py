@@ -141,22 +141,36 @@ class PokeWorldSim:
         self.frames = np.zeros((self.n, s, s), dtype=np.uint8)
 
     # ------------------------------------------------------------------ reset
+    #: Largest initial velocity component (arena units/s) ``reset`` accepts for the finger and the object:
+    #: the velocity range of the proprio observation space (the finger's terminal speed is 2, the policy
+    #: launches the object at ≤ 2), so no episode starts outside what the env declares it observes.
+    MAX_VEL: float = 50.0
+    #: The paper's short parameter names, accepted by ``reset(params=...)`` beside the long ones.
+    PARAM_ALIASES: dict[str, str] = {"m": "mass", "k": "stiffness"}
+
     def reset(self, mask: np.ndarray | None = None, params: Mapping[str, object] | None = None,
               finger_pos=None, object_pos=None, object_vel=None, finger_vel=None) -> dict:
         """Resample episodes where ``mask`` is True (all by default); explicit values override sampling.
 
-        ``params`` maps names in :data:`PARAM_NAMES` (or ``bias`` for both bias
-        components) to scalars or per-reset arrays.
+        ``params`` maps names in :data:`PARAM_NAMES` (or the paper's ``m`` / ``k`` for mass /
+        stiffness, or ``bias`` for both bias components) to scalars or per-reset arrays. Initial
+        velocities must lie in ±:attr:`MAX_VEL` per component.
         """
         idx = np.arange(self.n) if mask is None else np.flatnonzero(np.asarray(mask, bool))
         n = idx.size
         if n == 0:
             return self.observe()
         p = self.ranges.sample(self.rng, n)
-        for key, value in (params or {}).items():
+        given: dict[str, str] = {}
+        for alias, value in (params or {}).items():
+            key = self.PARAM_ALIASES.get(alias, alias)
+            if key in given:
+                raise ConfigError(f"parameter {key!r} given twice (as {given[key]!r} and {alias!r})")
+            given[key] = alias
             cols = {"bias": [3, 4]}.get(key, [PARAM_NAMES.index(key)] if key in PARAM_NAMES else None)
             if cols is None:
-                raise ConfigError(f"unknown parameter {key!r}; known: {list(PARAM_NAMES) + ['bias']}")
+                raise ConfigError(f"unknown parameter {alias!r}; known: {list(PARAM_NAMES) + ['bias']} "
+                                  f"(or the paper's {', '.join(self.PARAM_ALIASES)})")
             v = np.asarray(value, dtype=float)
             if not np.all(np.isfinite(v)):
                 raise ConfigError(f"parameter {key!r} must be finite, got {value}")
@@ -179,8 +193,9 @@ class PokeWorldSim:
             op[bad] = self.rng.uniform(lo_o, hi_o, (int(bad.sum()), 2))
         fp = self._override(fp, finger_pos, "finger_pos", n, (lo_f, hi_f))
         op = self._override(op, object_pos, "object_pos", n, (c.object_radius, c.arena - c.object_radius))
-        fv = self._override(np.zeros((n, 2)), finger_vel, "finger_vel", n, None)
-        ov = self._override(np.zeros((n, 2)), object_vel, "object_vel", n, None)
+        vmax, why = self.MAX_VEL, "per component (the velocity range of the proprio observation space)"
+        fv = self._override(np.zeros((n, 2)), finger_vel, "finger_vel", n, (-vmax, vmax), why)
+        ov = self._override(np.zeros((n, 2)), object_vel, "object_vel", n, (-vmax, vmax), why)
         self.state[idx, 0:2], self.state[idx, 2:4] = fp, fv
         self.state[idx, 4:6], self.state[idx, 6:8] = op, ov
         self.touch_clean[idx] = 0.0
@@ -189,7 +204,8 @@ class PokeWorldSim:
         return self.observe()
 
     @staticmethod
-    def _override(default: np.ndarray, value, name: str, n: int, bounds) -> np.ndarray:
+    def _override(default: np.ndarray, value, name: str, n: int, bounds,
+                  why: str = "(inside the walls)") -> np.ndarray:
         if value is None:
             return default
         v = np.asarray(value, dtype=float)
@@ -198,7 +214,7 @@ class PokeWorldSim:
         if not np.all(np.isfinite(v)):
             raise ConfigError(f"{name} must be finite, got {value}")
         if bounds is not None and (np.any(v < bounds[0]) or np.any(v > bounds[1])):
-            raise ConfigError(f"{name} must lie in [{bounds[0]:.3f}, {bounds[1]:.3f}] (inside the walls), got {value}")
+            raise ConfigError(f"{name} must lie in [{bounds[0]:.3f}, {bounds[1]:.3f}] {why}, got {value}")
         return np.broadcast_to(v, (n, 2)).copy()
 
     # ------------------------------------------------------------------- step

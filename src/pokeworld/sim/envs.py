@@ -23,11 +23,12 @@ _RESET_KEYS = {"params", "finger_pos", "object_pos", "object_vel", "finger_vel"}
 
 
 def _obs_space(cfg: PhysicsConfig) -> spaces.Dict:
-    s = cfg.image_size
+    s, v = cfg.image_size, PokeWorldSim.MAX_VEL
     return spaces.Dict({
         "vision": spaces.Box(0, 255, (s, s), np.uint8),
         # finger position lies in the unit arena; velocity and force bounds are loose physical caps
-        "proprio": spaces.Box(np.array([0, 0, -50, -50], np.float32), np.array([1, 1, 50, 50], np.float32)),
+        # (reset rejects initial velocities outside this range: PokeWorldSim.MAX_VEL)
+        "proprio": spaces.Box(np.array([0, 0, -v, -v], np.float32), np.array([1, 1, v, v], np.float32)),
         "touch": spaces.Box(-1e3, 1e3, (7,), np.float32),
     })
 
@@ -128,11 +129,10 @@ class PokeWorldVectorEnv(VectorEnv):
 
 
 def register() -> None:
-    """Register the env ids with gymnasium (idempotent; runs on ``import pokeworld.sim``)."""
-    if "pokeworld/PokeWorld-v0" not in gym.registry:
-        gym.register(id="pokeworld/PokeWorld-v0", entry_point="pokeworld.sim.envs:PokeWorldEnv",
-                     vector_entry_point="pokeworld.sim.envs:PokeWorldVectorEnv",
-                     max_episode_steps=None, disable_env_checker=False)
+    """Register the env ids with gymnasium (idempotent; ``import pokeworld`` already does it)."""
+    from .. import register_envs
+
+    register_envs()
 
 
 __all__ = ["PokeWorldEnv", "PokeWorldVectorEnv", "register", "PARAM_NAMES"]

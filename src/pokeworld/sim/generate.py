@@ -14,6 +14,7 @@ from ..data import Dataset, assign_splits, save, store_is_current
 from ..errors import ConfigError
 from .core import PARAM_NAMES, ParamRanges, PhysicsConfig, PokeWorldSim
 from .policy import MixedPolicy, PolicyConfig
+from .stats import CONTEXT, HORIZON, corpus_stats
 
 
 @dataclass
@@ -89,8 +90,12 @@ def content_config(cfg: GenerateConfig) -> dict:
     return d
 
 
-def simulate(cfg: GenerateConfig, progress: bool = True) -> Dataset:
-    """Roll out ``cfg.num_episodes`` episodes and return them as an in-memory :class:`Dataset`."""
+def simulate(cfg: GenerateConfig, progress: bool = True, render: bool = True) -> Dataset:
+    """Roll out ``cfg.num_episodes`` episodes and return them as an in-memory :class:`Dataset`.
+
+    ``render=False`` leaves the frames black (labels, proprio, touch and actions are unchanged,
+    since nothing in the dynamics reads the frames): the fast path for corpus statistics.
+    """
     raw_cfg, cfg = cfg, resolved(cfg)
     E, T, S = cfg.num_episodes, cfg.episode_steps, cfg.physics.image_size
     frames = np.zeros((E, T + 1, S, S), np.uint8)
@@ -123,7 +128,7 @@ def simulate(cfg: GenerateConfig, progress: bool = True) -> Dataset:
                 break
             a = pol.act(obs["proprio"], priv["object_pos"], priv["contact"])
             actions[sl] = a
-            obs = sim.step(a)
+            obs = sim.step(a, render=render)
             bar.update(n)
     bar.close()
     split = assign_splits(E, cfg.split_fractions, split_rng)
@@ -132,8 +137,11 @@ def simulate(cfg: GenerateConfig, progress: bool = True) -> Dataset:
     par["log_k"] = np.log(params[:, 2]).astype(np.float32)
     manifest = {"generator": "pokeworld.sim.generate", "version": __version__, "seed": cfg.seed,
                 "config": content_config(raw_cfg), "corpus": cfg.corpus, "kind": "pokeworld"}
-    return Dataset(frames=frames, proprio=proprio, touch=touch, actions=actions, labels=lab,
-                   params=par, split=split, manifest=manifest)
+    ds = Dataset(frames=frames, proprio=proprio, touch=touch, actions=actions, labels=lab,
+                 params=par, split=split, manifest=manifest)
+    if T + 1 >= CONTEXT + HORIZON:
+        ds.manifest["stats"] = corpus_stats(ds)  # the observables the calibration targets (pokeworld stats)
+    return ds
 
 
 def run(cfg: GenerateConfig) -> Path:

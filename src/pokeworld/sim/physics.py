@@ -34,11 +34,15 @@ TOUCH_DIM = 7
 def hertz_normal_force(d: float, sep_speed: float, k: float, mu: float, zeta: float) -> float:
     """Normal contact force magnitude for overlap ``d`` > 0 and separation speed ``sep_speed``.
 
-    ``k d^1.5`` minus damping ``c * sep_speed`` with ``c = 2 zeta sqrt(k mu)`` (``zeta`` of the
-    critical damping of a spring of stiffness k on the reduced mass); clipped at zero because a
-    penalty contact cannot pull.
+    ``k d^1.5`` minus damping ``c * sep_speed`` with ``c = 2 zeta sqrt(k_t mu)``, where
+    ``k_t = 1.5 k sqrt(d)`` is the tangent stiffness of the Hertz law at the current overlap and
+    ``mu`` the reduced mass: ``zeta`` of critical for the local linearisation. Damping therefore
+    vanishes at first touch (the force rises from zero and peaks near maximum penetration), and
+    the equation of motion in the scaled overlap ``d / d_max`` is the same for every k, mu and
+    impact speed, so restitution depends on ``zeta`` alone. (``2 zeta sqrt(k mu)`` with k in
+    N/m^1.5 is not a damping coefficient.) Clipped at zero: a penalty contact cannot pull.
     """
-    c = 2.0 * zeta * math.sqrt(k * mu)
+    c = 2.0 * zeta * math.sqrt(1.5 * k * math.sqrt(d) * mu)
     fn = k * d * math.sqrt(d) - c * sep_speed
     return fn if fn > 0.0 else 0.0
 
