@@ -47,8 +47,12 @@ MODE_FLOOR = 0.15
 
 
 def mix_with_floor(w) -> tuple[float, float, float]:
+    """Normalise ``w`` and raise any weight below MODE_FLOOR to it (the others shrink to compensate)."""
     w = np.asarray(w, float) / np.sum(w)
-    w = MODE_FLOOR + (1 - 3 * MODE_FLOOR) * w
+    low = w < MODE_FLOOR
+    if low.any():
+        w[~low] *= (1 - MODE_FLOOR * low.sum()) / w[~low].sum()
+        w[low] = MODE_FLOOR
     return tuple(float(x) for x in w)
 
 

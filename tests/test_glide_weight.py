@@ -131,7 +131,7 @@ def test_run_logs_expected_and_realised_share(tiny_dataset, tmp_path):
     s = rows[0]["glide_frame_share"]
     assert 0.1 < s < 0.9
     # per-horizon shares averaged, so the formula at the mean s holds to second order
-    assert rows[0]["glide_loss_share_expected"] == pytest.approx(share_at(s, 4.0), abs=1e-3)
+    assert rows[0]["glide_loss_share_expected"] == pytest.approx(share_at(s, 4.0), abs=5e-3)
     assert all(0 <= r["glide_loss_share"] <= 1 for r in rows[1:])
     assert json.loads((out / "config.json").read_text())["glide_loss_weight"] == 4.0
 

@@ -84,4 +84,4 @@ def test_default_corpus_stays_calibrated():
 
 #: statistics the spec does not let us bring within ±15 % (docs/design.md, "Calibration"); the band
 #: we reach instead, so that a regression is still caught
-CALIBRATION_TOLERANCE: dict[str, float] = {}
+CALIBRATION_TOLERANCE: dict[str, float] = {"glide_static16": 0.25, "glide_median_gamma16": 0.45}

@@ -18,27 +18,32 @@ PURSUIT, STRIKE, DRIFT, AVOID = 0, 1, 2, 3
 
 @dataclass(frozen=True)
 class PolicyConfig:
-    """Knobs of the mixed behaviour policy."""
+    """Knobs of the mixed behaviour policy.
 
-    mode_weights: tuple[float, float, float] = (0.25, 0.5, 0.25)
+    The defaults are calibrated (with F_max and finger damping) so that the default corpus matches
+    the paper's observable statistics (``pokeworld stats``; docs/design.md, "Calibration";
+    ``scripts/calibrate_env.py``), with every mode kept at a weight of at least 0.15.
+    """
+
+    mode_weights: tuple[float, float, float] = (0.68, 0.17, 0.15)
     """Relative probabilities of pursuit / strike-retreat / OU drift when a mode is (re)drawn."""
-    switch_prob: float = 0.05
+    switch_prob: float = 0.026
     """Per-step probability of redrawing the mode."""
-    pursuit_gain: float = 0.55
+    pursuit_gain: float = 0.5
     """Action magnitude of sustained pushes (pursuit)."""
-    strike_gain: float = 1.0
+    strike_gain: float = 0.42
     """Action magnitude while striking."""
-    retreat_steps: tuple[int, int] = (4, 12)
+    retreat_steps: tuple[int, int] = (2, 9)
     """Range of steps spent retreating after an impact (the object glides meanwhile)."""
     ou_theta: float = 1.5
     """Mean-reversion rate of the OU drift (1/s)."""
-    ou_sigma: float = 1.2
+    ou_sigma: float = 2.8
     """Diffusion of the OU drift."""
     action_noise: float = 0.1
     """Std of Gaussian noise added to scripted actions."""
-    launch_fraction: float = 0.3
+    launch_fraction: float = 0.67
     """Fraction of episodes whose object starts with a random velocity."""
-    launch_speed: tuple[float, float] = (0.6, 2.0)
+    launch_speed: tuple[float, float] = (3.0, 3.3)
     """Launch speed range (arena units/s)."""
     glide_fraction: float = 0.0
     """Fraction of episodes that are contact-free glides (object launched, finger avoids it)."""
