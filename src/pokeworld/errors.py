@@ -14,3 +14,7 @@ class ConfigError(PokeworldError, ValueError):
 
 class DataError(PokeworldError, ValueError):
     """A missing, truncated, corrupt or non-finite dataset or sensor stream."""
+
+
+class ModelError(PokeworldError, ValueError):
+    """A user-supplied model that breaks its contract: wrong output shape, non-finite states."""

@@ -62,3 +62,11 @@ CONTROLS = {  # Table "controls" (ridge)
 }
 
 FRAME_AVERAGED = {"certificate_log_k_substep": 0.87}  # §4.4: frame-averaged touch makes k unrecoverable
+
+CORPUS_STATS = {  # observables of the paper's default corpus (the calibration targets; pokeworld.sim.stats)
+    "static16": ((0.205, 0.21), "λ-table caption; §4.2 (static 0.21)"),
+    "static8": (0.109, "App. C, open-loop 8-step static baseline"),
+    "glide_static16": (0.144, "App. C, γ ledger: static predictor on pure-glide windows"),
+    "glide_median_gamma16": ((0.049, 0.054), "App. C, ledger / Dose–response 1: median-γ reference"),
+    "glide_loss_share": (0.32, "App. C, Dose–response 1: glide loss share at weight 1"),
+}

@@ -150,8 +150,19 @@ def window_states(model, ds: Dataset, lat: EpisodeLatents, w, acts: np.ndarray,
     """
     a = w.gather(acts)
     if neutral_last_action:
-        a[:, -1] = 0.0  # gather returns a copy: the dataset's actions are untouched
+        a = neutral_last(a)
     return _trunk_at(model, lat.gather(w), a, w.length - 1)
+
+
+def neutral_last(a_win: np.ndarray) -> np.ndarray:
+    """Window actions (W, L, Da) with the last one, taken after the probed observation, set to raw zeros.
+
+    The leak-free readout convention shared by :func:`window_states` and :mod:`pokeworld.protocol`;
+    a copy, so the dataset's actions are untouched.
+    """
+    a = np.array(a_win, copy=True)
+    a[:, -1] = 0.0
+    return a
 
 
 # --------------------------------------------------------------------------- probes
@@ -202,25 +213,43 @@ def probe_model(model, ds: Dataset, cfg: MeasureConfig, mlp: bool, kinds: tuple[
                 neutral_last_action: bool = True, latents=None) -> tuple[dict, tuple]:
     """Probe R^2 per family and window kind: ``({"counts", "ridge", ["mlp"]}, (lat_fit, lat_test))``."""
     kinds = cfg.kinds if kinds is None else kinds
-    fit_eps, test_eps = ds.episodes("probe_fit"), ds.episodes("probe_test")
     lat_fit, lat_test = latents if latents is not None else probe_latents(model, ds, cfg)
     acts = padded_actions(ds)
-    out = {"counts": {}}
+    lat = {"fit": lat_fit, "test": lat_test}
+    out = probe_windows(ds, lambda w, part: window_states(model, ds, lat[part], w, acts, neutral_last_action),
+                        kinds, cfg.window, cfg.stride, cfg.max_windows, cfg.seed, mlp)
+    return out, (lat_fit, lat_test)
+
+
+def probe_windows(ds: Dataset, states, kinds: tuple[str, ...], window: int, stride: int, max_windows: int,
+                  seed: int, mlp: bool, targets: tuple[str, ...] | None = None) -> dict:
+    """Probe R^2 per family and window kind from any state reader: ``{"counts", "ridge", ["mlp"]}``.
+
+    ``states(windows, part) -> (W, D)`` returns the state probed for each window (``part`` is "fit" for
+    probe-fit windows, "test" for probe-test ones). Trained runs (:func:`probe_model`) and user models
+    (:mod:`pokeworld.protocol`) both go through this loop, so their window selection, subsampling,
+    episode split and probes are the same by construction. ``targets`` restricts the probed quantities
+    (None: every one :func:`probe_targets` finds).
+    """
+    fit_eps, test_eps = ds.episodes("probe_fit"), ds.episodes("probe_test")
+    out: dict = {"counts": {}}
     for kind in kinds:
         # one generator per kind, so readouts that probe different kind sets use identical windows
-        rng = np.random.default_rng([cfg.seed, KINDS.index(kind)])
-        wf = make_windows(ds, fit_eps, cfg.window, cfg.stride).kind(kind).subsample(cfg.max_windows, rng)
-        wt = make_windows(ds, test_eps, cfg.window, cfg.stride).kind(kind)
+        rng = np.random.default_rng([seed, KINDS.index(kind)])
+        wf = make_windows(ds, fit_eps, window, stride).kind(kind).subsample(max_windows, rng)
+        wt = make_windows(ds, test_eps, window, stride).kind(kind)
         out["counts"][kind] = {"fit": len(wf), "test": len(wt)}
         if len(wf) < 10 or len(wt) < 10 or np.unique(wf.episode).size < 5:
             continue
         assert not np.intersect1d(wf.episode, wt.episode).size
-        Xf = window_states(model, ds, lat_fit, wf, acts, neutral_last_action)
-        Xt = window_states(model, ds, lat_test, wt, acts, neutral_last_action)
-        res = fit_probes(Xf, wf.episode, probe_targets(ds, wf), Xt, probe_targets(ds, wt), mlp, cfg.seed)
+        Xf, Xt = states(wf, "fit"), states(wt, "test")
+        Tf, Tt = probe_targets(ds, wf), probe_targets(ds, wt)
+        if targets is not None:
+            Tf, Tt = ({k: v for k, v in T.items() if k in targets} for T in (Tf, Tt))
+        res = fit_probes(Xf, wf.episode, Tf, Xt, Tt, mlp, seed)
         for fam, r in res.items():
             out.setdefault(fam, {})[kind] = r
-    return out, (lat_fit, lat_test)
+    return out
 
 
 # --------------------------------------------------------------------------- prediction

@@ -28,18 +28,13 @@ import numpy as np
 
 from ..data import Dataset, load
 from ..errors import DataError
+from ..paper_values import CORPUS_STATS
 from ..windows import glide_frames, wall_contact
 
 CONTEXT, HORIZON = 8, 16
 
-#: statistic -> (paper value, where the paper reports it). Ranges are (lo, hi).
-PAPER_STATS: dict[str, tuple[float | tuple[float, float], str]] = {
-    "static16": ((0.205, 0.21), "λ-table caption; §4.2 (static 0.21)"),
-    "static8": (0.109, "App. C, open-loop 8-step static baseline"),
-    "glide_static16": (0.144, "App. C, γ ledger: static predictor on pure-glide windows"),
-    "glide_median_gamma16": ((0.049, 0.054), "App. C, ledger / Dose–response 1: median-γ reference"),
-    "glide_loss_share": (0.32, "App. C, Dose–response 1: glide loss share at weight 1"),
-}
+#: statistic -> (paper value or (lo, hi) range, where the paper reports it)
+PAPER_STATS = CORPUS_STATS
 #: relative tolerance of the calibration (issue "Protocol fidelity": within ±15 % of each paper value)
 TOLERANCE = 0.15
 

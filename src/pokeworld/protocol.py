@@ -1,0 +1,474 @@
+"""Certify your own model: the certificate-gated probe protocol for any world model (paper §3, App. A, C).
+
+Researchers with their own world model (DreamerV3-, LeWM-, V-JEPA-style, ...) run the same measurement
+the paper runs on X-JEPA without touching our training code::
+
+    from pokeworld.protocol import certify_model
+    report = certify_model(my_fn, data="out/map/data/standard", out="out/mine", untrained=my_fn_untrained)
+
+The model contract (:class:`StateReader` enforces it). ``model(frames, proprio, touch, actions)`` gets one
+batch of observation windows exactly as the store holds them and returns one state vector per step:
+
+=========  ====================  =========================================================================
+frames     (B, L, H, W) uint8    grayscale observations
+proprio    (B, L, Dp) float32    proprioception at each observation (raw, unnormalised)
+touch      (B, L, Dt) float32    touch / force summarising the step that ended at each observation
+actions    (B, L, Da) float32    raw actions; ``actions[:, t]`` is the action taken *after* observation t
+returns    (B, L, D)             the model's state at each observation (torch tensor or numpy array)
+=========  ====================  =========================================================================
+
+The protocol probes the state at each window's last observation, so a recurrent or bidirectional model
+sees nothing after it, except the action taken after it: the scripted policy computes that action from
+the privileged object state. The primary readout therefore zeroes that action (raw zeros, the padding
+every episode ends with; :func:`pokeworld.evaluate.measure.neutral_last`); the action-conditioned readout
+is reported beside it, so a model that reads through the action is visible as a gap between the two.
+
+What it runs, all episode-split (probes fit on probe-fit episodes, held-out R² on probe-test episodes):
+
+1. certificates (:mod:`pokeworld.certify`): loaded from ``certificates.json`` in the store directory when
+   it was computed on these bytes, else computed (or reused from ``out``) and written to ``out``;
+2. probes (:func:`pokeworld.evaluate.measure.probe_windows`, the loop trained runs go through): ridge and
+   MLP on contact / glide / all windows, to log m, γ, log k (and b, g when they vary), object and finger
+   state; the action-conditioned ridge readout; the untrained bound when an untrained copy is given;
+3. the report: ``protocol.json``, ``protocol.md`` (a parameter whose gate failed gets † and an explicit
+   "no claim" line) and ``protocol.png`` (R² per quantity beside its certificate).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Union
+
+import numpy as np
+import torch
+
+from . import __version__
+from . import certify as C
+from .config import from_preset, to_dict
+from .data import Dataset, load
+from .errors import ConfigError, DataError, ModelError
+from .evaluate import report as R
+from .evaluate.measure import KINDS, PARAM_TARGETS, READOUT, STATE_TARGETS, neutral_last, padded_actions, probe_windows
+from .io import atomic_path, hash_arrays, write_json
+
+StateFn = Callable[..., Any]
+"""``(frames, proprio, touch, actions) -> (B, L, D)``; an ``nn.Module`` qualifies."""
+FIGURE_QUANTITIES = ("log_m", "gamma", "log_k", "object_pos", "object_vel")
+
+
+@dataclass
+class ProtocolConfig:
+    """Certificate-gated probes of a user model on a PokeWorld store."""
+
+    window: int = 16
+    """Probe window length (observations); the state at its last observation is probed."""
+    stride: int = 4
+    """Step between probe windows."""
+    kinds: tuple[str, ...] = KINDS
+    """Window kinds to probe (contact, glide, all); the gate reads contact windows."""
+    action_conditioned_kinds: tuple[str, ...] = ("contact",)
+    """Window kinds of the secondary, action-conditioned ridge readout (empty: skip it)."""
+    max_windows: int = 6000
+    """Cap on probe-fit windows per kind (episode-preserving random subsample), as in ``pokeworld probe``."""
+    mlp: bool = True
+    """Also fit early-stopped MLP probes on the leak-free readout (slower)."""
+    targets: tuple[str, ...] = ()
+    """Quantities to probe (e.g. log_m, gamma, log_k, object_pos); empty: every one the store labels."""
+    batch_windows: int = 256
+    """Windows per model call; lower it if the model runs out of memory."""
+    inputs: str = "torch"
+    """Array type handed to the model: "torch" (tensors) or "numpy" (arrays, e.g. for JAX models)."""
+    device: str = ""
+    """Device of the input tensors (empty: the module's parameter device; CPU for plain callables)."""
+    certify_preset: str = "cpu"
+    """Preset of :mod:`pokeworld.certify` used when certificates have to be computed."""
+    certify_estimators: tuple[str, ...] = C.ESTIMATORS
+    """Certificate estimators to run when computing (the gate reads ``gru``; it must be among them)."""
+    seed: int = 0
+    """Seed for window subsampling, MLP probes and computed certificates."""
+
+    def __post_init__(self) -> None:
+        bad = (set(self.kinds) | set(self.action_conditioned_kinds)) - set(KINDS)
+        if bad:
+            raise ConfigError(f"unknown window kinds {sorted(bad)}; choose from {list(KINDS)}")
+        if self.window < 2 or self.stride < 1 or self.batch_windows < 1 or self.max_windows < 10:
+            raise ConfigError("window must be >= 2, stride and batch_windows >= 1, max_windows >= 10")
+        unknown = set(self.targets) - set(PARAM_TARGETS) - set(STATE_TARGETS)
+        if unknown:
+            raise ConfigError(f"unknown probe targets {sorted(unknown)}; choose from {[*PARAM_TARGETS, *STATE_TARGETS]}")
+        if self.inputs not in ("torch", "numpy"):
+            raise ConfigError(f"inputs must be 'torch' or 'numpy', got {self.inputs!r}")
+        if C.GATE_ESTIMATOR not in self.certify_estimators:
+            # without the oracle every gate fails by rule, which would silently turn every claim off
+            raise ConfigError(f"certify_estimators must include {C.GATE_ESTIMATOR!r}, the estimator the gate reads")
+
+
+PRESETS = {"tiny": {"max_windows": 400, "mlp": False, "certify_preset": "tiny"}, "cpu": {},
+           "paper": {"max_windows": 100000, "certify_preset": "paper"}}
+
+
+def make_config(preset: str = "cpu", **overrides) -> ProtocolConfig:
+    return from_preset(ProtocolConfig, PRESETS, preset, **overrides)
+
+
+# --------------------------------------------------------------------------- the model contract
+class StateReader:
+    """Runs a user model on gathered windows and returns its state at each window's last observation.
+
+    Checks the contract on every call (shape (B, L, D) with one D throughout, finite values) and raises
+    :class:`ModelError` naming what came back, because a silently reshaped or NaN-filled state would turn
+    into a meaningless R² rather than an error.
+    """
+
+    def __init__(self, model: StateFn, ds: Dataset, cfg: ProtocolConfig, role: str = "model"):
+        if not callable(model):
+            raise ModelError(f"the {role} must be callable as model(frames, proprio, touch, actions), "
+                             f"got {type(model).__name__}")
+        self.model, self.ds, self.cfg, self.role = model, ds, cfg, role
+        self.acts = padded_actions(ds)
+        self.dim: int | None = None
+        params = next(model.parameters(), None) if isinstance(model, torch.nn.Module) else None
+        self.device = torch.device(cfg.device) if cfg.device else (params.device if params is not None
+                                                                    else torch.device("cpu"))
+
+    def __call__(self, w, neutral_last_action: bool = True) -> np.ndarray:
+        """(W, D) float32 states at the last observation of the windows ``w``."""
+        out = []
+        module = self.model if isinstance(self.model, torch.nn.Module) else None
+        was_training = module.training if module is not None else False
+        if module is not None:
+            module.eval()  # dropout / batch statistics would make the probed state depend on the batch
+        try:
+            with torch.no_grad():
+                for i in range(0, len(w), self.cfg.batch_windows):
+                    part = w.select(np.arange(i, min(i + self.cfg.batch_windows, len(w))))
+                    out.append(self._batch(part, neutral_last_action))
+        finally:
+            if module is not None:
+                module.train(was_training)
+        return np.concatenate(out)
+
+    def _batch(self, w, neutral_last_action: bool) -> np.ndarray:
+        a = w.gather(self.acts)
+        if neutral_last_action:
+            a = neutral_last(a)
+        arrays = (w.gather(self.ds.frames), w.gather(self.ds.proprio).astype(np.float32),
+                  w.gather(self.ds.touch).astype(np.float32), a.astype(np.float32))
+        if self.cfg.inputs == "torch":
+            arrays = tuple(torch.from_numpy(np.ascontiguousarray(x)).to(self.device) for x in arrays)
+        return self._check(self.model(*arrays), len(w), w.length, w.episode)[:, -1]
+
+    def _check(self, out: Any, B: int, L: int, episodes: np.ndarray) -> np.ndarray:
+        if isinstance(out, torch.Tensor):
+            out = out.detach().float().cpu().numpy()
+        elif isinstance(out, (tuple, list, dict)):
+            raise ModelError(f"the {self.role} returned a {type(out).__name__}; return one (B, L, D) array of "
+                             "states (wrap a model with several outputs in a function that picks the state)")
+        try:
+            out = np.asarray(out, dtype=np.float32)
+        except (TypeError, ValueError) as e:
+            raise ModelError(f"the {self.role} returned {type(out).__name__}, not an array of states ({e})") from None
+        if out.ndim != 3 or out.shape[:2] != (B, L) or out.shape[2] == 0:
+            raise ModelError(f"the {self.role} returned states of shape {tuple(out.shape)} for {B} windows of {L} "
+                             f"observations; expected (B={B}, L={L}, D): one state vector per observation")
+        if self.dim is None:
+            self.dim = int(out.shape[2])
+        elif out.shape[2] != self.dim:
+            raise ModelError(f"the {self.role} returned state width {out.shape[2]} after {self.dim} earlier; "
+                             "the state width must not depend on the batch")
+        bad = ~np.isfinite(out)
+        if bad.any():
+            eps = np.unique(episodes[bad.any((1, 2))])
+            raise ModelError(f"the {self.role} returned {int(bad.sum())} non-finite state values (NaN/inf) on "
+                             f"windows of episodes {eps[:8].tolist()}{' ...' if eps.size > 8 else ''}; "
+                             "probes on such states are meaningless")
+        return out
+
+
+# --------------------------------------------------------------------------- certificates
+def _digest(ds: Dataset) -> str:
+    # re-hashed rather than read from the manifest: an in-memory Dataset may have been edited since
+    return hash_arrays(ds.arrays())
+
+
+def _certify_config(cfg: ProtocolConfig, data_path: Path | None) -> C.CertifyConfig:
+    # the certificate reads the same windows the probes read, so both speak of the same information
+    return C.make_config(cfg.certify_preset, data=str(data_path or ""), estimators=tuple(cfg.certify_estimators),
+                         window=cfg.window, stride=cfg.stride, seed=cfg.seed)
+
+
+def resolve_certificates(ds: Dataset, cfg: ProtocolConfig, out: Path, data_path: Path | None = None,
+                         certificates: dict | str | Path | None = None) -> dict:
+    """The certificates for ``ds`` with the gate under the paper's rule, and where they came from.
+
+    Order: ``certificates`` as given (a dict or a certificates.json path; refused when it records a
+    different dataset hash); ``<data>/certificates.json`` when computed on these bytes; ``<out>/
+    certificates.json`` from an earlier run with the same certify config; else computed and written to
+    ``out`` (the store directory is never written).
+    """
+    digest = _digest(ds)
+
+    def matches(c: dict) -> bool:
+        return c.get("dataset", {}).get("content_sha256") == digest
+
+    def entry(c: dict, source: str) -> dict:
+        if "certificate" not in c:
+            raise DataError(f"certificates from {source} have no 'certificate' table; "
+                            "pass the output of pokeworld.certify.certify or a certificates.json")
+        return {"certificate": c["certificate"], "gate": C.gate_of(c), "estimators": c.get("estimators", {}),
+                "counts": c.get("counts", {}), "config": c.get("config", {}), "source": source}
+
+    if certificates is not None:
+        source = "given"
+        if not isinstance(certificates, dict):
+            source = str(certificates)
+            path = Path(certificates)
+            if not path.exists():
+                raise DataError(f"no certificates at {path}; run `pokeworld certify` or leave certificates unset")
+            certificates = json.loads(path.read_text())
+        recorded = certificates.get("dataset", {}).get("content_sha256")
+        if recorded is not None and recorded != digest:
+            raise DataError(f"certificates from {source} were computed on other data (content hash "
+                            f"{recorded:.12} != {digest:.12}); recompute them for this store")
+        return entry(certificates, source)
+    if data_path is not None and (data_path / "certificates.json").exists():
+        stored = json.loads((data_path / "certificates.json").read_text())
+        if matches(stored):
+            return entry(stored, str(data_path / "certificates.json"))
+        print(f"[protocol] {data_path / 'certificates.json'} was computed on other data; computing anew")
+    ccfg = _certify_config(cfg, data_path)
+    cached = out / "certificates.json"
+    if cached.exists():
+        prev = json.loads(cached.read_text())
+        if matches(prev) and prev.get("config") == to_dict(ccfg):
+            return entry(prev, str(cached))
+    computed = C.certify(ds, ccfg)
+    computed["dataset"]["content_sha256"] = digest
+    write_json(cached, computed)
+    return entry(computed, "computed")
+
+
+# --------------------------------------------------------------------------- the protocol
+def _check_splits(ds: Dataset) -> None:
+    fit, test = ds.episodes("probe_fit").size, ds.episodes("probe_test").size
+    if fit < 5 or test < 5:
+        raise DataError(f"the store has {fit} probe-fit and {test} probe-test episodes; the protocol fits probes "
+                        f"on probe-fit episodes (split == 1) and scores them on probe-test ones (split == 2) and "
+                        f"needs at least 5 of each: generate the store with `pokeworld generate` or set its split")
+
+
+def run_probes(model: StateFn, ds: Dataset, cfg: ProtocolConfig, untrained: StateFn | None = None) -> dict:
+    """Leak-free probes (primary), the action-conditioned ridge readout and the untrained bound.
+
+    Returns the keys ``pokeworld probe`` writes to measure.json for the same readouts: ``readout``,
+    ``probes``, ``probes_action_conditioned`` (when requested) and ``untrained`` (when given).
+    """
+    _check_splits(ds)
+    torch.manual_seed(cfg.seed)
+    reader = StateReader(model, ds, cfg)
+    common = dict(window=cfg.window, stride=cfg.stride, max_windows=cfg.max_windows, seed=cfg.seed,
+                  targets=tuple(cfg.targets) or None)
+    res: dict = {"readout": READOUT,
+                 "probes": probe_windows(ds, lambda w, part: reader(w, True), cfg.kinds, mlp=cfg.mlp, **common)}
+    if not res["probes"].get("ridge"):
+        raise DataError(f"too few probe windows of every kind {list(cfg.kinds)} (counts "
+                        f"{res['probes']['counts']}); the store needs more probe-fit / probe-test episodes")
+    if cfg.action_conditioned_kinds:
+        res["probes_action_conditioned"] = probe_windows(ds, lambda w, part: reader(w, False),
+                                                         cfg.action_conditioned_kinds, mlp=False, **common)
+    if untrained is not None:
+        bound = StateReader(untrained, ds, cfg, role="untrained model")
+        res["untrained"] = probe_windows(ds, lambda w, part: bound(w, True), cfg.kinds, mlp=False, **common)
+    res["state_dim"] = reader.dim
+    return res
+
+
+def claims(res: dict, gate: dict, kind: str = "contact") -> dict:
+    """Per probed quantity: R² on ``kind`` windows, the gate verdict and whether a claim may be made.
+
+    ``status`` is "claim" for a gated parameter (log m, γ, log k) whose gate passed, "no claim (gate
+    failed)" when it failed or was never certified, "not gated" for the rest (object and finger state,
+    which the certificate estimators observe directly, and parameters the paper's rule does not gate).
+    """
+    ridge = res["probes"].get("ridge", {}).get(kind, {})
+    out = {}
+    for q, r2 in ridge.items():
+        e: dict = {"ridge": r2, "mlp": res["probes"].get("mlp", {}).get(kind, {}).get(q),
+                   "action_conditioned": res.get("probes_action_conditioned", {}).get("ridge", {}).get(kind, {}).get(q)}
+        unt = res.get("untrained", {}).get("ridge", {}).get(kind, {}).get(q)
+        if unt is not None:
+            e.update(untrained=unt, above_untrained=r2 - unt)
+        if q in C.GATES:
+            g = gate.get(q)
+            e["gate_passed"] = bool(g and g["passed"])
+            e["status"] = "claim" if e["gate_passed"] else "no claim (gate failed)"
+        else:
+            e["status"] = "not gated"
+        out[q] = e
+    return out
+
+
+def certify_model(model: StateFn, data: Union[str, Path, Dataset], out: Union[str, Path],
+                  untrained: StateFn | None = None, *, certificates: dict | str | Path | None = None,
+                  name: str | None = None, config: ProtocolConfig | None = None, preset: str = "cpu",
+                  **overrides) -> dict:
+    """Run the certificate-gated protocol on ``model`` and write the report to ``out``.
+
+    Args:
+        model: ``(frames, proprio, touch, actions) -> (B, L, D)`` states (see the module docstring).
+        data: a store directory (``pokeworld generate`` output) or an in-memory :class:`Dataset`.
+        out: report directory (protocol.json, protocol.md, protocol.png; certificates.json when computed).
+        untrained: the same architecture at initialisation, for the untrained bound (optional).
+        certificates: a certificates dict or certificates.json path (default: found or computed).
+        name: label of the model in the report (default: its function / class name).
+        config / preset / overrides: a :class:`ProtocolConfig`, or a preset with field overrides.
+    Returns:
+        The report dictionary also written to ``out/protocol.json``.
+    """
+    if config is not None and overrides:
+        raise ConfigError("pass either config or field overrides, not both")
+    cfg = config if config is not None else make_config(preset, **overrides)
+    t0 = time.time()
+    data_path = None if isinstance(data, Dataset) else Path(data)
+    ds = data if isinstance(data, Dataset) else load(data)
+    _check_splits(ds)  # before the (slow) certificates, so a store without splits fails at once
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    certs = resolve_certificates(ds, cfg, out, data_path, certificates)
+    res = run_probes(model, ds, cfg, untrained)
+    name = name or getattr(model, "__name__", type(model).__name__)
+    result = {"model": {"name": name, "state_dim": res.pop("state_dim")},
+              "protocol": to_dict(cfg),
+              "dataset": {"path": str(data_path) if data_path else None, "content_sha256": _digest(ds),
+                          "corpus": ds.manifest.get("corpus") or ds.manifest.get("config", {}).get("corpus"),
+                          "probe_fit_episodes": int(ds.episodes("probe_fit").size),
+                          "probe_test_episodes": int(ds.episodes("probe_test").size)},
+              **res, "certificates": certs, "claims": claims(res, certs["gate"]),
+              "provenance": {"pokeworld": __version__, "git": R._git_commit(),
+                             "seconds": round(time.time() - t0, 1)}}
+    write_json(out / "protocol.json", result)
+    with atomic_path(out / "protocol.md") as tmp:
+        tmp.write_text(markdown(result))
+    figure(result, out / "protocol.png")
+    print(f"[protocol] {name}: wrote {out / 'protocol.md'}")
+    return result
+
+
+# --------------------------------------------------------------------------- report
+def _results_view(result: dict) -> dict:
+    # report.py's helpers read {"certificates": {corpus: {"gate": ...}}}; the user's store is the corpus
+    return {"certificates": {"standard": {"gate": result["certificates"]["gate"]}}}
+
+
+def markdown(result: dict) -> str:
+    """The report: certificate gate, probe table with † on parameters whose gate failed, no-claim lines."""
+    view = _results_view(result)
+    d, m, cert = result["dataset"], result["model"], result["certificates"]
+    cfg = result["protocol"]
+    lines = [f"# Certificate-gated probes: {m['name']}", "",
+             f"Data: `{d['path'] or 'in-memory dataset'}` (content {d['content_sha256']:.12}; "
+             f"{d['probe_fit_episodes']} probe-fit / {d['probe_test_episodes']} probe-test episodes). "
+             f"State width {m['state_dim']}; windows of {cfg['window']} observations at stride {cfg['stride']}. "
+             f"Certificates: {cert['source']}. pokeworld {result['provenance']['pokeworld']}, "
+             f"git {result['provenance']['git']}.", "",
+             "## Certificates (contact windows, held-out R²)", "",
+             "| parameter | GRU oracle (gate) | threshold | verdict | best estimator |", "|---|---|---|---|---|"]
+    for q, g in cert["gate"].items():
+        best = f"{g['estimator']} {R.fmt(g['certificate'])}" if "certificate" in g else "—"
+        lines.append(f"| {R.LABELS.get(q, q)} | {R.fmt(g.get('oracle'))} | {g['threshold']:.2f} | "
+                     f"{'PASS' if g['passed'] else 'FAIL'} | {best} |")
+    lines += [""] + [f"- {R.LABELS.get(q, q)}: {g['note']}" for q, g in cert["gate"].items() if not g.get("agree", True)]
+    lines += ["", "## Probes (held-out R², leak-free readout)", ""]
+    lines += R.no_claim_lines(view)
+    kinds = [k for k in KINDS if k in result["probes"].get("ridge", {})]
+    cols = [f"ridge {k}" for k in kinds]
+    has_mlp = "mlp" in result["probes"]
+    cols += [f"MLP {k}" for k in kinds if has_mlp]
+    leaky_kinds = list(result.get("probes_action_conditioned", {}).get("ridge", {}))
+    cols += [f"action-conditioned {k}" for k in leaky_kinds]
+    has_unt = "untrained" in result
+    cols += [f"untrained {k}" for k in kinds if has_unt]
+    contact_cert = cert["certificate"].get("contact", {})
+    lines += ["| quantity | certificate | " + " | ".join(cols) + " |", "|" + "---|" * (len(cols) + 2)]
+    quantities = list(dict.fromkeys(q for k in kinds for q in result["probes"]["ridge"][k]))
+    for q in quantities:
+        mark = R.dagger(R.gate_failed(view, q))
+        get = lambda block, fam, k: result.get(block, {}).get(fam, {}).get(k, {}).get(q)  # noqa: E731
+        cells = [R.fmt(get("probes", "ridge", k)) + mark for k in kinds]
+        cells += [R.fmt(get("probes", "mlp", k)) + mark for k in kinds if has_mlp]
+        cells += [R.fmt(get("probes_action_conditioned", "ridge", k)) + mark for k in leaky_kinds]
+        cells += [R.fmt(get("untrained", "ridge", k)) for k in kinds if has_unt]
+        c = contact_cert.get(q)
+        lines.append(f"| {R.LABELS.get(q, q)} | {R.fmt(c['r2']) if c else '—'} | " + " | ".join(cells) + " |")
+    lines += ["", "Certificate: the best estimator's contact-window R² from raw observations (object state is "
+              "observed by the estimators, so it has none). The gate is the paper's rule: the GRU oracle must "
+              "reach log m / γ / log k ≥ " + " / ".join(f"{C.GATES[q]}" for q in ("log_m", "gamma", "log_k")) +
+              " on contact windows.", "",
+              "Readout: every probe reads the model's state at a window's last observation with the action taken "
+              "after it replaced by raw zeros (leak-free). The action-conditioned columns feed the real action, "
+              "which the scripted policy computed from the object state: a high action-conditioned R² over a low "
+              "leak-free one means the state reads the target through the action, not from the observations."]
+    if has_unt:
+        lines += ["", "Untrained: the same ridge probes on the untrained copy of the model; content is what the "
+                  "trained model holds above it."]
+    return "\n".join(lines) + "\n"
+
+
+def figure(result: dict, path: Path) -> Path:
+    """Bar chart: R² per quantity (ridge, MLP, untrained) beside its certificate, gate failures marked."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    view = _results_view(result)
+    probes = result["probes"]
+    kind = "contact" if "contact" in probes.get("ridge", {}) else next(iter(probes["ridge"]))
+    qs = [q for q in FIGURE_QUANTITIES if q in probes["ridge"][kind]]
+    cert = result["certificates"]["certificate"].get(kind, {})
+    oracle = result["certificates"]["estimators"].get(C.GATE_ESTIMATOR, {}).get(kind, {})
+    # both, because the gate reads the oracle while the certificate is the best estimator: they can disagree
+    series = [("certificate (best estimator)", [cert.get(q, {}).get("r2", np.nan) for q in qs], "0.75"),
+              ("GRU oracle (gate)", [oracle.get(q, np.nan) for q in qs], "0.4")]
+    series.append(("ridge (leak-free)", [probes["ridge"][kind][q] for q in qs], "tab:blue"))
+    if "mlp" in probes and kind in probes["mlp"]:
+        series.append(("MLP (leak-free)", [probes["mlp"][kind].get(q, np.nan) for q in qs], "tab:cyan"))
+    if "untrained" in result and kind in result["untrained"].get("ridge", {}):
+        series.append(("untrained ridge", [result["untrained"]["ridge"][kind].get(q, np.nan) for q in qs],
+                       "tab:orange"))
+    fig, ax = plt.subplots(figsize=(1.5 * len(qs) + 2.5, 3.6))
+    width = 0.8 / len(series)
+    x = np.arange(len(qs))
+    for i, (label, vals, color) in enumerate(series):
+        vals = np.clip(np.asarray(vals, float), -0.1, 1.0)  # strongly negative R² is "nothing"; keep the scale
+        hatch = [("//" if R.gate_failed(view, q) and i >= 2 else "") for q in qs]  # the model's bars
+        for j, v in enumerate(vals):
+            if np.isfinite(v):
+                ax.bar(x[j] + (i - (len(series) - 1) / 2) * width, v, width, color=color, hatch=hatch[j],
+                       edgecolor="black" if hatch[j] else color, label=label if j == 0 else None)
+    for j, q in enumerate(qs):
+        if q in C.GATES:
+            ax.plot([x[j] - 0.4, x[j] + 0.4], [C.GATES[q]] * 2, color="red", lw=1, ls="--")
+            if R.gate_failed(view, q):
+                ax.text(x[j], 1.03, "gate ✗: no claim", ha="center", fontsize=8, color="red")
+    ax.axhline(0, color="black", lw=0.5)
+    ax.set_xticks(x, [R.LABELS.get(q, q) for q in qs])
+    ax.set_ylim(-0.1, 1.12)
+    ax.set_ylabel("held-out R²")
+    ax.set_title(f"{result['model']['name']}: probes vs certificate ({kind} windows; dashed: gate threshold)",
+                 fontsize=9)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
+    fig.savefig(tmp, dpi=150)
+    tmp.replace(path)
+    plt.close(fig)
+    return path
+
+
+__all__ = ["ProtocolConfig", "PRESETS", "StateReader", "certify_model", "claims", "make_config", "markdown",
+           "figure", "resolve_certificates", "run_probes"]
