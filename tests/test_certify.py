@@ -147,41 +147,42 @@ def _planted_certificates(gru: dict, drag_gamma: float | None) -> dict:
             "counts": {"contact": {"fit": 100, "test": 50}}}
 
 
-def test_gate_is_the_gru_oracle_rule_not_the_best_estimator():
+def test_gate_is_the_best_estimator_with_the_papers_rule_beside_it():
     from pokeworld.certify import gate
 
     res = _planted_certificates({"log_m": 0.86, "gamma": 0.27, "log_k": 0.87}, drag_gamma=0.71)
     g = gate(res["certificate"], res["estimators"])
-    assert not g["gamma"]["passed"] and g["gamma"]["best_passed"] and not g["gamma"]["agree"]
+    assert g["gamma"]["passed"] and not g["gamma"]["paper_rule_passed"] and not g["gamma"]["agree"]
     assert g["gamma"]["oracle"] == 0.27 and g["gamma"]["certificate"] == 0.71 and g["gamma"]["estimator"] == "drag"
-    assert "passes only through the drag estimator" in g["gamma"]["note"]
-    assert "GRU-oracle rule fails" in g["gamma"]["note"]
+    assert g["gamma"]["note"] == ("certified only through the drag estimator (0.71); the paper's GRU-oracle rule "
+                                  "fails (GRU oracle 0.27 < 0.40)")
     assert g["log_k"]["passed"] and g["log_k"]["agree"] and g["log_m"]["passed"]
 
     res = _planted_certificates({"log_m": 0.86, "gamma": 0.70, "log_k": 0.87}, drag_gamma=0.89)
     g = gate(res["certificate"], res["estimators"])
-    assert all(v["passed"] and v["agree"] for v in g.values())
+    assert all(v["passed"] and v["paper_rule_passed"] and v["agree"] for v in g.values())
     assert g["gamma"]["estimator"] == "drag" and g["gamma"]["oracle"] == 0.70
 
     res = _planted_certificates({"log_m": 0.86, "gamma": 0.70, "log_k": 0.20}, drag_gamma=None)
     g = gate(res["certificate"], res["estimators"])
-    assert not g["log_k"]["passed"] and not g["log_k"]["best_passed"] and g["log_k"]["agree"]
-    assert g["log_k"]["note"].startswith("fails: GRU oracle 0.20 < 0.25")
+    assert not g["log_k"]["passed"] and not g["log_k"]["paper_rule_passed"] and g["log_k"]["agree"]
+    assert g["log_k"]["note"] == "fails: best estimator gru 0.20 < 0.25; GRU oracle 0.20 < 0.25"
 
 
-def test_gate_fails_when_the_oracle_was_not_run_and_format_table_says_why():
+def test_gate_without_the_oracle_says_so_and_format_table_shows_both_rules():
     from pokeworld.certify import format_table, gate
 
     res = _planted_certificates({}, drag_gamma=0.89)
     res["gate"] = gate(res["certificate"], res["estimators"])
-    assert not any(v["passed"] for v in res["gate"].values())
-    assert "GRU oracle was not run" in res["gate"]["gamma"]["note"] and not res["gate"]["gamma"]["agree"]
+    assert res["gate"]["gamma"]["passed"] and not res["gate"]["gamma"]["paper_rule_passed"]
+    assert "the GRU oracle was not run" in res["gate"]["gamma"]["note"] and not res["gate"]["gamma"]["agree"]
+    assert not res["gate"]["log_m"]["passed"]  # only the linear estimator read mass, far below 0.4
     text = format_table(res)
-    assert "gate gamma: GRU oracle not run >= 0.4 -> FAIL (best estimator drag 0.890); NOTE: passes only through" \
-        in text
+    assert ("gate gamma: best estimator drag 0.890 >= 0.4 -> PASS (paper's rule: GRU oracle not run -> FAIL); "
+            "NOTE: certified only through the drag estimator") in text
 
 
-def test_load_gate_regates_a_file_written_under_the_best_estimator_rule(tmp_path):
+def test_load_gate_regates_a_file_written_by_an_older_gate(tmp_path):
     import json
 
     from pokeworld.certify import load_gate
@@ -190,6 +191,6 @@ def test_load_gate_regates_a_file_written_under_the_best_estimator_rule(tmp_path
     res["gate"] = {"gamma": {"threshold": 0.4, "certificate": 0.71, "passed": True}}  # old format
     (tmp_path / "certificates.json").write_text(json.dumps(res))
     g = load_gate(tmp_path / "certificates.json")
-    assert not g["gamma"]["passed"] and g["log_k"]["passed"]
+    assert g["gamma"]["passed"] and not g["gamma"]["paper_rule_passed"] and g["log_k"]["passed"]
     with pytest.raises(DataError, match="no certificates"):
         load_gate(tmp_path / "missing.json")

@@ -29,10 +29,10 @@ def corpus():
     return simulate(cfg, progress=False)
 
 
-def planted_certificates(gamma_oracle: float = 0.7) -> dict:
-    """Certificates as pokeworld.certify writes them, with the GRU oracle's γ chosen by the test."""
+def planted_certificates(gamma_oracle: float = 0.7, gamma_drag: float = 0.9) -> dict:
+    """Certificates as pokeworld.certify writes them, with the GRU oracle's and drag estimator's γ chosen by the test."""
     est = {"gru": {"contact": {"log_m": 0.8, "gamma": gamma_oracle, "log_k": 0.6}},
-           "drag": {"contact": {"gamma": 0.9}}}
+           "drag": {"contact": {"gamma": gamma_drag}}}
     cert = C.certificate_table(est, PARAMS)
     return {"estimators": est, "certificate": cert, "gate": C.gate(cert, est), "counts": {}}
 
@@ -141,15 +141,16 @@ def test_user_models_and_trained_runs_go_through_the_same_probes(corpus):
 
 # --------------------------------------------------------------------------- gate and certificates
 def test_a_failed_gate_marks_the_parameter_and_says_no_claim(corpus, tmp_path):
-    rep = certify_model(oracle_encoder(corpus), corpus, tmp_path, certificates=planted_certificates(0.27), **FAST)
+    rep = certify_model(oracle_encoder(corpus), corpus, tmp_path, certificates=planted_certificates(0.27, 0.31),
+                        **FAST)
     assert rep["claims"]["gamma"]["status"] == "no claim (gate failed)" and not rep["claims"]["gamma"]["gate_passed"]
     assert rep["claims"]["log_k"]["status"] == "claim" and rep["claims"]["object_pos"]["status"] == "not gated"
     md = (tmp_path / "protocol.md").read_text()
-    assert "no claim is made about γ: its gate failed (GRU oracle 0.27 < 0.40; best estimator drag 0.90)" in md
+    assert "no claim is made about γ: its gate failed (best estimator drag 0.31 < 0.40; GRU oracle 0.27)" in md
     assert "no claim is made about log k" not in md
     rows = {line.split("|")[1].strip(): line for line in md.splitlines() if line.startswith("| ")}
     assert rows["γ"].count("†") == 3 and "†" not in rows["log k"] and "†" not in rows["obj. position"]
-    assert "| γ | +0.27 | 0.40 | FAIL | drag +0.90 |" in md
+    assert "| γ | drag +0.31 | 0.40 | FAIL | +0.27 (FAIL) |" in md
 
 
 def test_certificates_are_computed_then_reused_and_a_store_s_own_are_loaded(corpus, tmp_path):
