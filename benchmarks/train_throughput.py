@@ -1,9 +1,13 @@
 """Training throughput per preset: steps/s, frames/s, model FLOP/s and fraction of the measured matmul peak.
 
-Usage:  python benchmarks/train_throughput.py [--presets tiny cpu] [--steps 20] [--out FILE.json]
+Usage:  python benchmarks/train_throughput.py [--presets tiny cpu] [--steps 20] [--fast] [--compile]
+                                             [--channels-last] [--out FILE.json]
 
 Times full optimisation steps (window sampling from the in-memory dataset + forward + backward +
-AdamW) on a synthetic dataset at the preset's image size, after warm-up. FLOPs per step are counted
+gradient clipping + AdamW) on a synthetic dataset at the preset's image size, after warm-up, the way
+``pokeworld.train.run`` takes them: the plain path, or with ``--fast`` the fast path (non-blocking
+uploads of indices and SIGReg directions, fused AdamW); ``--compile`` / ``--channels-last`` as the
+TrainConfig fields. benchmarks/train_fast_path.py compares the paths side by side. FLOPs per step are counted
 with ``torch.utils.flop_counter.FlopCounterMode`` (matmul/conv FLOPs; elementwise ops excluded), and
 the peak is a measured large square matmul (fp32 on CPU; bf16 on CUDA when autocast is used). On a
 shared machine the numbers are pessimistic; the JSON records the load average.
@@ -21,7 +25,8 @@ from pathlib import Path
 import torch
 
 from pokeworld.models import XJEPA
-from pokeworld.train import PRESETS, WindowSampler, auto_threads, make_config, model_kwargs, synthetic_dataset
+from pokeworld.train import (PRESETS, WindowSampler, auto_threads, loss_kwargs, make_config, make_optimizer,
+                             model_kwargs, sigreg_directions, sigreg_seed, synthetic_dataset)
 
 
 def matmul_peak(device: torch.device, dtype: torch.dtype, n: int = 2048, reps: int = 10) -> float:
@@ -39,33 +44,46 @@ def matmul_peak(device: torch.device, dtype: torch.dtype, n: int = 2048, reps: i
     return 2 * n ** 3 * reps / (time.perf_counter() - t)
 
 
-def bench(preset: str, steps: int, device: torch.device) -> dict:
-    cfg = make_config(preset, device=str(device))
+def bench(preset: str, steps: int, device: torch.device, fast: bool = False, compile: bool = False,
+          channels_last: bool = False) -> dict:
+    cfg = make_config(preset, device=str(device), fast="on" if fast else "off", compile=compile,
+                      channels_last=channels_last)
     ds = synthetic_dataset(num_episodes=32, steps=64, size=64 if cfg.image_size <= 64 else cfg.image_size, seed=0)
-    sampler = WindowSampler(ds, ds.episodes("train"), cfg.image_size, cfg.window, device, seed=0)
+    sampler = WindowSampler(ds, ds.episodes("train"), cfg.image_size, cfg.window, device, seed=0, non_blocking=fast)
     torch.manual_seed(0)
     model = XJEPA(**model_kwargs(cfg, (4, 7, 2))).to(device).train()
-    opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    if channels_last:
+        model.to(memory_format=torch.channels_last)
+    opt = make_optimizer(model, cfg, fused=fast)
     amp = cfg.amp and device.type == "cuda" and torch.cuda.is_bf16_supported()
-    kw = dict(sigreg_dirs=cfg.sigreg_dirs, sigreg_weight=cfg.sigreg_weight)
+    kw = loss_kwargs(cfg)
+    loss_fn = torch.compile(model) if compile else model
+    acc = torch.zeros((), device=device)
 
-    def step(i):
+    def step(i, fn=loss_fn):
+        nonlocal acc
         b = sampler.sample(cfg.batch_size)
+        dirs = sigreg_directions(cfg, i, device, non_blocking=fast)
         with torch.autocast(device.type, dtype=torch.bfloat16, enabled=amp):
-            loss, _ = model.loss(b, sigreg_seed=i, **kw)
-        opt.zero_grad()
+            loss, _ = fn(b, sigreg_seed=sigreg_seed(cfg, i), sigreg_directions=dirs, **kw)
+        opt.zero_grad(set_to_none=True)
         loss.backward()
+        if cfg.grad_clip > 0:
+            torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)
         opt.step()
+        acc = acc + loss.detach()  # as the trainer: summed on the device, read at log steps only
 
     from torch.utils.flop_counter import FlopCounterMode
 
     with FlopCounterMode(display=False) as fc:
-        step(0)
+        step(0, fn=model)  # count on the eager model: compiled kernels hide their matmuls from the counter
     flops = fc.get_total_flops()
-    for i in range(3):
+    t_warm = time.perf_counter()
+    for i in range(3):  # includes compilation with --compile
         step(i)
     if device.type == "cuda":
         torch.cuda.synchronize()
+    warmup_s = time.perf_counter() - t_warm
     t = time.perf_counter()
     for i in range(steps):
         step(i)
@@ -73,12 +91,26 @@ def bench(preset: str, steps: int, device: torch.device) -> dict:
         torch.cuda.synchronize()
     dt = (time.perf_counter() - t) / steps
     peak = matmul_peak(device, torch.bfloat16 if amp else torch.float32)
-    return {"preset": preset, "device": str(device), "batch_size": cfg.batch_size, "window": cfg.window,
+    return {"preset": preset, "device": str(device), "fast": fast, "compile": compile, "channels_last": channels_last,
+            "warmup_s": warmup_s, "batch_size": cfg.batch_size, "window": cfg.window,
             "image_size": cfg.image_size, "params": sum(p.numel() for p in model.parameters()),
             "sec_per_step": dt, "steps_per_s": 1 / dt, "frames_per_s": cfg.batch_size * cfg.window / dt,
             "preset_steps": cfg.steps, "sec_per_model": cfg.steps * dt,
             "flops_per_step": flops, "achieved_flops": flops / dt, "matmul_peak_flops": peak,
             "fraction_of_peak": flops / dt / peak, "amp_bf16": amp}
+
+
+def meta(device: torch.device) -> dict:
+    """Where the numbers were taken (a shared machine's load average makes CPU numbers pessimistic)."""
+    return {"torch": torch.__version__, "machine": platform.machine(), "cpu_count": os.cpu_count(),
+            "threads": torch.get_num_threads(), "loadavg": os.getloadavg() if hasattr(os, "getloadavg") else None,
+            "gpu": torch.cuda.get_device_name() if device.type == "cuda" else None}
+
+
+def pick_device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(name)
 
 
 def main() -> None:
@@ -87,10 +119,12 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=20)
     ap.add_argument("--device", default="auto")
     ap.add_argument("--threads", type=int, default=0, help="CPU threads (0 = pokeworld.train.auto_threads())")
+    ap.add_argument("--fast", action="store_true", help="the fast path (TrainConfig fast='on')")
+    ap.add_argument("--compile", action="store_true", help="torch.compile the loss (TrainConfig compile)")
+    ap.add_argument("--channels-last", action="store_true", help="channels-last convolutions")
     ap.add_argument("--out", default="benchmarks/results/train_throughput.json")
     args = ap.parse_args()
-    device = torch.device("cuda" if args.device == "auto" and torch.cuda.is_available() else
-                          ("cpu" if args.device == "auto" else args.device))
+    device = pick_device(args.device)
     if device.type == "cpu":
         torch.set_num_threads(args.threads or auto_threads())
     presets = args.presets or (["tiny", "cpu", "paper"] if device.type == "cuda" else ["tiny", "cpu"])
@@ -98,15 +132,12 @@ def main() -> None:
     for p in presets:
         if p not in PRESETS:
             raise SystemExit(f"unknown preset {p}; choose from {sorted(PRESETS)}")
-        r = bench(p, args.steps, device)
+        r = bench(p, args.steps, device, args.fast, args.compile, args.channels_last)
         results.append(r)
         print(json.dumps(r))
-    meta = {"torch": torch.__version__, "machine": platform.machine(), "cpu_count": os.cpu_count(),
-            "threads": torch.get_num_threads(), "loadavg": os.getloadavg() if hasattr(os, "getloadavg") else None,
-            "gpu": torch.cuda.get_device_name() if device.type == "cuda" else None}
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"meta": meta, "results": results}, indent=2) + "\n")
+    out.write_text(json.dumps({"meta": meta(device), "results": results}, indent=2) + "\n")
     print(f"wrote {out}")
 
 

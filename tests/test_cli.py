@@ -52,3 +52,16 @@ def test_top_level_help_lists_commands_and_preset_costs(capsys):
         for name in PRESETS:
             assert any(line.split()[:1] == [name] and PRESET_COSTS[name] in line for line in lines), name
         assert "H100" in out and "2 CPU cores" in out
+
+
+def test_training_commands_help_quotes_the_preset_cost(capsys):
+    for argv, cost in ((["train", "--help"], PRESET_COSTS["cpu"]),
+                       (["map", "--preset", "paper", "--help"], PRESET_COSTS["paper"])):
+        with pytest.raises(SystemExit) as e:
+            main(argv)
+        assert e.value.code == 0
+        out = " ".join(capsys.readouterr().out.split())
+        assert " ".join(cost.split()) in out, argv
+    from pokeworld.train import TrainConfig
+
+    assert "cpu" in TrainConfig.__doc__ and "paper" in TrainConfig.__doc__

@@ -70,3 +70,58 @@ def test_submitit_local_launcher_runs_jobs(tmp_path):
     experiment.run(c)
     assert (out / "runs" / "V-h1-4-16-lam0.02-standard-s0" / "measure.json").exists()
     assert list((out / "submitit").iterdir())
+
+
+@pytest.mark.slow
+def test_time_budget_stops_partway_resumes_and_packs(tmp_path, monkeypatch, capsys):
+    import tarfile
+
+    from pokeworld import train
+    from pokeworld.models import XJEPA
+
+    clock = {"t": 1e9}  # fake wall clock: every training step takes one minute
+    orig = XJEPA.loss
+
+    def slow_loss(model, *a, **kw):
+        clock["t"] += 60
+        return orig(model, *a, **kw)
+
+    monkeypatch.setattr(XJEPA, "loss", slow_loss)
+    monkeypatch.setattr(train, "wall_clock", lambda: clock["t"])
+    out = tmp_path / "map"
+    first, second = "V-h1-4-16-lam0.02-standard-s0", "VX_t-h1-4-16-lam0.02-standard-s0"
+    # 15 min with no reserve: the first run's 10 steps fit, the second stops after 5 of its 10
+    c = experiment.make_config("tiny", out=str(out), workers=1, time_budget_min=15, time_reserve_min=0,
+                               pack=str(tmp_path / "slice1.tar.gz"))
+    assert experiment.run(c) == out
+    prog = json.loads((out / "progress.json").read_text())
+    assert prog["finished"] == [first] and prog["partial"] == {second: 5} and not prog["complete"]
+    assert (out / "runs" / first / "measure.json").exists()
+    assert not (out / "runs" / second / "DONE").exists() and not (out / "results.json").exists()
+    assert "1 runs finished, 1 partial" in capsys.readouterr().out
+    with tarfile.open(tmp_path / "slice1.tar.gz") as tar:
+        names = set(tar.getnames())
+    assert {f"runs/{first}/measure.json", f"runs/{second}/metrics.jsonl", f"runs/{second}/config.json",
+            "data/standard/certificates.json", "progress.json", "map_config.json"} <= names
+
+    c2 = experiment.make_config("tiny", out=str(out), workers=1, pack=str(tmp_path / "slice2.tar.gz"))
+    experiment.run(c2)  # no budget: resumes the partial run and finishes the map
+    prog = json.loads((out / "progress.json").read_text())
+    assert prog["complete"] and sorted(prog["finished"]) == [first, second]
+    assert torch_step(out / "runs" / second / "final.pt") == 10
+    with tarfile.open(tmp_path / "slice2.tar.gz") as tar:
+        names = set(tar.getnames())
+    assert {"results.json", "results.md", "identifiability_map.png", f"runs/{second}/measure.json"} <= names
+    assert not [n for n in names if n.endswith((".pt", ".h5", ".npy", ".npz")) or "/tb/" in n], names
+    assert all(not n.startswith("data/") or n.endswith(("certificates.json", "manifest.json")) for n in names)
+
+    with pytest.raises(ConfigError, match="time_reserve_min"):
+        experiment.make_config("tiny", time_budget_min=1, time_reserve_min=1)
+    with pytest.raises(ConfigError, match="tar.gz"):
+        experiment.make_config("tiny", pack="results.zip")
+
+
+def torch_step(path) -> int:
+    import torch
+
+    return int(torch.load(path, weights_only=False)["step"])

@@ -42,11 +42,14 @@ COMMANDS: dict[str, Command] = {
     "rh20t-convert": Command("pokeworld.real.rh20t", "ConvertConfig", "convert RH20T scenes to a store", "root"),
 }
 
-#: What ``--preset`` costs, shown by ``pokeworld --help`` (timings: README "Benchmarks").
+#: What ``--preset`` costs, shown by ``pokeworld --help`` and each command's ``--help`` (timings:
+#: docs/model.md "Benchmark"; the same numbers as the comment on ``pokeworld.train.PRESETS``).
 PRESET_COSTS: dict[str, str] = {
     "tiny": "seconds; smoke runs and the unit tests (too small for meaningful numbers)",
-    "cpu": "2 CPU cores; minutes per stage, ≈ 20 min per 4,000-step model (the default)",
-    "paper": "GPU; the paper's sizes, ≈ 13 min per model on one H100 at the current speed",
+    "cpu": ("2 CPU cores; ≈ 0.26 s/step on one core, ≈ 20 min per 4,000-step model with two side by side "
+            "(the default)"),
+    "paper": ("GPU; the paper's sizes, 0.040 s/step on one H100 ≈ 13 min per 20k-step model "
+              "(plain path; fast-path timing pending)"),
 }
 
 
@@ -132,8 +135,10 @@ def main(argv: list[str] | None = None) -> int:
         cls = getattr(mod, cmd.config)
         preset, rest = split_args(argv, cmd.positional, _flag_arity(cls))
         default = getattr(mod, cmd.make)(preset)
+        # the costs are per trained model, so only the commands that train quote them
+        cost = PRESET_COSTS.get(preset) if cmd.config in ("TrainConfig", "MapConfig") else None
         cfg = tyro.cli(cls, default=default, args=rest, prog=f"pokeworld {name}",
-                       description=f"{cmd.help} (preset {preset!r})")
+                       description=f"{cmd.help} (preset {preset!r}" + (f": {cost})" if cost else ")"))
         getattr(mod, cmd.runner)(cfg)
     except PokeworldError as e:
         print(f"pokeworld {name}: error: {e}", file=sys.stderr)

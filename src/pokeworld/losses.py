@@ -135,7 +135,7 @@ def random_directions(dim: int, num: int, seed: int, device=None) -> torch.Tenso
 
 
 def sigreg(z: torch.Tensor, num_dirs: int = 1024, seed: int = 0, num_knots: int = 17,
-           t_max: float = 3.0, max_rows: int | None = None) -> torch.Tensor:
+           t_max: float = 3.0, max_rows: int | None = None, directions: torch.Tensor | None = None) -> torch.Tensor:
     """SIGReg loss: mean Epps–Pulley statistic of ``z`` projected on ``num_dirs`` random unit directions.
 
     Args:
@@ -146,6 +146,8 @@ def sigreg(z: torch.Tensor, num_dirs: int = 1024, seed: int = 0, num_knots: int 
            step but shared across ranks.
         max_rows: if set and N > max_rows, use a random subset of ``max_rows`` rows (token-level
            subsampling, 4096 in the paper). The subset uses the same seeded generator.
+        directions: (D, num_dirs) unit directions to use instead of drawing them from ``seed``; the
+           trainer's fast path passes ``random_directions(D, num_dirs, seed)`` uploaded ahead of time.
     Returns:
         scalar loss (float32, computed outside autocast).
     """
@@ -156,7 +158,7 @@ def sigreg(z: torch.Tensor, num_dirs: int = 1024, seed: int = 0, num_knots: int 
             g.manual_seed((int(seed) * 7919 + 17) % (2 ** 63 - 1))
             idx = torch.randperm(z.shape[-2], generator=g)[:max_rows].to(z.device)
             z = z.index_select(-2, idx)
-        a = random_directions(z.shape[-1], num_dirs, seed, z.device)
+        a = random_directions(z.shape[-1], num_dirs, seed, z.device) if directions is None else directions.float()
         return epps_pulley(z @ a, num_knots, t_max).mean()
 
 

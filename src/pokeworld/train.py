@@ -13,6 +13,13 @@
 
 The whole dataset lives in memory as tensors (on the GPU when there is one); a batch
 is gathered with two index tensors, so window sampling never bottlenecks a step.
+
+Fast path (``fast``; on by default on CUDA, off on CPU): the per-step window indices and SIGReg
+directions are drawn on the host exactly as in the plain path but uploaded from pinned memory
+without blocking, AdamW is fused, and nothing in a step waits for the GPU — loss terms are
+summed on the device and read (with the NaN check) only when a row is logged or a checkpoint
+written. ``compile`` and ``channels_last`` are separate options. ``deadline`` checkpoints and
+returns early (without ``DONE``) for time-sliced jobs.
 """
 
 from __future__ import annotations
@@ -31,12 +38,17 @@ import torch
 
 from .config import from_preset, to_dict
 from .errors import ConfigError, DataError
+from .losses import random_directions
 from .models.xjepa import OBJECTIVES, SYSID_PARAMS, XJEPA, area_downsample, check_variant
 
 
 @dataclass
 class TrainConfig:
-    """Train one X-JEPA variant (paper §3, App. B). Defaults are the ``paper`` preset."""
+    """Train one X-JEPA variant (paper §3, App. B).
+
+    The field defaults are the ``paper`` preset (App. B sizes; needs a GPU). :func:`make_config` and the
+    ``pokeworld train`` command start from the ``cpu`` preset instead; see :data:`PRESETS` for what each costs.
+    """
 
     variant: str = "VFX"
     """Variant (inputs × targets): one of V, VF, VX_p, VX_t, VX, VFX (paper Table "targets")."""
@@ -131,11 +143,27 @@ class TrainConfig:
     """Show a tqdm progress bar."""
     ddp: bool = False
     """Opt-in multi-GPU DistributedDataParallel; launch with ``torchrun --nproc_per_node=N``."""
+    fast: str = "auto"
+    """Fast path: 'auto' (on for CUDA devices, off on CPU), 'on' or 'off'. Non-blocking pinned uploads of
+    the step's window indices and SIGReg directions, fused AdamW, no host sync between log/checkpoint
+    steps. Samples the same windows and directions as the plain path."""
+    compile: bool = False
+    """``torch.compile`` the model's loss (forward + backward graphs). Dropout masks then come from
+    inductor's RNG, so a compiled run matches an eager one statistically, not bit-for-bit."""
+    channels_last: bool = False
+    """Keep conv weights/activations in channels-last layout (faster cuDNN convs on tensor cores).
+    Fixed for a run: the optimizer state in the checkpoint inherits the layout."""
+    deadline: float = 0.0
+    """Unix time after which the loop checkpoints and returns without ``DONE`` (0 = none); a run whose
+    deadline has passed before it starts returns at once. For time-sliced jobs (``pokeworld map
+    --time-budget-min``); re-running resumes."""
 
 
-#: Field overrides per preset. ``paper`` = App. B. ``cpu``: a model in ≤ 10 min on 2 CPU cores
-#: (32×32 frames, narrower CNN/predictor, batch 32, 256 SIGReg directions, 4,000 steps: stiffness
-#: enters the VFX latent only after ~2,000 steps at this size, docs/model.md). ``tiny``: unit tests.
+#: Field overrides per preset (costs as in ``cli.PRESET_COSTS``).
+#: ``paper`` = App. B; needs a GPU: 0.040 s/step on one H100 (plain path) ≈ 13 min per 20k-step model.
+#: ``cpu``: 32×32 frames, narrower CNN/predictor, batch 32, 256 SIGReg directions, 4,000 steps (stiffness
+#: enters the VFX latent only after ~2,000 steps at this size, docs/model.md); ≈ 0.26 s/step on one
+#: core, ≈ 20 min per model with two models side by side on 2 cores. ``tiny``: unit tests, seconds.
 PRESETS: dict[str, dict[str, Any]] = {
     "paper": {},
     "cpu": dict(image_size=32, channels=(16, 32, 64, 64), width=128, depth=2, heads=4, vec_dim=32,
@@ -147,7 +175,8 @@ PRESETS: dict[str, dict[str, Any]] = {
 }
 
 #: Fields that may differ when re-running into an existing run directory.
-RESUMABLE_FIELDS = ("steps", "stop_at", "ckpt_every", "log_every", "tensorboard", "progress", "threads", "device")
+RESUMABLE_FIELDS = ("steps", "stop_at", "ckpt_every", "log_every", "tensorboard", "progress", "threads", "device",
+                    "fast", "compile", "deadline")
 
 #: Fields removed from TrainConfig -> the value with which a run made before the removal behaves
 #: exactly like the current code; a run that set anything else conflicts. (Fields added later are
@@ -185,6 +214,57 @@ def validate(cfg: TrainConfig) -> None:
         raise ConfigError("weights must be non-negative")
     if not math.isfinite(cfg.glide_loss_weight):
         raise ConfigError(f"glide_loss_weight must be finite, got {cfg.glide_loss_weight}")
+    if cfg.fast not in ("auto", "on", "off"):
+        raise ConfigError(f"fast must be 'auto', 'on' or 'off', got {cfg.fast!r}")
+
+
+def use_fast_path(cfg: TrainConfig, dev: torch.device) -> bool:
+    """Whether ``cfg.fast`` selects the fast path on ``dev`` ('auto': CUDA only)."""
+    return cfg.fast == "on" or (cfg.fast == "auto" and dev.type == "cuda")
+
+
+def wall_clock() -> float:
+    """Unix time for ``deadline`` checks (a module function so tests can fast-forward time)."""
+    return time.time()
+
+
+def to_device(x: torch.Tensor, dev: torch.device, non_blocking: bool = False) -> torch.Tensor:
+    """Host tensor -> ``dev``. A plain copy from pageable memory makes the host wait for the GPU
+    stream; from pinned memory with ``non_blocking`` it is queued and the host runs ahead."""
+    if non_blocking and dev.type == "cuda":
+        return x.pin_memory().to(dev, non_blocking=True)
+    return x.to(dev)
+
+
+def sigreg_seed(cfg: TrainConfig, step: int) -> int:
+    """Seed of the step's SIGReg directions: a function of (seed, step) only, so identical on every
+    rank and after resume."""
+    return cfg.seed * 1_000_003 + step
+
+
+def sigreg_directions(cfg: TrainConfig, step: int, dev: torch.device, non_blocking: bool = False) -> torch.Tensor:
+    """The step's SIGReg directions (D, K), drawn on the host exactly as :func:`pokeworld.losses.sigreg`
+    draws them from :func:`sigreg_seed`, so both paths regularise along the same directions."""
+    k = cfg.token_dirs if cfg.tokens else cfg.sigreg_dirs
+    return to_device(random_directions(cfg.latent_dim, k, sigreg_seed(cfg, step)), dev, non_blocking)
+
+
+def make_optimizer(model: torch.nn.Module, cfg: TrainConfig, fused: bool = False) -> torch.optim.AdamW:
+    """AdamW without weight decay on biases, norms and positional embeddings; ``fused`` = one kernel
+    for the whole update instead of a few per parameter group."""
+    decay = [p for n, p in model.named_parameters() if p.ndim >= 2 and "pos" not in n]
+    no_decay = [p for n, p in model.named_parameters() if not (p.ndim >= 2 and "pos" not in n)]
+    return torch.optim.AdamW([{"params": decay, "weight_decay": cfg.weight_decay},
+                              {"params": no_decay, "weight_decay": 0.0}], lr=cfg.lr, betas=(0.9, 0.999),
+                             fused=True if fused else None)
+
+
+def loss_kwargs(cfg: TrainConfig) -> dict[str, Any]:
+    """Keyword arguments of :meth:`XJEPA.loss` fixed by the config (the per-step ones are added by the loop)."""
+    return dict(sigreg_weight=cfg.sigreg_weight, sigreg_dirs=cfg.sigreg_dirs, sigreg_knots=cfg.sigreg_knots,
+                token_rows=cfg.token_rows, token_dirs=cfg.token_dirs, touch_contact_weight=cfg.touch_contact_weight,
+                proprio_weight=cfg.proprio_weight, touch_weight=cfg.touch_weight, sysid_weight=cfg.sysid_weight,
+                glide_loss_weight=cfg.glide_loss_weight)
 
 
 # ---------------------------------------------------------------------- data in memory
@@ -196,18 +276,19 @@ class WindowSampler:
     Episodes are drawn uniformly with replacement and the start step is uniform. Every batch carries
     the per-frame glide mask (``glide``, computed once per episode by :func:`pokeworld.windows.glide_frames`)
     for the glide-frame loss weight. Randomness comes from a dedicated CPU ``torch.Generator`` whose
-    state is checkpointed, so resumption is exact.
+    state is checkpointed, so resumption is exact. With ``non_blocking`` (the fast path) the two index
+    tensors go to the device from pinned memory without making the host wait; the windows are the same.
     """
 
     def __init__(self, ds, episodes: np.ndarray, image_size: int, window: int, device: torch.device,
-                 contact_channel: int = 6, seed: int = 0, with_params: bool = False):
+                 contact_channel: int = 6, seed: int = 0, with_params: bool = False, non_blocking: bool = False):
         ep = np.asarray(episodes)
         if ep.size == 0:
             raise ConfigError("the dataset has no training episodes (split == 0)")
         T1 = ds.frames.shape[1]
         if window > T1:
             raise ConfigError(f"window {window} exceeds the episode length {T1} observations")
-        self.window, self.device = window, device
+        self.window, self.device, self.non_blocking = window, device, non_blocking
         frames = torch.from_numpy(np.ascontiguousarray(ds.frames[ep]))
         chunks = [area_downsample(frames[i:i + 32], image_size) for i in range(0, len(ep), 32)]
         self.frames = torch.cat(chunks).to(device)
@@ -241,7 +322,7 @@ class WindowSampler:
         """A batch of windows: frames (B, L, S, S) uint8, proprio/touch/actions (B, L, ·), params (B, 3)."""
         e = torch.multinomial(self.weights, batch_size, replacement=True, generator=self.gen)
         s = torch.randint(0, self.num_starts, (batch_size,), generator=self.gen)
-        e, s = e.to(self.device), s.to(self.device)
+        e, s = to_device(e, self.device, self.non_blocking), to_device(s, self.device, self.non_blocking)
         t = s[:, None] + self.offsets[None]
         ee = e[:, None]
         out = {"frames": self.frames[ee, t], "proprio": self.proprio[ee, t], "touch": self.touch[ee, t],
@@ -408,12 +489,32 @@ def _device(cfg: TrainConfig, local_rank: int = 0) -> torch.device:
     return dev
 
 
-def _check_finite(loss: torch.Tensor, terms: dict[str, torch.Tensor], step: int) -> None:
-    if not bool(torch.isfinite(loss)):
-        bad = {k: float(v) for k, v in terms.items() if not bool(torch.isfinite(v))}
+def _check_finite(first_bad: torch.Tensor, acc: dict[str, torch.Tensor], step: int) -> None:
+    """Raise if any step since the last check had a non-finite loss. Called only before a metrics row or a
+    checkpoint is written (one host sync there instead of one per step), so no checkpoint holds NaNs."""
+    bad_step = int(first_bad)
+    if bad_step >= 0:
+        bad = {k: float(v) for k, v in acc.items() if not math.isfinite(float(v))}
         raise FloatingPointError(
-            f"non-finite training loss at step {step}: total={float(loss.detach())}; offending terms {bad or '(none: overflow in sum)'}. "
+            f"non-finite training loss at step {bad_step} (detected at step {step}); terms non-finite since the "
+            f"last log {bad or '(none: overflow in sum)'}. "
             "Lower the learning rate or check the data; the last good checkpoint is kept.")
+
+
+def _out_of_time(cfg: TrainConfig, step: int, dev: torch.device) -> bool:
+    if cfg.deadline <= 0:
+        return False
+    if not cfg.ddp:
+        return wall_clock() >= cfg.deadline
+    if step % cfg.log_every:
+        return False
+    # ranks must stop at the same step (or the others hang in the next all-reduce): rank 0's clock
+    # decides, at log steps only, so the broadcast costs one sync per logged row
+    import torch.distributed as dist
+
+    flag = torch.tensor(float(wall_clock() >= cfg.deadline), device=dev)
+    dist.broadcast(flag, 0)
+    return bool(flag)
 
 
 # ---------------------------------------------------------------------- training
@@ -435,6 +536,8 @@ def run(cfg: TrainConfig) -> Path:
                               "use another --out or delete the directory")
     if (out / "DONE").exists():
         return out
+    if cfg.deadline > 0 and wall_clock() >= cfg.deadline:  # out of time before starting: leave the run as it is
+        return out
     rank, world, local_rank = 0, 1, 0
     if cfg.ddp:
         import torch.distributed as dist
@@ -451,6 +554,7 @@ def run(cfg: TrainConfig) -> Path:
     if dev.type == "cpu":
         torch.set_num_threads(cfg.threads or auto_threads())
     main = rank == 0
+    fast = use_fast_path(cfg, dev)
 
     if main:
         from .io import write_json
@@ -464,7 +568,7 @@ def run(cfg: TrainConfig) -> Path:
     train_ep = ds.episodes("train")
     dims = (ds.proprio.shape[-1], ds.touch.shape[-1], ds.actions.shape[-1])
     sampler = WindowSampler(ds, train_ep, cfg.image_size, cfg.window, dev, cfg.contact_channel,
-                            seed=cfg.seed * 1000 + 1 + rank, with_params=cfg.sysid_weight > 0)
+                            seed=cfg.seed * 1000 + 1 + rank, with_params=cfg.sysid_weight > 0, non_blocking=fast)
     train_horizons = (1,) if cfg.tokens else tuple(cfg.horizons)
     stats = data_stats(ds, train_ep)
     del ds
@@ -476,10 +580,9 @@ def run(cfg: TrainConfig) -> Path:
     model = XJEPA(**mk)
     model.set_stats(stats)
     model.to(dev)
-    decay = [p for n, p in model.named_parameters() if p.ndim >= 2 and "pos" not in n]
-    no_decay = [p for n, p in model.named_parameters() if not (p.ndim >= 2 and "pos" not in n)]
-    opt = torch.optim.AdamW([{"params": decay, "weight_decay": cfg.weight_decay},
-                             {"params": no_decay, "weight_decay": 0.0}], lr=cfg.lr, betas=(0.9, 0.999))
+    if cfg.channels_last:
+        model.to(memory_format=torch.channels_last)
+    opt = make_optimizer(model, cfg, fused=fast)
     sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda s: lr_lambda(s, cfg.warmup, cfg.steps))
 
     step = 0
@@ -511,6 +614,9 @@ def run(cfg: TrainConfig) -> Path:
         net = DDP(model, device_ids=[dev.index] if dev.type == "cuda" else None,
                   find_unused_parameters=cfg.objective == "recon")
     use_amp = cfg.amp and dev.type == "cuda" and torch.cuda.is_bf16_supported()
+    # compile the module call (forward + loss); the optimizer step stays eager, so the lr schedule
+    # (a Python float per step) causes no recompiles
+    loss_fn = torch.compile(net) if cfg.compile else net
 
     def save_ckpt(s: int) -> None:
         if main:
@@ -530,34 +636,39 @@ def run(cfg: TrainConfig) -> Path:
         pbar = tqdm(total=cfg.steps, initial=step, desc=f"train {cfg.variant}", dynamic_ncols=True)
 
     end = min(cfg.steps, cfg.stop_at) if cfg.stop_at > 0 else cfg.steps
-    loss_kw = dict(sigreg_weight=cfg.sigreg_weight, sigreg_dirs=cfg.sigreg_dirs, sigreg_knots=cfg.sigreg_knots,
-                   token_rows=cfg.token_rows, token_dirs=cfg.token_dirs, touch_contact_weight=cfg.touch_contact_weight,
-                   proprio_weight=cfg.proprio_weight, touch_weight=cfg.touch_weight, sysid_weight=cfg.sysid_weight,
-                   glide_loss_weight=cfg.glide_loss_weight)
+    loss_kw = loss_kwargs(cfg)
+    # loss terms are summed on the device and read only when a row is logged: a per-step .item() or
+    # isfinite check would make the host wait for the GPU every step
     acc: dict[str, torch.Tensor] = {}
+    first_bad = torch.full((), -1, dtype=torch.long, device=dev)  # first step with a non-finite loss
     n_acc, t0 = 0, time.perf_counter()
     model.train()
     try:
         while step < end:
             batch = sampler.sample(cfg.batch_size)
+            dirs = sigreg_directions(cfg, step, dev, non_blocking=fast)
             with torch.autocast(dev.type, dtype=torch.bfloat16, enabled=use_amp):
-                # directions depend only on (seed, step): identical on every rank and after resume
-                loss, terms = net(batch, sigreg_seed=cfg.seed * 1_000_003 + step, **loss_kw)
-            _check_finite(loss, terms, step)
+                loss, terms = loss_fn(batch, sigreg_seed=sigreg_seed(cfg, step), sigreg_directions=dirs, **loss_kw)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             if cfg.grad_clip > 0:
                 terms["grad_norm"] = torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip).detach()
             opt.step()
             sched.step()
-            step += 1
             terms["loss"] = loss.detach()
+            first_bad = torch.where((first_bad < 0) & ~torch.isfinite(terms["loss"]), step, first_bad)
+            step += 1
             for k, v in terms.items():
                 acc[k] = acc.get(k, 0.0) + v.float()
             n_acc += 1
             if pbar is not None:
                 pbar.update(1)
-            if step % cfg.log_every == 0 or step == end:
+            out_of_time = _out_of_time(cfg, step, dev)
+            log_now = step % cfg.log_every == 0 or step == end or out_of_time
+            ckpt_now = step % cfg.ckpt_every == 0 or step == end or out_of_time
+            if log_now or ckpt_now:
+                _check_finite(first_bad, acc, step)
+            if log_now:
                 if dev.type == "cuda":
                     torch.cuda.synchronize(dev)
                 dt = time.perf_counter() - t0
@@ -576,8 +687,10 @@ def run(cfg: TrainConfig) -> Path:
                     if pbar is not None:
                         pbar.set_postfix(loss=f"{row['loss']:.4f}", fps=f"{row['frames_per_s']:.0f}")
                 acc, n_acc, t0 = {}, 0, time.perf_counter()
-            if step % cfg.ckpt_every == 0 or step == end:
+            if ckpt_now:
                 save_ckpt(step)
+            if out_of_time:
+                break
     finally:
         if pbar is not None:
             pbar.close()
@@ -596,4 +709,5 @@ def run(cfg: TrainConfig) -> Path:
 
 
 __all__ = ["TrainConfig", "PRESETS", "make_config", "validate", "run", "load_model", "WindowSampler",
-           "data_stats", "synthetic_dataset", "model_kwargs", "lr_lambda"]
+           "data_stats", "synthetic_dataset", "model_kwargs", "lr_lambda", "use_fast_path", "make_optimizer",
+           "loss_kwargs", "sigreg_directions", "sigreg_seed", "to_device", "wall_clock"]

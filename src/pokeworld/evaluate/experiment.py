@@ -7,6 +7,11 @@ and resumes unfinished ones (``pokeworld.train.run`` and ``measure.run`` both
 skip or resume). Runs execute locally in parallel through
 ``concurrent.futures`` or on SLURM as a submitit job array (``--launcher
 slurm``; ``submitit-local`` uses submitit's local executor, as the tests do).
+
+Time-sliced running (``time_budget_min``): on a machine lent for a few minutes at a
+time, every invocation trains until its budget is nearly spent, checkpoints, writes
+``progress.json`` (finished / partial / pending runs) and exits normally; the same
+command resumes. ``pack`` tars the small result files for the trip back.
 """
 
 from __future__ import annotations
@@ -15,6 +20,7 @@ import concurrent.futures as cf
 import dataclasses
 import json
 import os
+import tarfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -33,7 +39,9 @@ class MapConfig:
     out: str = "out/map"
     """Output directory: data/, runs/, results.json, tables and figures land here."""
     preset: str = "cpu"
-    """Preset used for every stage (generate, certify, train, measure): tiny, cpu or paper."""
+    """Preset used for every stage (generate, certify, train, measure): tiny (seconds, tests), cpu (2 CPU
+    cores, ≈ 20 min per 4,000-step model, two side by side) or paper (GPU, ≈ 13 min per 20k-step model on
+    one H100 with the plain training path); see ``pokeworld --help``."""
     experiments: tuple[str, ...] = ("factorial", "lazy", "lambda", "coverage", "frame_averaged")
     """Named experiments to run (see EXPERIMENTS)."""
     variants: tuple[str, ...] = VARIANT_ORDER
@@ -55,6 +63,9 @@ class MapConfig:
     certify_estimators: tuple[str, ...] = ("gru", "gru_geom", "linear", "mlp", "drag", "gru_pixel", "drag_pixel",
                                            "gru_notouch", "gru_pixel_notouch")
     """Certificate estimators to run."""
+    certify_kinds: tuple[str, ...] = ("contact", "glide")
+    """Window kinds the certificates are computed on (the gate reads contact windows; glide windows
+    give the drag certificate on pure glides)."""
     mlp_probes: bool = True
     """Fit early-stopped MLP probes besides ridge."""
     untrained: bool = True
@@ -69,6 +80,17 @@ class MapConfig:
     """SLURM time limit per run in minutes."""
     slurm_gpus: int = 1
     """GPUs per SLURM job."""
+    time_budget_min: float = 0.0
+    """Wall-clock budget of this invocation in minutes (0 = none). Training stops with a checkpoint
+    ``time_reserve_min`` before it ends, unfinished runs are reported in progress.json, the command
+    exits 0, and running it again resumes. Corpus generation and certification are not interrupted."""
+    time_reserve_min: float = 1.0
+    """Minutes of ``time_budget_min`` kept for checkpointing, measuring a run that just finished,
+    the report and the pack; no stage starts inside it."""
+    pack: str = ""
+    """Write the small results to this .tar.gz (paths relative to ``out``): every run's config.json,
+    metrics.jsonl and measure*.json, each corpus's certificates.json and manifest.json, map_config.json,
+    progress.json, results.json/.md and the figure; never checkpoints, TensorBoard events or data."""
 
     def __post_init__(self) -> None:
         bad = set(self.experiments) - set(EXPERIMENTS)
@@ -83,6 +105,13 @@ class MapConfig:
             raise ConfigError(f"launcher must be local, slurm or submitit-local, got {self.launcher!r}")
         if self.preset not in ("tiny", "cpu", "paper"):
             raise ConfigError(f"unknown preset {self.preset!r}; choose tiny, cpu or paper")
+        if self.time_budget_min < 0 or self.time_reserve_min < 0:
+            raise ConfigError("time_budget_min and time_reserve_min must be non-negative")
+        if 0 < self.time_budget_min <= self.time_reserve_min:
+            raise ConfigError(f"time_budget_min ({self.time_budget_min}) must exceed time_reserve_min "
+                              f"({self.time_reserve_min}), or nothing can be trained")
+        if self.pack and not self.pack.endswith((".tar.gz", ".tgz")):
+            raise ConfigError(f"pack must name a .tar.gz file, got {self.pack!r}")
 
 
 PRESETS: dict[str, dict] = {
@@ -235,28 +264,44 @@ def ensure_certificates(c: MapConfig, corpus: str) -> dict:
 
     targets = ("log_m", "gamma", "log_k") + CORPUS_TARGETS.get(corpus, ())
     path = certify.run(certify.make_config(c.preset, data=str(corpus_dir(c, corpus)), targets=targets,
-                                           estimators=c.certify_estimators))
+                                           estimators=c.certify_estimators, kinds=c.certify_kinds))
     return json.loads(Path(path).read_text())
 
 
+def _past(deadline: float) -> bool:
+    from .. import train
+
+    return deadline > 0 and train.wall_clock() >= deadline
+
+
 def execute(job: dict) -> dict:
-    """Train (resume / skip) and measure one run. Top-level and picklable for process pools and submitit."""
+    """Train (resume / skip) and measure one run. Top-level and picklable for process pools and submitit.
+
+    Returns ``{"name", "status"}`` with status ``finished`` (trained and measured; also ``measure``:
+    the path), ``partial`` (stopped at ``job["deadline"]``, or trained but not yet measured) or
+    ``pending`` (the deadline had passed before it started).
+    """
     import torch
 
     from .. import train
     from . import measure
 
+    deadline = job.get("deadline", 0.0)
+    if _past(deadline):
+        return {"name": job["name"], "status": "pending"}
     if job.get("threads"):
         torch.set_num_threads(job["threads"])
-    tcfg = train.make_config(job["preset"], **job["train"])
-    train.run(tcfg)
+    tcfg = train.make_config(job["preset"], **job["train"], deadline=deadline)
+    run_dir = train.run(tcfg)
+    if not (run_dir / "DONE").exists() or _past(deadline):
+        return {"name": job["name"], "status": "partial"}
     mcfg = measure.make_config(job["preset"], run_dir=job["train"]["out"], data=job["measure_data"],
                                mlp=job["mlp"], untrained=job["untrained"])
     path = measure.run(mcfg)
-    return {"name": job["name"], "measure": str(path)}
+    return {"name": job["name"], "status": "finished", "measure": str(path)}
 
 
-def _jobs(c: MapConfig, specs: list[RunSpec], threads: int) -> list[dict]:
+def _jobs(c: MapConfig, specs: list[RunSpec], threads: int, deadline: float = 0.0) -> list[dict]:
     jobs = []
     for s in specs:
         tr = dict(s.train, data=str(corpus_dir(c, s.corpus)), out=str(Path(c.out) / "runs" / s.name),
@@ -267,7 +312,7 @@ def _jobs(c: MapConfig, specs: list[RunSpec], threads: int) -> list[dict]:
             tr["threads"] = threads
         measure_data = str(corpus_dir(c, s.measure_corpus)) if s.measure_corpus != s.corpus else ""
         jobs.append({"name": s.name, "preset": c.preset, "train": tr, "measure_data": measure_data,
-                     "mlp": c.mlp_probes, "untrained": c.untrained, "threads": threads})
+                     "mlp": c.mlp_probes, "untrained": c.untrained, "threads": threads, "deadline": deadline})
     return jobs
 
 
@@ -313,25 +358,106 @@ def _default_workers(n_jobs: int) -> int:
     return max(1, min(n_jobs, _cores()))
 
 
+def _last_step(run_dir: Path) -> int:
+    """Last logged training step of a run directory (0 when it has none)."""
+    path = run_dir / "metrics.jsonl"
+    rows = [json.loads(x) for x in path.read_text().splitlines() if x.strip()] if path.exists() else []
+    return max((int(r.get("step", 0)) for r in rows), default=0)
+
+
+def write_progress(c: MapConfig, specs: list[RunSpec], started: float) -> dict:
+    """``progress.json``, read off the run directories (so earlier invocations' work counts): runs
+    ``finished`` (trained and measured), ``partial`` (name -> last logged step: stopped at a deadline,
+    or trained but not measured yet) and ``pending`` (not started)."""
+    from .. import train
+
+    prog: dict[str, Any] = {"finished": [], "partial": {}, "pending": []}
+    for s in specs:
+        run_dir = Path(c.out) / "runs" / s.name
+        measured = run_dir / ("measure.json" if s.measure_corpus == s.corpus else f"measure-{s.measure_corpus}.json")
+        if (run_dir / "DONE").exists() and measured.exists():
+            prog["finished"].append(s.name)
+        elif (run_dir / "ckpt.pt").exists() or (run_dir / "DONE").exists():
+            prog["partial"][s.name] = _last_step(run_dir)
+        else:
+            prog["pending"].append(s.name)
+    prog["complete"] = len(prog["finished"]) == len(specs)
+    prog["elapsed_min"] = (train.wall_clock() - started) / 60
+    prog["time_budget_min"] = c.time_budget_min
+    write_json(Path(c.out) / "progress.json", prog)
+    return prog
+
+
+#: Files ``pack`` takes, as globs relative to the map directory (all small: JSON, markdown, figures).
+PACK_GLOBS = ("map_config.json", "progress.json", "results.json", "results.md", "identifiability_map.png",
+              "identifiability_map.pdf", "data/*/certificates.json", "data/*/manifest.json",
+              "runs/*/config.json", "runs/*/metrics.jsonl", "runs/*/measure*.json")
+
+
+def pack_results(c: MapConfig, dest: str | os.PathLike) -> Path:
+    """Tar+gzip the small result files of ``c.out`` (:data:`PACK_GLOBS`) into ``dest``; returns it."""
+    out, dest = Path(c.out), Path(dest)
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    tmp = dest.with_name(f".{dest.name}.tmp-{os.getpid()}")
+    with tarfile.open(tmp, "w:gz") as tar:
+        for pattern in PACK_GLOBS:
+            for path in sorted(out.glob(pattern)):
+                tar.add(path, arcname=str(path.relative_to(out)))
+    os.replace(tmp, dest)
+    size = dest.stat().st_size
+    # the device machine returns files of at most 16 MiB each
+    print(f"[map] packed results into {dest} ({size / 2 ** 20:.2f} MiB)"
+          + (" — over 16 MiB, too large to come back from the device" if size > 16 * 2 ** 20 else ""))
+    return dest
+
+
 def run(c: MapConfig) -> Path:
-    """Run every stage of the map and write results.json, results.md and the figure into ``c.out``."""
+    """Run every stage of the map and write results.json, results.md and the figure into ``c.out``.
+
+    With ``time_budget_min`` the invocation may stop early (progress.json says where); with ``pack``
+    the small results are tarred at the end either way.
+    """
+    from .. import train
     from . import report
 
+    started = train.wall_clock()
+    # training must stop early enough to leave the reserve for measuring, reporting and packing
+    deadline = started + 60 * (c.time_budget_min - c.time_reserve_min) if c.time_budget_min > 0 else 0.0
     out = Path(c.out)
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / "map_config.json", to_dict(c))
     specs = all_specs(c)
     corpora = sorted({s.corpus for s in specs} | {s.measure_corpus for s in specs} | {"standard"})
+    certificates: dict[str, dict] = {}
+    prepared = True  # every corpus and certificate in place: training may start, the report needs them all
     for corpus in corpora:
+        if _past(deadline):
+            prepared = False
+            break
         ensure_corpus(c, corpus)
-    certificates = {corpus: ensure_certificates(c, corpus)
-                    for corpus in corpora if corpus != "contact_poor"}
-    workers = c.workers or _default_workers(len(specs))
-    threads = max(1, _cores() // workers) if (c.launcher == "local" and workers > 1) else 0
-    print(f"[map] {len(specs)} runs, launcher={c.launcher}, workers={workers}")
-    launch(c, _jobs(c, specs, threads))
-    results = report.collect(c, specs, certificates)
-    write_json(out / "results.json", results)
-    report.write_all(c, results)
-    print(f"[map] wrote {out / 'results.json'}, {out / 'results.md'}, {out / 'identifiability_map.png'}")
+    for corpus in corpora:
+        if not prepared or corpus == "contact_poor":
+            continue
+        if _past(deadline):
+            prepared = False
+            continue
+        certificates[corpus] = ensure_certificates(c, corpus)
+    if prepared:
+        workers = c.workers or _default_workers(len(specs))
+        threads = max(1, _cores() // workers) if (c.launcher == "local" and workers > 1) else 0
+        print(f"[map] {len(specs)} runs, launcher={c.launcher}, workers={workers}"
+              + (f", training until {c.time_budget_min - c.time_reserve_min:g} min" if deadline else ""))
+        launch(c, _jobs(c, specs, threads, deadline))
+    prog = write_progress(c, specs, started)
+    if prog["complete"] and prepared:
+        results = report.collect(c, specs, certificates)
+        write_json(out / "results.json", results)
+        report.write_all(c, results)
+        print(f"[map] wrote {out / 'results.json'}, {out / 'results.md'}, {out / 'identifiability_map.png'}")
+    else:
+        print(f"[map] time budget reached: {len(prog['finished'])} runs finished, {len(prog['partial'])} partial "
+              f"{prog['partial']}, {len(prog['pending'])} pending; run the same command again to resume "
+              f"({out / 'progress.json'})")
+    if c.pack:
+        pack_results(c, c.pack)
     return out

@@ -333,7 +333,8 @@ class XJEPA(nn.Module):
     def loss(self, batch: dict[str, torch.Tensor], *, sigreg_weight: float = 0.02, sigreg_dirs: int = 1024,
              sigreg_seed: int = 0, sigreg_knots: int = 17, token_rows: int = 4096, token_dirs: int = 256,
              touch_contact_weight: float = 4.0, proprio_weight: float = 1.0, touch_weight: float = 1.0,
-             sysid_weight: float = 0.5, glide_loss_weight: float = 1.0) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+             sysid_weight: float = 0.5, glide_loss_weight: float = 1.0,
+             sigreg_directions: torch.Tensor | None = None) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """Training loss on a batch of windows.
 
         Args:
@@ -344,6 +345,9 @@ class XJEPA(nn.Module):
                 not sysid) whose target frame t+Δ is a glide frame, 1 otherwise; each term stays a weighted
                 mean. Needs ``batch["glide"]``; with it the term ``glide_loss_share`` (Σ w·glide / Σ w over
                 target frames) is reported.
+            sigreg_directions: optional (latent_dim, K) SIGReg directions replacing the ones drawn from
+                ``sigreg_seed`` (K = ``sigreg_dirs``, or ``token_dirs`` in token mode); the trainer draws the
+                same ones on the host and uploads them without a sync.
         Returns:
             (total loss, {term name: detached scalar}).
         """
@@ -375,7 +379,8 @@ class XJEPA(nn.Module):
             terms["pred_1"] = masked_mse(pred[:, :-1], z[:, 1:], None if w1 is None else w1[..., None].expand(z[:, 1:].shape[:-1]))
             total = total + terms["pred_1"]
             flat = z.reshape(-1, z.shape[-1])
-            terms["sigreg"] = sigreg(flat, token_dirs, sigreg_seed, sigreg_knots, max_rows=token_rows)
+            terms["sigreg"] = sigreg(flat, token_dirs, sigreg_seed, sigreg_knots, max_rows=token_rows,
+                                     directions=sigreg_directions)
         elif self.objective in ("latent", "gnll"):
             losses = []
             for d in valid:
@@ -388,7 +393,8 @@ class XJEPA(nn.Module):
                 losses.append(l_d)
             total = total + torch.stack(losses).mean()
             # per time step over the batch (LeWM), then averaged over time and directions
-            terms["sigreg"] = sigreg(z.transpose(0, 1), sigreg_dirs, sigreg_seed, sigreg_knots)
+            terms["sigreg"] = sigreg(z.transpose(0, 1), sigreg_dirs, sigreg_seed, sigreg_knots,
+                                     directions=sigreg_directions)
         else:  # recon: shared decoder on per-horizon adapters; SIGReg omitted (pixels anchor the latent)
             img = area_downsample(frames, self.image_size).float() / 255.0
             losses = []

@@ -1,0 +1,68 @@
+"""Plain vs fast training path, side by side: s/step, frames/s, FLOP/s and fraction of the matmul peak.
+
+Usage:  python benchmarks/train_fast_path.py [--presets cpu paper] [--steps 30] [--no-compile]
+                                            [--out benchmarks/results/train_fast_path.json]
+
+Runs benchmarks/train_throughput.py's ``bench`` for each preset in four configurations — ``plain``
+(TrainConfig fast='off'), ``fast`` (fast='on': non-blocking uploads, fused AdamW, no per-step host
+sync), ``fast+channels_last`` and ``fast+compile`` (torch.compile of the loss; its compile time is the
+``warmup_s`` field, not in s/step) — on whatever device is present, prints one JSON line per
+configuration and writes them with each configuration's speed-up over ``plain``. Run it by hand; the
+numbers on a shared CPU are pessimistic and say little about a GPU (docs/model.md, "Fast path").
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # a sibling script, not a package
+from train_throughput import bench, meta, pick_device  # noqa: E402
+
+from pokeworld.train import PRESETS, auto_threads  # noqa: E402
+
+CONFIGS = {  # name -> bench() keyword arguments
+    "plain": {},
+    "fast": {"fast": True},
+    "fast+channels_last": {"fast": True, "channels_last": True},
+    "fast+compile": {"fast": True, "compile": True},
+}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--presets", nargs="+", default=None, help="default: cpu (+ paper on CUDA)")
+    ap.add_argument("--steps", type=int, default=30)
+    ap.add_argument("--device", default="auto")
+    ap.add_argument("--threads", type=int, default=0, help="CPU threads (0 = pokeworld.train.auto_threads())")
+    ap.add_argument("--no-compile", action="store_true", help="skip fast+compile (minutes of compilation on CPU)")
+    ap.add_argument("--out", default="benchmarks/results/train_fast_path.json")
+    args = ap.parse_args()
+    device = pick_device(args.device)
+    if device.type == "cpu":
+        torch.set_num_threads(args.threads or auto_threads())
+    presets = args.presets or (["cpu", "paper"] if device.type == "cuda" else ["cpu"])
+    configs = {k: v for k, v in CONFIGS.items() if not (args.no_compile and v.get("compile"))}
+    results = []
+    for preset in presets:
+        if preset not in PRESETS:
+            raise SystemExit(f"unknown preset {preset}; choose from {sorted(PRESETS)}")
+        base = None
+        for name, kw in configs.items():
+            r = {"config": name, **bench(preset, args.steps, device, **kw)}
+            base = base or r["sec_per_step"]
+            r["speedup_vs_plain"] = base / r["sec_per_step"]
+            results.append(r)
+            print(json.dumps(r), flush=True)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({"meta": meta(device), "results": results}, indent=2) + "\n")
+    print(f"wrote {out}")
+
+
+if __name__ == "__main__":
+    main()
