@@ -189,6 +189,33 @@ def lazy_table(results: dict) -> list[str]:
     return lines + [""]
 
 
+def prediction_table(results: dict) -> list[str]:
+    """Factorial: decoded 16-step prediction errors and the functional glide test, per variant."""
+    if "factorial" not in results["experiments"]:
+        return []
+    lines = ["## Prediction and the functional glide test (factorial; arena units, decoded)", "",
+             "Every error, the static baseline's included, is read through the same latent position decoder; "
+             "the decoder floor is its own error on the true future frame. Glide test on pure-glide futures: "
+             "the references carry the same decoder residual, and a model uses γ only if it beats median-γ.", "",
+             "| variant | direct-16 | rollout-16 | static-16 | decoder floor | glide: model | glide: median-γ | "
+             "glide: static | uses γ |", "|---|---|---|---|---|---|---|---|---|"]
+    for v in results["map_config"]["variants"]:
+        runs = variant_runs(results, "factorial", v)
+        if not runs:
+            continue
+        pr = lambda k: mean_over(runs, lambda r: r["prediction"].get(k))  # noqa: E731
+        gl = lambda k: mean_over(runs, lambda r: r["prediction"].get("glide_test", {}).get(k))  # noqa: E731
+        uses = {r["prediction"].get("glide_test", {}).get("uses_gamma") for r in runs} - {None}
+        mark = dagger(gate_failed(results, "gamma"))
+        lines.append(f"| {v} | {fmt(pr('direct16'), 3)} | {fmt(pr('rollout16'), 3)} | {fmt(pr('static16'), 3)} | "
+                     f"{fmt(pr('probe_error'), 3)} | {fmt(gl('model'), 3)} | {fmt(gl('median_gamma'), 3)} | "
+                     f"{fmt(gl('static'), 3)} | {'/'.join('yes' if u else 'no' for u in sorted(uses)) or '—'}{mark} |")
+    lines.append(f"\nPaper: direct-16 {P.PREDICTION['direct16']}, rollout-16 {P.PREDICTION['rollout16']}, static "
+                 f"{P.PREDICTION['static16']}; glide test in true positions: median γ {P.GLIDE_TEST['median_gamma']}, "
+                 f"static {P.GLIDE_TEST['static']}, and the model above median-γ.")
+    return lines + [""]
+
+
 def lambda_table(results: dict) -> list[str]:
     if "lambda" not in results["experiments"]:
         return []
@@ -294,6 +321,7 @@ def markdown(results: dict) -> str:
     out += certificate_table(results)
     out += no_claim_lines(results)
     out += factorial_table(results)
+    out += prediction_table(results)
     out += composition_table(results)
     out += lazy_table(results)
     out += lambda_table(results)
