@@ -21,7 +21,7 @@ from pathlib import Path
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # a sibling script, not a package
-from train_throughput import bench, meta, pick_device  # noqa: E402
+from train_throughput import bench, pick_device, write_results  # noqa: E402
 
 from pokeworld.train import PRESETS, auto_threads  # noqa: E402
 
@@ -58,10 +58,7 @@ def main() -> None:
             r["speedup_vs_plain"] = base / r["sec_per_step"]
             results.append(r)
             print(json.dumps(r), flush=True)
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"meta": meta(device), "results": results}, indent=2) + "\n")
-    print(f"wrote {out}")
+    write_results(args.out, device, results)
 
 
 if __name__ == "__main__":

@@ -100,6 +100,14 @@ def bench(preset: str, steps: int, device: torch.device, fast: bool = False, com
             "fraction_of_peak": flops / dt / peak, "amp_bf16": amp}
 
 
+def write_results(path: str, device: torch.device, results: list[dict]) -> None:
+    """The benchmark's JSON record: machine metadata and one row per timed configuration."""
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({"meta": meta(device), "results": results}, indent=2) + "\n")
+    print(f"wrote {out}")
+
+
 def meta(device: torch.device) -> dict:
     """Where the numbers were taken (a shared machine's load average makes CPU numbers pessimistic)."""
     return {"torch": torch.__version__, "machine": platform.machine(), "cpu_count": os.cpu_count(),
@@ -135,10 +143,7 @@ def main() -> None:
         r = bench(p, args.steps, device, args.fast, args.compile, args.channels_last)
         results.append(r)
         print(json.dumps(r))
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"meta": meta(device), "results": results}, indent=2) + "\n")
-    print(f"wrote {out}")
+    write_results(args.out, device, results)
 
 
 if __name__ == "__main__":
