@@ -280,6 +280,64 @@ def composition_table(results: dict) -> list[str]:
             ""]
 
 
+def _diff_words(d: float | None, effect: float = 0.1) -> str:
+    if d is None:
+        return "not measured"
+    return f"{d:+.2f}" + (" (an effect)" if d >= effect else " (no effect at this budget)" if abs(d) < effect else
+                          " (the other way)")
+
+
+def factorial_summary(results: dict) -> list[str]:
+    """One sentence per factorial variant, computed from the numbers: what the row shows.
+
+    Printed at the end of ``pokeworld demo``/``map``. A difference counts as an effect when it is at
+    least 0.1 R²; the paper's difference is quoted beside ours, never used as ours.
+    """
+    if "factorial" not in results["experiments"]:
+        return []
+    val = {}
+    for v in results["map_config"]["variants"]:
+        runs = variant_runs(results, "factorial", v)
+        if runs:
+            val[v] = {q: mean_over(runs, lambda r, q=q: probe(r, q)) for q in ("log_k", "object_pos", "object_rel")}
+            val[v]["direct16"] = mean_over(runs, lambda r: r["prediction"].get("direct16"))
+            val[v]["static16"] = mean_over(runs, lambda r: r["prediction"].get("static16"))
+    if not val:
+        return []
+    k = {v: x["log_k"] for v, x in val.items()}
+    pk = {v: P.FACTORIAL.get(v, {}).get("log_k") for v in val}
+
+    def d(a, b, table):
+        return None if table.get(a) is None or table.get(b) is None else table[a] - table[b]
+
+    gate = "" if not gate_failed(results, "log_k") else " († the log k gate failed: no claim is made)"
+    lines = ["What each row shows (log k ridge R² on held-out contact windows; a difference of ≥ 0.1 counts "
+             "as an effect)" + gate + ":"]
+    about = {
+        "V": lambda: f"vision in, vision target: log k {fmt(k['V'])}, the reference row.",
+        "VF": lambda: (f"proprio and touch added to the inputs, vision target only: log k {fmt(k['VF'])}; "
+                       f"inputs alone vs V: {_diff_words(d('VF', 'V', k))} (paper {fmt(d('VF', 'V', pk))})."),
+        "VX_p": lambda: (f"vision in, proprio target: log k {fmt(k['VX_p'])}; vs V {_diff_words(d('VX_p', 'V', k))} "
+                         f"(paper {fmt(d('VX_p', 'V', pk))}: a proprio target alone does not add stiffness)."),
+        "VX_t": lambda: (f"vision in, touch target: log k {fmt(k['VX_t'])}; the touch target vs V "
+                         f"{_diff_words(d('VX_t', 'V', k))} (paper {fmt(d('VX_t', 'V', pk))})."),
+        "VX": lambda: (f"vision in, proprio and touch targets: log k {fmt(k['VX'])}; vs V "
+                       f"{_diff_words(d('VX', 'V', k))} (paper {fmt(d('VX', 'V', pk))})."),
+        "VFX": lambda: (f"the same inputs as VF, proprio and touch targets added: log k {fmt(k['VFX'])}; "
+                        f"the paper's central comparison VFX − VF {_diff_words(d('VFX', 'VF', k))} "
+                        f"(paper {fmt(d('VFX', 'VF', pk))} at 20k steps)."),
+    }
+    for v in results["map_config"]["variants"]:
+        if v in val and v in about:
+            x = val[v]
+            pred = ""
+            if x["direct16"] is not None and x["static16"] is not None:
+                pred = (f" Direct 16-step prediction {x['direct16']:.3f} vs static {x['static16']:.3f} arena units; "
+                        f"object − finger position R² {fmt(x['object_rel'])}.")
+            lines.append(f"- {v}: " + about[v]() + pred)
+    return lines
+
+
 def readout_table(results: dict) -> list[str]:
     """The action-leak check, once: leak-free (primary) vs action-conditioned readout per run."""
     qs = ("object_pos", "object_vel", "object_rel", "log_k")
