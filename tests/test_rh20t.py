@@ -239,3 +239,124 @@ def test_scene_name_parsing():
     assert (r.task, r.user, r.scene, r.cfg, r.human) == (12, 3, 4, 7, False)
     assert parse_scene_name("task_0012_user_0003_scene_0004_cfg_0007_human").human
     assert parse_scene_name("calib") is None and parse_scene_name("task_12_user_3") is None
+
+
+def test_isolated_bad_records_are_dropped_and_counted_and_far_falls_back(converted):
+    fx, cfg, out, ds = converted
+    rep = json.loads((out / "conversion_report.json").read_text())
+    rows = {r["name"]: r for r in ds.manifest["scenes"]}
+    assert set(fx["repaired"]) <= set(rows)
+    iso = next(n for n, d in fx["repaired"].items() if d == "nan_ft_isolated")
+    fb = next(n for n, d in fx["repaired"].items() if d == "far_fallback")
+    assert rows[iso]["dropped_records"] == {"force_torque_base": {"non_finite": 3}}
+    assert rep["dropped_records"] == {"force_torque_base": {"non_finite": 3}}
+    assert rep["scenes_with_dropped_records"] == 1
+    assert rows[fb]["serials"] == [rh20t.CAMERA_ROLES[7]["far"][1]] and rows[fb]["cameras"][0]["fallback"]
+    assert rep["camera_counts"] == {"far": {rh20t.CAMERA_ROLES[7]["far"][0]: len(rows) - 1,
+                                            rh20t.CAMERA_ROLES[7]["far"][1]: 1}}
+    assert rep["camera_fallback_scenes"] == 1 and ds.manifest["camera_counts"] == rep["camera_counts"]
+
+
+def test_camera_roles_are_ordered_lists_with_the_documented_cfg7_serials():
+    r = rh20t.CAMERA_ROLES[7]
+    assert r["far"] == ("104122061018", "104122061330", "f0271510")  # the authors' FRONT_CAM list
+    assert "104122060811" in r["back"] and all("104122060811" not in r[k] for k in ("far", "close", "side"))
+    assert set(r["close"]) == {"135122070361", "135122075425"}
+    assert all(set(roles) == {"far", "close", "side", "back"} for roles in rh20t.CAMERA_ROLES.values())
+    with pytest.raises(ConfigError, match="camera"):
+        make_config("tiny", root="x", camera="overhead")
+
+
+def test_clean_records_drops_isolated_and_skips_unusable_streams():
+    cfg = make_config("tiny", root="x")
+    n = 50
+    ts = 1_690_000_000_000 + 100 * np.arange(n)
+    tcp = np.tile([0.4, 0.1, 0.3, 1.0, 0.0, 0.0, 0.0], (n, 1))
+    bad = tcp.copy()
+    bad[3, 0] = np.nan
+    bad[7, 1] = -9.432e36
+    bad[9] = 0.0
+    bad[11, 2] = 5.0  # a 5 m glitch
+    bad[13, 3:] = [2.0, 0, 0, 0]
+    t2, v2, dropped = rh20t.clean_records(ts, bad, "tcp", "tcp", cfg)
+    assert dropped == {"non_finite": 1, "overflow": 1, "zero": 1, "out_of_range": 1, "bad_quaternion": 1}
+    assert len(t2) == n - 5 and np.isfinite(v2).all()
+    for mutate, reason, words in [
+        (lambda v: v.__setitem__(slice(None), 0.0), "zero_tcp", "not logged"),
+        (lambda v: v.__setitem__((slice(None), slice(0, 3)), v[:, :3] * 1000), "bad_units", "millimetres"),
+        (lambda v: v.__setitem__((slice(0, 20), 1), -9.4e36), "overflow_stream", "overflowed"),
+        (lambda v: v.__setitem__((slice(0, 30), 0), np.nan), "nan_stream", "non-finite"),
+    ]:
+        v = tcp.copy()
+        mutate(v)
+        with pytest.raises(rh20t.SceneSkip) as e:
+            rh20t.clean_records(ts, v, "tcp", "tcp", cfg)
+        assert e.value.reason == reason and words in e.value.message
+    ft = np.zeros((n, 6))
+    ft[5, 2] = 3e38
+    assert rh20t.clean_records(ts, ft, "ft", "ft", cfg)[2] == {"overflow": 1}
+
+
+def test_stratified_subset_is_seeded_proportional_and_nested():
+    refs = [parse_scene_name(f"task_{t:04d}_user_0001_scene_{s:04d}_cfg_0007")
+            for t, k in ((1, 40), (2, 20), (3, 10), (4, 30)) for s in range(1, k + 1)]
+    a = rh20t.stratified_subset(refs, 30, seed=0)
+    counts = collections.Counter(r.task for r in a)
+    for t, k in ((1, 40), (2, 20), (3, 10), (4, 30)):
+        assert abs(counts[t] - 30 * k / 100) <= 1
+    assert [r.name for r in rh20t.stratified_subset(refs, 30, seed=0)] == [r.name for r in a]
+    assert {r.name for r in rh20t.stratified_subset(refs, 30, seed=1)} != {r.name for r in a}
+    prev: set = set()
+    for n in (5, 10, 30, 60, 99):
+        cur = {r.name for r in rh20t.stratified_subset(refs, n, seed=0)}
+        assert len(cur) == n and prev <= cur
+        prev = cur
+    # not the first scenes by name: scene ids within a task are drawn at random
+    assert sorted(r.scene for r in a if r.task == 1) != list(range(1, counts[1] + 1))
+    assert len(rh20t.stratified_subset(refs, 0, seed=0)) == len(refs)
+
+
+def test_camera_frame_force_torque_rotation_chain(tmp_path):
+    """The fallback inverts rh20t_api's base -> camera projection (Euler convention checked against scipy)."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(0)
+    angles = rng.uniform(0, 2 * np.pi, 3)
+    np.testing.assert_allclose(rh20t.euler_sxyz_to_mat(*angles), Rotation.from_euler("xyz", angles).as_matrix(),
+                               atol=1e-12)  # transforms3d 'sxyz' = scipy extrinsic 'xyz'
+    q = rng.normal(size=4)
+    q /= np.linalg.norm(q)
+    np.testing.assert_allclose(rh20t.quat_to_mat(q), Rotation.from_quat(np.roll(q, -1)).as_matrix(), atol=1e-12)
+    np.testing.assert_allclose(rh20t.rotvec_to_mat(angles), Rotation.from_rotvec(angles).as_matrix(), atol=1e-12)
+
+    def homog(r, t):
+        m = np.eye(4)
+        m[:3, :3], m[:3, 3] = r, t
+        return m
+
+    cal = tmp_path / "calib" / "1"
+    cal.mkdir(parents=True)
+    ext = {s: homog(Rotation.random(random_state=i).as_matrix(), rng.normal(size=3))[None]
+           for i, s in enumerate(["104122061018", "135122075425", "135122070361"])}
+    np.save(cal / "extrinsics.npy", ext, allow_pickle=True)
+    tcp = np.concatenate([[400.0, -120.0, 300.0], angles])  # kuka: mm + Euler
+    np.save(cal / "tcp.npy", tcp)
+    rots = rh20t.base_to_camera_rotations(cal, 7)
+    tc = homog(np.array(rh20t.TCP_CAMERA_ROT[7], float), [0.035, 0.055, 0.2])
+    tcp_mat = homog(Rotation.from_euler("xyz", angles).as_matrix(), tcp[:3] / 1000)
+    base_world = np.linalg.inv(ext["135122075425"][0]) @ tc @ np.linalg.inv(tcp_mat)
+    for s in ext:
+        full = ext[s][0] @ base_world @ np.eye(4)
+        np.testing.assert_allclose(rots[s], full[:3, :3], atol=1e-10)
+    (tmp_path / "calib" / "2").mkdir()
+    with pytest.raises(rh20t.SceneSkip, match="extrinsics.npy"):
+        rh20t.base_to_camera_rotations(tmp_path / "calib" / "2", 7)
+
+
+def test_sideways_camera_is_rotated_then_bottom_cropped():
+    img = np.zeros((36, 64), np.uint8)  # landscape sensor; after a 270 degree turn the image is 64 tall, 36 wide
+    img[:, -20:] = 200  # right columns become the bottom rows after a clockwise quarter turn (PIL ROTATE_270)
+    out = rh20t._crop_resize(img, (), (18, 18), rotate=270)
+    assert out.shape == (18, 18)
+    assert out[-5:].mean() > 150 and out[:5].mean() < 50  # bottom square kept, bright band at its bottom
+    assert rh20t.CAMERA_ROTATION[(7, "f0271510")] == 270

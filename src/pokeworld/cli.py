@@ -40,6 +40,8 @@ COMMANDS: dict[str, Command] = {
     "pairs": Command("pokeworld.sim.pairs", "PairsConfig", "matched-pairs figure", "out"),
     "plan": Command("pokeworld.plan", "PlanConfig", "CEM push-to-goal with trained runs", "out"),
     "rh20t-convert": Command("pokeworld.real.rh20t", "ConvertConfig", "convert RH20T scenes to a store", "root"),
+    "rh20t-synth": Command("pokeworld.real.synthetic", "SynthConfig",
+                           "write a synthetic RH20T-layout corpus with known force (and its truth)", "root"),
 }
 
 #: What ``--preset`` costs, shown by ``pokeworld --help`` and each command's ``--help`` (timings:

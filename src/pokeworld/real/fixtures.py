@@ -36,13 +36,17 @@ IMG_W, IMG_H = 128, 72
 """Fixture image size (16:9 like RH20T's 640x360); columns outside the centred square are black."""
 
 DEFECTS = ("human", "low_rating", "missing_calib", "missing_ft", "nan_ft", "empty_video", "truncated_video",
-           "corrupt_video", "unknown_cfg", "missing_camera", "too_short", "mm_units")
-EXPECTED_REASON = {
+           "corrupt_video", "unknown_cfg", "missing_camera", "too_short", "mm_units", "nan_ft_isolated",
+           "far_fallback")
+EXPECTED_REASON: dict[str, str | None] = {
     "human": "human_demo", "low_rating": "low_rating", "missing_calib": "missing_calib",
     "missing_ft": "missing_stream", "nan_ft": "nan_stream", "empty_video": "empty_video",
     "truncated_video": "truncated_video", "corrupt_video": "unreadable_video", "unknown_cfg": "unknown_cfg",
     "missing_camera": "missing_camera", "too_short": "too_short", "mm_units": "bad_units",
+    "nan_ft_isolated": None, "far_fallback": None,
 }
+"""Skip reason per defect; ``None``: the scene is converted anyway (isolated NaN records dropped and counted;
+the far camera found under its second serial)."""
 
 
 def scene_params(k: int) -> dict:
@@ -87,15 +91,18 @@ def _frame(level: float) -> np.ndarray:
     return img
 
 
-def write_mp4(path: Path, frames: list[np.ndarray], fps: int = 10) -> str:
-    """Encode RGB frames with libx264 (falling back to mpeg4); returns the codec used."""
+def write_mp4(path: Path, frames: list[np.ndarray], fps: int = 10, options: dict[str, str] | None = None) -> str:
+    """Encode RGB frames with libx264 (falling back to mpeg4); returns the codec used.
+
+    ``options`` are libx264 encoder options (e.g. ``{"preset": "ultrafast"}``), ignored by the mpeg4 fallback.
+    """
     import av
 
     last = None
     for codec in ("libx264", "mpeg4"):
         try:
             with av.open(str(path), "w") as c:
-                s = c.add_stream(codec, rate=fps)
+                s = c.add_stream(codec, rate=fps, options=(options or {}) if codec == "libx264" else {})
                 s.width, s.height, s.pix_fmt = frames[0].shape[1], frames[0].shape[0], "yuv420p"
                 for f in frames:
                     for pkt in s.encode(av.VideoFrame.from_ndarray(f, format="rgb24")):
@@ -121,7 +128,7 @@ def write_scene(cfg_dir: Path, name: str, k: int, *, cfg: int = 7, duration_s: f
     t0 = T0_MS + 3_600_000 * k
     p = scene_params(k)
     roles = CAMERA_ROLES[cfg] if cfg in CAMERA_ROLES else CAMERA_ROLES[7]
-    serials = {"far": roles["far"][0], "close": roles["close"][0]}
+    serials = {"far": roles["far"][1 if defect == "far_fallback" else 0], "close": roles["close"][0]}
     if defect == "missing_camera":
         serials.pop("far")
     cam_ts: dict[str, np.ndarray] = {}
@@ -135,7 +142,9 @@ def write_scene(cfg_dir: Path, name: str, k: int, *, cfg: int = 7, duration_s: f
         sig = signals(t, p)
         pos = sig["pos"] * (1000.0 if defect == "mm_units" else 1.0)
         zero = sig["ft_zeroed"].copy()
-        if defect == "nan_ft" and role == "far":
+        if defect == "nan_ft" and role == "far":  # half the merged records: the stream is unusable
+            zero[:, 2] = np.nan
+        if defect == "nan_ft_isolated" and role == "far":  # 3 isolated records: dropped and counted
             zero[5:8, 2] = np.nan
         tcp_recs = [{"timestamp": int(ts[i]), "tcp": np.concatenate([pos[i], sig["quat"][i]]),
                      "robot_ft": sig["ft_zeroed"][i] * 0.9} for i in range(n)]
@@ -195,13 +204,14 @@ def make_fixture_root(root: str | Path, cfg: int = 7, n_tasks: int = 3, scenes_p
                       defects: tuple[str, ...] = DEFECTS, duration_s: float = 7.5, seed: int = 0) -> dict:
     """Write good scenes (tasks 1..n_tasks, mp4 and jpg alternating) plus one scene per defect.
 
-    Returns ``{"root", "cfg_dir", "good": {name: info}, "bad": {name: expected_reason}}``.
+    Returns ``{"root", "cfg_dir", "good": {name: info}, "bad": {name: expected_reason}, "repaired": {name: defect}}``;
+    defect scenes that convert anyway (``EXPECTED_REASON[defect] is None``) are in ``good`` and ``repaired``.
     """
     root = Path(root)
     cfg_dir = root / f"RH20T_cfg{cfg}"
     cfg_dir.mkdir(parents=True, exist_ok=True)
     write_calib(cfg_dir, cfg)
-    good, bad, k = {}, {}, 0
+    good, bad, repaired, k = {}, {}, {}, 0
     for task in range(1, n_tasks + 1):
         for s in range(1, scenes_per_task + 1):
             name = f"task_{task:04d}_user_{s:04d}_scene_{s:04d}_cfg_{cfg:04d}"
@@ -212,11 +222,14 @@ def make_fixture_root(root: str | Path, cfg: int = 7, n_tasks: int = 3, scenes_p
         task = 50 + i
         cfg_tag = 9 if defect == "unknown_cfg" else cfg
         name = f"task_{task:04d}_user_0001_scene_0001_cfg_{cfg_tag:04d}" + ("_human" if defect == "human" else "")
-        write_scene(cfg_dir, name, k, cfg=cfg, duration_s=1.0 if defect == "too_short" else duration_s,
-                    defect=defect, seed=seed)
-        bad[name] = EXPECTED_REASON[defect]
+        info = write_scene(cfg_dir, name, k, cfg=cfg, duration_s=1.0 if defect == "too_short" else duration_s,
+                           defect=defect, seed=seed)
+        if EXPECTED_REASON[defect] is None:
+            good[name], repaired[name] = info, defect
+        else:
+            bad[name] = EXPECTED_REASON[defect]
         k += 1
-    return {"root": root, "cfg_dir": cfg_dir, "good": good, "bad": bad}
+    return {"root": root, "cfg_dir": cfg_dir, "good": good, "bad": bad, "repaired": repaired}
 
 
 __all__ = ["make_fixture_root", "write_scene", "signals", "image_level", "force_z", "force_breakpoints",

@@ -16,10 +16,14 @@ Pipeline, one scene at a time (docs/rh20t.md lists every format fact and choice)
    splits, per-column 0.1/99.9-percentile clipping + whitening with train-only statistics,
    labels (raw force, contact onset, TCP pose), then :func:`pokeworld.data.save`.
 
-Any defect of one scene (missing stream / calibration / camera, NaN, empty or truncated video,
-unknown configuration...) skips that scene with a reason code that is counted in
-``<out>/conversion_report.json``; a run never stops half-way because of one bad scene and never
-writes an array it could not verify.
+Isolated bad records (NaN, overflowed ~1e36, all-zero TCP, out-of-range values) are dropped and
+counted; a camera role falls back along its ordered serial list; a missing base-frame F/T file is
+replaced by the camera-frame one rotated through the calibration. Any other defect of one scene
+(missing stream / calibration / camera, an unusable stream, empty or truncated video, unknown
+configuration...) skips that scene with a reason code that is counted in
+``<out>/conversion_report.json`` (with the cameras used, the dropped records and the F/T sources);
+a run never stops half-way because of one bad scene and never writes an array it could not verify.
+``max_scenes`` draws a seeded, task-stratified, nested random subset for scaling studies.
 
 Streams written to the store (``manifest["columns"]`` names every column):
 
@@ -55,35 +59,69 @@ from ..data import Dataset, save, store_is_current
 from ..errors import ConfigError, DataError
 from ..io import atomic_path, write_json
 
-PIPELINE_VERSION = 1
+PIPELINE_VERSION = 2
 """Bumped whenever per-scene processing changes, so stale scene caches are never reused."""
 
 ROBOTS: dict[int, str] = {1: "flexiv", 2: "flexiv", 3: "ur5", 4: "ur5", 5: "franka", 6: "kuka", 7: "kuka"}
 """RH20T robot configurations (rh20t_api configs/configs.json, ``conf_num`` -> ``robot``)."""
 
-# Camera serial numbers per configuration and role. "far" is the front third-person camera,
-# "close" the in-hand (wrist) camera(s); the first serial of a role found in a scene is used.
-# Sources: kpertsch/rh20t_dataset_converter rh20t/cam_definitions.py (overhead/front/side/wrist/
-# shoulder per cfg) and rh20t_api configs/configs.json ``in_hand`` (in-hand serials). Override per
-# run with ``ConvertConfig.camera_serials``.
-_CAM_A = {"overhead": ("035622060973",), "far": ("750612070851",), "side_left": ("039422060546",),
-          "side_right": ("750612070853",), "close": ("043322070878",), "shoulder": ("038522063145",)}
-_CAM_B = {"overhead": ("104122061850",), "far": ("037522062165",), "side_left": ("104122063678",),
-          "side_right": ("105422061350",), "close": ("104422070042",), "shoulder": ("036422060215",)}
-_CAM_UR = {"overhead": ("104422070011",), "far": ("038522062288",), "side_left": ("104122062823",),
-           "side_right": ("104122062295",), "close": ("045322071843",), "shoulder": ("036422060909",)}
-_CAM_KUKA = {"overhead": ("104122060811",), "far": ("104122061018",), "side_left": ("104122064161",),
-             "side_right": ("104122063633",), "close": ("135122070361", "135122075425"),
-             "shoulder": ("104122061602",)}
+# Camera serial numbers per configuration and role, each an ORDERED list: the first serial present in a
+# scene is used, the next ones are fallbacks (the serial each scene used is recorded in the manifest and
+# counted in the report). Roles follow the RH20T authors' own loader (cage-policy/CAGE utils/dataset.py:
+# FRONT_CAM / IN_HAND_CAMS / SIDE_CAM / BACK_CAM per cfg); the first "far" serial of each cfg is the "front"
+# camera of kpertsch/rh20t_dataset_converter rh20t/cam_definitions.py, whose "overhead" cfg6/7 serial
+# 104122060811 the authors list as a BACK camera. In-hand serials also agree with rh20t_api
+# configs/configs.json ``in_hand``. docs/rh20t.md has the provenance table. Override per run with
+# ``ConvertConfig.camera_serials`` (an explicit list never falls back).
+_FRONT_FLEXIV_B = ("037522062165", "104122061850", "f0461559")
+_FRONT_UR = ("038522062288", "104122062295", "104422070011", "f0172289")
+_FRONT_KUKA = ("104122061018", "104122061330", "f0271510")
+_SIDE_B = ("104122063678", "105422061350")
+_BACK_B = ("036422060215", "104422070044")
+_BACK_UR = ("036422060909", "104122062823")
+_SIDE_KUKA = ("037522061512", "104122063633", "104122064161")
+_BACK_KUKA = ("104122060811", "104122061602")
 CAMERA_ROLES: dict[int, dict[str, tuple[str, ...]]] = {
-    1: _CAM_A, 2: _CAM_B, 3: _CAM_UR, 4: _CAM_UR,
-    5: {**_CAM_B, "close": ("135122079702", "104422070042")},
-    6: _CAM_KUKA, 7: _CAM_KUKA,
+    1: {"far": ("750612070851", "035622060973", "039422060546", "750612070853"), "close": ("043322070878",),
+        "side": ("038522062547",), "back": ("819112070044",)},
+    2: {"far": _FRONT_FLEXIV_B, "close": ("104422070042",), "side": _SIDE_B, "back": _BACK_B},
+    3: {"far": _FRONT_UR, "close": ("045322071843",), "side": ("104122063550",), "back": _BACK_UR},
+    4: {"far": _FRONT_UR, "close": ("045322071843",), "side": ("104122063550",), "back": _BACK_UR},
+    5: {"far": _FRONT_FLEXIV_B, "close": ("135122079702", "104422070042"), "side": _SIDE_B, "back": _BACK_B},
+    6: {"far": _FRONT_KUKA, "close": ("135122070361", "135122075425"), "side": _SIDE_KUKA, "back": _BACK_KUKA},
+    7: {"far": _FRONT_KUKA, "close": ("135122070361", "135122075425"), "side": _SIDE_KUKA, "back": _BACK_KUKA},
 }
-"""cfg -> role -> candidate serials (first present wins). Roles: far, close, overhead, side_left,
-side_right, shoulder; the camera option ``two_view`` means far + close side by side."""
+"""cfg -> role -> ordered candidate serials (first present wins, later ones are fallbacks). Roles: far (front
+third-person / global view), close (in-hand wrist camera), side, back; the camera option ``two_view`` means
+far + close side by side."""
 
-CAMERA_OPTIONS = ("far", "close", "two_view", "overhead", "side_left", "side_right", "shoulder")
+CAMERA_ROTATION: dict[tuple[int, str], int] = {
+    (3, "f0172289"): 90, (4, "f0172289"): 90, (5, "f0461559"): 270, (6, "f0271510"): 270, (7, "f0271510"): 270,
+}
+"""(cfg, serial) -> image rotation [degrees, PIL convention: counter-clockwise] for cameras mounted sideways, as the
+RH20T authors' loader corrects them (cage-policy/CAGE utils/preprocessings.py ``camera_orientation_correction``),
+followed by a bottom square crop unless ``crop`` is given. cfg2's f0461559 is rotated only for some users/tasks
+there and is left unrotated here (it is the last far fallback of cfg2)."""
+
+CAMERA_OPTIONS = ("far", "close", "two_view", "side", "back")
+
+IN_HAND_CALIB: dict[int, tuple[str, ...]] = {1: ("043322070878",), 2: ("104422070042",), 3: ("045322071843",),
+                                            4: ("045322071843",), 5: ("104422070042", "135122079702"),
+                                            6: ("135122075425", "135122070361"), 7: ("135122075425", "135122070361")}
+"""rh20t_api configs/configs.json ``in_hand`` in its order: the API anchors the base-to-world transform on
+``in_hand[0]``'s extrinsics (scene.extrinsics_base_aligned), so the camera-frame F/T fallback does too."""
+
+TCP_CAMERA_ROT: dict[int, tuple[tuple[float, ...], ...]] = {
+    1: ((0, -1, 0), (1, 0, 0), (0, 0, 1)), 2: ((0, -1, 0), (1, 0, 0), (0, 0, 1)),
+    3: ((1, 0, 0), (0, 1, 0), (0, 0, 1)), 4: ((1, 0, 0), (0, 1, 0), (0, 0, 1)),
+    5: ((0, 1, 0), (-1, 0, 0), (0, 0, 1)), 6: ((0, -1, 0), (1, 0, 0), (0, 0, 1)), 7: ((0, -1, 0), (1, 0, 0), (0, 0, 1)),
+}
+"""Rotation part of rh20t_api configs.json ``tc_mat`` (TCP -> in-hand camera) per cfg (translations are irrelevant
+for rotating force/torque vectors)."""
+
+ALIGN_BASE_ROT: dict[int, tuple[tuple[float, ...], ...]] = {
+    c: (((-1, 0, 0), (0, -1, 0), (0, 0, 1)) if c in (3, 4) else ((1, 0, 0), (0, 1, 0), (0, 0, 1))) for c in range(1, 8)}
+"""Rotation part of rh20t_api configs.json ``align_mat_base`` per cfg (UR5: a 180 degree turn about z)."""
 
 SCENE_RE = re.compile(r"^task_(\d{4})_user_(\d{4})_scene_(\d{4})_cfg_(\d{4})(_human)?$")
 
@@ -100,9 +138,15 @@ SKIP_REASONS = {
     "low_rating": "rating below min_rating (RH20T: <= 1 marks failed / stopped)",
     "missing_calib": "metadata calib absent or -1 (or calib folder absent when required)",
     "missing_stream": "a required transformed/*.npy or timestamps.npy file is absent",
+    "camera_frame_ft": "force_torque_base.npy absent; the camera-frame force_torque.npy is present but could not be "
+                       "rotated into the base frame (ft_camera_fallback off, or calibration extrinsics / tcp absent)",
     "bad_stream": "a stream file cannot be unpickled or has the wrong structure / shape",
-    "nan_stream": "non-finite values in a used sensor stream",
-    "bad_units": "TCP position beyond max_abs_pos_m or non-unit quaternion (wrong units/order?)",
+    "nan_stream": "more than max_bad_record_fraction of a stream's records are non-finite (isolated ones are dropped "
+                  "and counted instead)",
+    "zero_tcp": "more than max_bad_record_fraction of the TCP records are all zeros (pose not logged)",
+    "overflow_stream": "more than max_bad_record_fraction of a stream's records hold overflowed values (|x| > 1e6)",
+    "bad_units": "most TCP positions beyond max_abs_pos_m (millimetres instead of metres?) or most quaternions "
+                 "non-unit (wrong order / units?)",
     "bad_timestamps": "timestamps not 13-digit milliseconds or streams do not overlap in time",
     "stream_gap": "a numeric stream has a gap longer than max_gap_s inside the scene",
     "missing_camera": "no camera folder for the requested role",
@@ -137,9 +181,10 @@ class ConvertConfig:
     out: str = ""
     """Output store directory; empty means ``data/rh20t_cfg<cfg>_<camera>``."""
     camera: str = "far"
-    """Camera role: far, close, two_view (far | close side by side), overhead, side_left, side_right, shoulder."""
+    """Camera role: far (front / global view), close (in-hand wrist camera), two_view (far | close side by side),
+    side, back. Each role is an ordered serial list per cfg (CAMERA_ROLES): the first present serial is used."""
     camera_serials: tuple[str, ...] = ()
-    """Explicit camera serial(s) overriding the role table (1 serial, or 2 for two_view)."""
+    """Explicit camera serial(s) overriding the role table (1 serial, or 2 for two_view); no fallback."""
     image_size: int = 96
     """Output frames are image_size x image_size grayscale uint8."""
     crop: tuple[float, ...] = ()
@@ -176,9 +221,21 @@ class ConvertConfig:
     frame_tolerance_s: float = 0.25
     """Skip a scene if some grid time has no camera frame closer than this [s]."""
     max_abs_pos_m: float = 3.0
-    """Sanity bound on |TCP position| [m]; larger values mean mm or a wrong field."""
+    """Sanity bound on |TCP position| [m]: a record beyond it is dropped; most records beyond it mean mm."""
+    max_abs_ft: float = 1e4
+    """Sanity bound on |force| [N] / |torque| [N m]: a record beyond it is dropped as overflowed."""
+    max_bad_record_fraction: float = 0.2
+    """Isolated bad records (non-finite, overflowed ~1e36, all-zero TCP, non-unit quaternion, out of range) are
+    dropped and counted; a stream with a larger fraction of bad records skips the scene."""
+    ft_camera_fallback: bool = True
+    """If transformed/force_torque_base.npy is absent but the camera-frame transformed/force_torque.npy is present,
+    rotate it into the base frame through the scene's calibration (extrinsics.npy, tcp.npy); otherwise the scene is
+    skipped as camera_frame_ft."""
     max_scenes: int = 0
-    """Convert at most this many scenes (sorted by name); 0 = all."""
+    """Convert a seeded random subset of at most this many scenes, stratified by task (0 = all candidate scenes).
+    Subsets of one subset_seed are nested: the first N of a larger draw are the smaller draw."""
+    subset_seed: int = 0
+    """Seed of the scene subset draw (independent of ``seed``, which draws held-out tasks and splits)."""
     progress: bool = True
     """Show a progress bar."""
     overwrite: bool = False
@@ -206,6 +263,8 @@ class ConvertConfig:
         f = self.split_fractions
         if len(f) != 3 or min(f) < 0 or abs(sum(f) - 1) > 1e-6 or f[0] == 0:
             raise ConfigError(f"split_fractions must be 3 non-negative numbers summing to 1 with train > 0, got {f}")
+        if not 0 <= self.max_bad_record_fraction < 1 or self.max_scenes < 0:
+            raise ConfigError("max_bad_record_fraction must be in [0, 1) and max_scenes >= 0")
         if self.gripper_field not in ("gripper_info", "gripper_command"):
             raise ConfigError(f"gripper_field must be gripper_info or gripper_command, got {self.gripper_field!r}")
 
@@ -293,25 +352,34 @@ def _sorted_unique(ts: np.ndarray, vals: np.ndarray, what: str) -> tuple[np.ndar
     return ts[keep], vals[keep]
 
 
-def read_records(obj: dict, key: str, dim: int, what: str) -> tuple[np.ndarray, np.ndarray]:
-    """``{serial: [{'timestamp': ms, key: vec}, ...]}`` merged over serials -> (ts (N,), values (N, dim))."""
+def read_records(obj: dict, key: str, dim: int, what: str,
+                 transform: dict[str, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """``{serial: [{'timestamp': ms, key: vec}, ...]}`` merged over serials -> raw (ts (N,), values (N, dim)).
+
+    Unsorted and unchecked (see :func:`clean_records`). ``transform`` maps serial -> (dim, dim) matrix applied to
+    that serial's vectors (used to rotate camera-frame F/T into the base frame); serials missing from it are left out.
+    """
     ts, vals = [], []
     try:
         for serial, items in obj.items():
+            if transform is not None and str(serial) not in transform:
+                continue
+            m = None if transform is None else transform[str(serial)]
             for it in items:
+                v = np.asarray(it[key], dtype=np.float64).reshape(-1)
                 ts.append(int(it["timestamp"]))
-                vals.append(np.asarray(it[key], dtype=np.float64).reshape(-1))
+                vals.append(v if m is None or v.shape != (dim,) else m @ v)
     except (KeyError, TypeError, ValueError) as e:
         raise SceneSkip("bad_stream", f"{what}: expected {{serial: [{{'timestamp', '{key}'}}]}} "
                                       f"({type(e).__name__}: {e})") from None
     bad = [v.shape for v in vals if v.shape != (dim,)]
     if bad:
         raise SceneSkip("bad_stream", f"{what}['{key}'] must have {dim} values, got shape {bad[0]}")
-    return _sorted_unique(np.asarray(ts, np.int64), np.asarray(vals, np.float64).reshape(-1, dim), what)
+    return np.asarray(ts, np.int64), np.asarray(vals, np.float64).reshape(-1, dim)
 
 
 def read_gripper(obj: dict, field: str) -> tuple[np.ndarray, np.ndarray]:
-    """``{serial: {ts: {field: [width_mm, ...]}}}`` merged over serials -> (ts (N,), width_mm (N, 1))."""
+    """``{serial: {ts: {field: [width_mm, ...]}}}`` merged over serials -> raw (ts (N,), width_mm (N, 1))."""
     ts, vals = [], []
     try:
         for serial, per_ts in obj.items():
@@ -321,7 +389,176 @@ def read_gripper(obj: dict, field: str) -> tuple[np.ndarray, np.ndarray]:
     except (KeyError, TypeError, ValueError, IndexError, AttributeError) as e:
         raise SceneSkip("bad_stream", f"gripper.npy: expected {{serial: {{ts: {{'{field}': [width_mm, ...]}}}}}} "
                                       f"({type(e).__name__}: {e})") from None
-    return _sorted_unique(np.asarray(ts, np.int64), np.asarray(vals, np.float64).reshape(-1, 1), "gripper.npy")
+    return np.asarray(ts, np.int64), np.asarray(vals, np.float64).reshape(-1, 1)
+
+
+BAD_RECORD_KINDS = ("non_finite", "zero", "overflow", "out_of_range", "bad_quaternion")
+"""Kinds of isolated bad records that are dropped (and counted per stream) instead of skipping the scene."""
+OVERFLOW_ABS = 1e6
+"""A value beyond this magnitude is an overflowed reading (RH20T has TCP values like -9.4e36)."""
+
+
+def classify_records(vals: np.ndarray, stream: str, cfg: ConvertConfig) -> np.ndarray:
+    """Per-record code: 0 good, else 1 + index into :data:`BAD_RECORD_KINDS` (first matching kind wins).
+
+    ``stream`` is ``tcp`` (xyz m + quaternion), ``ft`` (force N, torque N m) or ``gripper`` (width mm).
+    """
+    code = np.zeros(len(vals), np.int8)
+
+    def mark(mask, kind):
+        code[mask & (code == 0)] = 1 + BAD_RECORD_KINDS.index(kind)
+
+    with np.errstate(invalid="ignore", over="ignore"):
+        mark(~np.isfinite(vals).all(1), "non_finite")
+        if stream == "tcp":
+            mark((vals == 0).all(1), "zero")
+        mark((np.abs(vals) > OVERFLOW_ABS).any(1), "overflow")
+        if stream == "tcp":
+            mark(np.abs(vals[:, :3]).max(1) > cfg.max_abs_pos_m, "out_of_range")
+            mark(np.abs(np.linalg.norm(vals[:, 3:], axis=1) - 1) > 0.05, "bad_quaternion")
+        elif stream == "ft":
+            mark((np.abs(vals) > cfg.max_abs_ft).any(1), "out_of_range")
+    return code
+
+
+def clean_records(ts: np.ndarray, vals: np.ndarray, stream: str, what: str,
+                  cfg: ConvertConfig) -> tuple[np.ndarray, np.ndarray, dict[str, int]]:
+    """Drop (and count) isolated bad records, then sort and de-duplicate; skip the scene if the stream is unusable.
+
+    Returns (ts, vals, {kind: n_dropped}). More than ``cfg.max_bad_record_fraction`` bad records, or fewer than 2
+    good ones, raise :class:`SceneSkip` with a reason named after the dominant kind of defect.
+    """
+    if len(ts) == 0:
+        raise SceneSkip("bad_stream", f"{what} has no samples")
+    code = classify_records(vals, stream, cfg)
+    bad = code > 0
+    counts = {k: int((code == i + 1).sum()) for i, k in enumerate(BAD_RECORD_KINDS) if (code == i + 1).any()}
+    frac = float(bad.mean())
+    if frac > cfg.max_bad_record_fraction or (~bad).sum() < 2:
+        kind = max(counts, key=counts.get)
+        share = f"{int(bad.sum())} of {len(bad)} records bad ({counts})"
+        if kind == "non_finite":
+            raise SceneSkip("nan_stream", f"{what}: {share}, non-finite values")
+        if kind == "zero":
+            raise SceneSkip("zero_tcp", f"{what}: {share}; all-zero TCP records mean the pose was not logged")
+        if kind == "overflow" or (kind == "out_of_range" and stream != "tcp"):
+            raise SceneSkip("overflow_stream", f"{what}: {share}; overflowed / out-of-range values "
+                                               f"(e.g. {vals[bad][0].tolist()})")
+        if kind == "out_of_range":
+            big = np.abs(vals[code == 1 + BAD_RECORD_KINDS.index("out_of_range"), :3]).max(1)
+            hint = (" (millimetres instead of metres?)" if np.median(big) < 1000 * cfg.max_abs_pos_m else "")
+            raise SceneSkip("bad_units", f"{what}: {share}; |tcp position| reaches {big.max():.3g} > "
+                                         f"{cfg.max_abs_pos_m} m{hint}")
+        raise SceneSkip("bad_units", f"{what}: {share}; tcp quaternion norms deviate from 1 (wrong order / units?)")
+    ts, vals = _sorted_unique(ts[~bad], vals[~bad], what)
+    return ts, vals, counts
+
+
+# ------------------------------------------------------------- camera-frame F/T -> base frame
+
+
+def _rot_x(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
+
+
+def _rot_y(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+
+
+def _rot_z(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+
+
+def euler_sxyz_to_mat(ai: float, aj: float, ak: float) -> np.ndarray:
+    """Static-axes x-y-z Euler angles (transforms3d's default ``sxyz``, used by rh20t_api) -> rotation matrix."""
+    return _rot_z(ak) @ _rot_y(aj) @ _rot_x(ai)
+
+
+def quat_to_mat(q: np.ndarray) -> np.ndarray:
+    """Unit quaternion (w, x, y, z) -> rotation matrix."""
+    w, x, y, z = np.asarray(q, np.float64) / np.linalg.norm(q)
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def rotvec_to_mat(v: np.ndarray) -> np.ndarray:
+    """Rotation vector (axis * angle) -> rotation matrix (Rodrigues)."""
+    v = np.asarray(v, np.float64)
+    a = float(np.linalg.norm(v))
+    if a < 1e-12:
+        return np.eye(3)
+    k = v / a
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + math.sin(a) * K + (1 - math.cos(a)) * K @ K
+
+
+def calib_tcp_rotation(tcp: np.ndarray, cfg_num: int) -> np.ndarray:
+    """Rotation of the calibration-time TCP pose ``calib/<calib>/tcp.npy`` as rh20t_api reads it.
+
+    kuka: (x, y, z [mm], Euler sxyz [rad]); franka: (x, y, z, rotation vector), then a flip diag(1, -1, -1);
+    flexiv / ur5: (x, y, z, quaternion w, x, y, z), or Euler sxyz when it has 6 values.
+    """
+    t = np.asarray(tcp, np.float64).reshape(-1)
+    robot = ROBOTS[cfg_num]
+    if robot == "franka" and t.size == 6:
+        return rotvec_to_mat(t[3:6]) @ np.diag([1.0, -1.0, -1.0])
+    if t.size == 6:
+        return euler_sxyz_to_mat(*t[3:6])
+    if t.size == 7:
+        return quat_to_mat(t[3:7])
+    raise ValueError(f"calibration tcp must have 6 or 7 values, got {t.size}")
+
+
+def base_to_camera_rotations(calib_dir: Path, cfg_num: int) -> dict[str, np.ndarray]:
+    """serial -> 3x3 rotation R with v_camera = R v_base, from a calibration folder (rh20t_api's chain).
+
+    The API projects base-frame F/T into camera ``s`` with ``extrinsics[s] @ base_world @ align_mat_base``,
+    ``base_world = inv(extrinsics[in_hand[0]]) @ tc_mat @ inv(calib_tcp)``; only the rotations matter for
+    vectors. Raises SceneSkip(camera_frame_ft) when a needed file or the anchor in-hand camera is absent.
+    """
+    ext_path, tcp_path = calib_dir / "extrinsics.npy", calib_dir / "tcp.npy"
+    if not ext_path.exists() or not tcp_path.exists():
+        raise SceneSkip("camera_frame_ft", f"force_torque_base.npy absent and calibration {calib_dir} lacks "
+                                           "extrinsics.npy / tcp.npy to rotate the camera-frame force_torque.npy")
+    try:
+        ext = np.load(ext_path, allow_pickle=True)
+        ext = ext.item() if ext.dtype == object and ext.shape == () else ext
+        mats = {str(k): np.asarray(v, np.float64).reshape(-1, 4, 4)[0][:3, :3] for k, v in dict(ext).items()}
+        r_tcp = calib_tcp_rotation(np.load(tcp_path, allow_pickle=True), cfg_num)
+    except Exception as e:  # damaged calibration files
+        raise SceneSkip("camera_frame_ft", f"cannot read calibration {calib_dir}: {type(e).__name__}: {e}") from None
+    anchor = IN_HAND_CALIB[cfg_num][0]
+    if anchor not in mats:
+        raise SceneSkip("camera_frame_ft", f"calibration {calib_dir} has no extrinsics for the anchor in-hand camera "
+                                           f"{anchor} (has {sorted(mats)})")
+    world_from_base = (mats[anchor].T @ np.asarray(TCP_CAMERA_ROT[cfg_num], np.float64) @ r_tcp.T
+                       @ np.asarray(ALIGN_BASE_ROT[cfg_num], np.float64))
+    return {s: m @ world_from_base for s, m in mats.items()}
+
+
+def read_ft(d: Path, meta: dict, cfg: ConvertConfig) -> tuple[np.ndarray, np.ndarray, str]:
+    """Zeroed base-frame F/T records (raw ts, values) and their source: ``base`` or ``camera_via_calib``."""
+    tr = d / "transformed"
+    base, cam = tr / "force_torque_base.npy", tr / "force_torque.npy"
+    if base.exists() or not cam.exists():
+        ts, v = read_records(load_pickled_dict(base, "transformed/force_torque_base.npy"), "zeroed", 6,
+                             "force_torque_base.npy")
+        return ts, v, "base"
+    if not cfg.ft_camera_fallback:
+        raise SceneSkip("camera_frame_ft", "force_torque_base.npy absent, only the camera-frame force_torque.npy is "
+                                           "present and ft_camera_fallback is off")
+    rots = base_to_camera_rotations(d.parent / "calib" / str(meta.get("calib")), cfg.cfg)
+    to_base = {s: np.kron(np.eye(2), r.T) for s, r in rots.items()}  # force and torque rotate alike
+    obj = load_pickled_dict(cam, "transformed/force_torque.npy")
+    missing = sorted(str(s) for s in obj if str(s) not in to_base)
+    ts, v = read_records(obj, "zeroed", 6, "force_torque.npy (camera frame)", transform=to_base)
+    if len(ts) == 0:
+        raise SceneSkip("camera_frame_ft", f"no serial of force_torque.npy ({missing}) has calibration extrinsics")
+    return ts, v, "camera_via_calib"
 
 
 def align_quaternions(q: np.ndarray) -> np.ndarray:
@@ -378,11 +615,19 @@ def contact_onset(force_norm: np.ndarray, threshold: float, horizon: int) -> tup
 # ------------------------------------------------------------------------------------ frames
 
 
-def _crop_resize(gray: np.ndarray, crop: tuple[float, ...], out_hw: tuple[int, int]) -> np.ndarray:
+def _crop_resize(gray: np.ndarray, crop: tuple[float, ...], out_hw: tuple[int, int], rotate: int = 0) -> np.ndarray:
+    """Rotate (degrees counter-clockwise, multiple of 90), crop (fractions, or a square: centred, or bottom for a
+    rotated camera) and area-resize one grayscale image."""
     import cv2
 
+    if rotate % 360:
+        code = {90: cv2.ROTATE_90_COUNTERCLOCKWISE, 180: cv2.ROTATE_180, 270: cv2.ROTATE_90_CLOCKWISE}[rotate % 360]
+        gray = cv2.rotate(gray, code)
     h, w = gray.shape
-    if crop:
+    if rotate % 360 and not crop:  # sideways camera: bottom square, as the RH20T authors' loader crops it
+        s = min(h, w)
+        box = gray[h - s:, (w - s) // 2: (w - s) // 2 + s]
+    elif crop:
         t, l, b, r = crop
         box = gray[int(round(t * h)): max(int(round(b * h)), int(round(t * h)) + 1),
                    int(round(l * w)): max(int(round(r * w)), int(round(l * w)) + 1)]
@@ -394,7 +639,7 @@ def _crop_resize(gray: np.ndarray, crop: tuple[float, ...], out_hw: tuple[int, i
 
 
 def read_camera(cam_dir: Path, t_grid: np.ndarray, cfg: ConvertConfig, out_hw: tuple[int, int],
-                t_range: tuple[int, int] | None = None) -> tuple[np.ndarray, np.ndarray]:
+                rotate: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Camera timestamps (ms, sorted) and, if ``t_grid`` is given, the nearest frame for each grid time.
 
     ``color.mp4`` + ``timestamps.npy`` is used when present, else extracted ``color/<ts>.jpg``.
@@ -413,7 +658,7 @@ def read_camera(cam_dir: Path, t_grid: np.ndarray, cfg: ConvertConfig, out_hw: t
         if t_grid is None:
             return ts, np.zeros((0, *out_hw), np.uint8)
         idx = _nearest(ts, t_grid, cfg.frame_tolerance_s, cam_dir.name)
-        frames = _decode_mp4(mp4, len(ts), np.unique(idx), cfg.crop, out_hw)
+        frames = _decode_mp4(mp4, len(ts), np.unique(idx), cfg.crop, out_hw, rotate)
         return ts, np.stack([frames[i] for i in idx])
     if jpg_dir.is_dir():
         files = {}
@@ -435,7 +680,7 @@ def read_camera(cam_dir: Path, t_grid: np.ndarray, cfg: ConvertConfig, out_hw: t
             img = cv2.imread(str(files[int(ts[i])]), cv2.IMREAD_GRAYSCALE)
             if img is None:
                 raise SceneSkip("unreadable_video", f"cannot decode image {files[int(ts[i])]}")
-            cache[int(i)] = _crop_resize(img, cfg.crop, out_hw)
+            cache[int(i)] = _crop_resize(img, cfg.crop, out_hw, rotate)
         return ts, np.stack([cache[int(i)] for i in idx])
     raise SceneSkip("missing_stream", f"{cam_dir} has neither color.mp4 nor a color/ image folder")
 
@@ -452,7 +697,8 @@ def _nearest(ts: np.ndarray, t_grid: np.ndarray, tol_s: float, what: str) -> np.
     return j
 
 
-def _decode_mp4(path: Path, n_expected: int, wanted: np.ndarray, crop, out_hw) -> dict[int, np.ndarray]:
+def _decode_mp4(path: Path, n_expected: int, wanted: np.ndarray, crop, out_hw,
+                rotate: int = 0) -> dict[int, np.ndarray]:
     import av
 
     if path.stat().st_size == 0:
@@ -466,7 +712,7 @@ def _decode_mp4(path: Path, n_expected: int, wanted: np.ndarray, crop, out_hw) -
                 raise SceneSkip("empty_video", f"{path} has no video stream")
             for frame in container.decode(video=0):
                 if n in wanted_set:
-                    out[n] = _crop_resize(frame.to_ndarray(format="gray"), crop, out_hw)
+                    out[n] = _crop_resize(frame.to_ndarray(format="gray"), crop, out_hw, rotate)
                 n += 1
     except SceneSkip:
         raise
@@ -484,8 +730,9 @@ def _decode_mp4(path: Path, n_expected: int, wanted: np.ndarray, crop, out_hw) -
     return out
 
 
-def camera_serials(scene_dir: Path, cfg: ConvertConfig) -> list[str]:
-    """Serials of the camera(s) used for ``cfg.camera`` in this scene (explicit override or role table)."""
+def camera_serials(scene_dir: Path, cfg: ConvertConfig) -> list[tuple[str, str, int]]:
+    """(role, serial, rank) of the camera(s) used for ``cfg.camera`` in this scene; rank 0 is the role's first
+    choice, rank > 0 a fallback down the role's list (-1: an explicit ``camera_serials`` override)."""
     present = {d.name[4:] for d in scene_dir.iterdir() if d.is_dir() and d.name.startswith("cam_")}
     roles = ["far", "close"] if cfg.camera == "two_view" else [cfg.camera]
     if cfg.camera_serials:
@@ -493,15 +740,15 @@ def camera_serials(scene_dir: Path, cfg: ConvertConfig) -> list[str]:
         missing = [s for s in chosen if s not in present]
         if missing:
             raise SceneSkip("missing_camera", f"camera folder(s) cam_{missing[0]} absent (present: {sorted(present)})")
-        return chosen
-    chosen = []
+        return [(r, s, -1) for r, s in zip(roles, chosen)]
+    out = []
     for role in roles:
         cands = CAMERA_ROLES[cfg.cfg][role]
-        hit = next((s for s in cands if s in present), None)
-        if hit is None:
+        rank = next((i for i, s in enumerate(cands) if s in present), None)
+        if rank is None:
             raise SceneSkip("missing_camera", f"no '{role}' camera (serials {list(cands)}) among {sorted(present)}")
-        chosen.append(hit)
-    return chosen
+        out.append((role, cands[rank], rank))
+    return out
 
 
 # ----------------------------------------------------------------------------- one scene
@@ -545,24 +792,22 @@ def process_scene(ref: SceneRef, cfg: ConvertConfig) -> dict[str, np.ndarray]:
         raise SceneSkip("missing_calib", f"metadata calib is {calib!r}")
     if cfg.require_calib_dir and not (d.parent / "calib" / str(calib)).is_dir():
         raise SceneSkip("missing_calib", f"calibration folder {d.parent / 'calib' / str(calib)} is absent")
-    # numeric streams (robot base frame, SI units per rh20t_api's transformed/ folder)
+    # numeric streams (robot base frame, SI units per rh20t_api's transformed/ folder); isolated bad records
+    # (NaN, overflow, all-zero TCP...) are dropped and counted, an unusable stream skips the scene
     tr = d / "transformed"
-    tcp_ts, tcp = read_records(load_pickled_dict(tr / "tcp_base.npy", "transformed/tcp_base.npy"), "tcp", 7,
-                               "tcp_base.npy")
-    ft_ts, ft = read_records(load_pickled_dict(tr / "force_torque_base.npy", "transformed/force_torque_base.npy"),
-                             "zeroed", 6, "force_torque_base.npy")
-    gr_ts, grip = read_gripper(load_pickled_dict(tr / "gripper.npy", "transformed/gripper.npy"), cfg.gripper_field)
-    for name, v in (("tcp_base.npy", tcp), ("force_torque_base.npy zeroed", ft), ("gripper.npy", grip)):
-        if not np.isfinite(v).all():
-            raise SceneSkip("nan_stream", f"{name} has {int((~np.isfinite(v)).sum())} non-finite values")
-    if np.abs(tcp[:, :3]).max() > cfg.max_abs_pos_m:
-        raise SceneSkip("bad_units", f"|tcp position| reaches {np.abs(tcp[:, :3]).max():.3g} > {cfg.max_abs_pos_m} m "
-                                     "(millimetres instead of metres?)")
-    qn = np.linalg.norm(tcp[:, 3:], axis=1)
-    if np.abs(qn - 1).max() > 0.05:
-        raise SceneSkip("bad_units", f"tcp quaternion norm deviates from 1 by {np.abs(qn - 1).max():.3g}")
+    dropped: dict[str, dict[str, int]] = {}
+    raw_tcp = read_records(load_pickled_dict(tr / "tcp_base.npy", "transformed/tcp_base.npy"), "tcp", 7,
+                           "tcp_base.npy")
+    tcp_ts, tcp, dropped["tcp_base"] = clean_records(*raw_tcp, "tcp", "tcp_base.npy", cfg)
+    ft_raw_ts, ft_raw, ft_source = read_ft(d, meta, cfg)
+    ft_name = "force_torque_base" if ft_source == "base" else "force_torque"
+    ft_ts, ft, dropped[ft_name] = clean_records(ft_raw_ts, ft_raw, "ft", f"{ft_name}.npy zeroed", cfg)
+    raw_gr = read_gripper(load_pickled_dict(tr / "gripper.npy", "transformed/gripper.npy"), cfg.gripper_field)
+    gr_ts, grip, dropped["gripper"] = clean_records(*raw_gr, "gripper", "gripper.npy", cfg)
+    dropped = {k: v for k, v in dropped.items() if v}
     # cameras
-    serials = camera_serials(d, cfg)
+    cams = camera_serials(d, cfg)
+    serials = [c[1] for c in cams]
     half = cfg.camera == "two_view"
     out_hw = (cfg.image_size, cfg.image_size // 2 if half else cfg.image_size)
     cam_ts = [read_camera(d / f"cam_{s}", None, cfg, out_hw)[0] for s in serials]
@@ -579,13 +824,15 @@ def process_scene(ref: SceneRef, cfg: ConvertConfig) -> dict[str, np.ndarray]:
         raise SceneSkip("bad_timestamps", f"streams / metadata times do not overlap ({t0} >= {t1})")
     step_ms = 1000.0 / cfg.hz
     t_grid = t0 + step_ms * np.arange(int(math.floor((t1 - t0) / step_ms + 1e-9)) + 1)
-    for name, ts in (("tcp_base", tcp_ts), ("force_torque_base", ft_ts), ("gripper", gr_ts)):
+    for name, ts in (("tcp_base", tcp_ts), (ft_name, ft_ts), ("gripper", gr_ts)):
         inside = ts[(ts >= t0) & (ts <= t1)]
         edges = np.concatenate([[t0], inside, [t1]])
         gap = np.diff(edges).max() / 1000.0
         if gap > cfg.max_gap_s:
-            raise SceneSkip("stream_gap", f"{name} has a {gap:.2f} s gap (> max_gap_s={cfg.max_gap_s})")
-    views = [read_camera(d / f"cam_{s}", t_grid, cfg, out_hw)[1] for s in serials]
+            raise SceneSkip("stream_gap", f"{name} has a {gap:.2f} s gap (> max_gap_s={cfg.max_gap_s}) "
+                                          f"after dropping {dropped.get(name, {})} bad records")
+    views = [read_camera(d / f"cam_{s}", t_grid, cfg, out_hw, CAMERA_ROTATION.get((cfg.cfg, s), 0))[1]
+             for s in serials]
     frames = np.concatenate(views, axis=2) if half else views[0]
     # resample numeric streams
     pos = interp_columns(t_grid, tcp_ts, tcp[:, :3])
@@ -593,10 +840,13 @@ def process_scene(ref: SceneRef, cfg: ConvertConfig) -> dict[str, np.ndarray]:
     quat /= np.linalg.norm(quat, axis=1, keepdims=True)
     ft_g = interp_columns(t_grid, ft_ts, ft)
     grip_m = interp_columns(t_grid, gr_ts, grip)[:, 0] / 1000.0
+    info = {"cameras": [{"role": r, "serial": sn, "rank": k, "fallback": k > 0,
+                         "rotation": CAMERA_ROTATION.get((cfg.cfg, sn), 0)} for r, sn, k in cams],
+            "dropped_records": dropped, "ft_source": ft_source}
     return {
         "frames": frames.astype(np.uint8), "pos": pos, "quat": quat, "ft": ft_g, "grip": grip_m,
         "t_s": (t_grid - t0) / 1000.0, "t0_ms": np.asarray(t0, np.int64),
-        "rating": np.asarray(rating), "serials": np.asarray(",".join(serials)),
+        "rating": np.asarray(rating), "serials": np.asarray(",".join(serials)), "info": np.asarray(json.dumps(info)),
     }
 
 
@@ -604,7 +854,8 @@ def process_scene(ref: SceneRef, cfg: ConvertConfig) -> dict[str, np.ndarray]:
 
 
 _CACHE_FIELDS = ("cfg", "camera", "camera_serials", "image_size", "crop", "hz", "min_rating", "require_calib_dir",
-                 "gripper_field", "max_gap_s", "frame_tolerance_s", "max_abs_pos_m")
+                 "gripper_field", "max_gap_s", "frame_tolerance_s", "max_abs_pos_m", "max_abs_ft",
+                 "max_bad_record_fraction", "ft_camera_fallback")
 
 
 def cache_dir(cfg: ConvertConfig) -> Path:
@@ -654,6 +905,34 @@ def convert_scene_cached(ref: SceneRef, cfg: ConvertConfig, cdir: Path) -> tuple
     with atomic_path(ok) as tmp, open(tmp, "wb") as fh:
         np.savez(fh, **arrays)
     return arrays, None
+
+
+# ------------------------------------------------------------------------------- subsets
+
+
+def stratified_subset(refs: list[SceneRef], n: int, seed: int) -> list[SceneRef]:
+    """A seeded random subset of ``n`` scenes stratified by task (systematic sampling; nested in ``n``).
+
+    Every task's scenes are put in a seeded random order and scene ``k`` of a task with ``n_t`` scenes gets the
+    key ``(k + u_t) / n_t`` (``u_t`` a seeded uniform offset per task); the ``n`` smallest keys are kept. So each
+    task contributes ``n * n_t / N`` scenes up to rounding (at most one off), the draw is random within each
+    task, and a smaller ``n`` (same seed) is a subset of a larger one, which keeps scaling curves nested.
+    Returns the chosen scenes sorted by name; all of them when ``n <= 0`` or ``n >= len(refs)``.
+    """
+    if n <= 0 or n >= len(refs):
+        return sorted(refs, key=lambda r: (r.name, str(r.path)))
+    keys: list[tuple[float, str, str, SceneRef]] = []
+    by_task: dict[int, list[SceneRef]] = {}
+    for r in sorted(refs, key=lambda r: (r.name, str(r.path))):
+        by_task.setdefault(r.task, []).append(r)
+    for task, group in sorted(by_task.items()):
+        rng = np.random.default_rng([seed, 0x5EED, task])  # per task: a task's draw ignores the other tasks
+        order = rng.permutation(len(group))
+        u = rng.random()
+        for k, i in enumerate(order):
+            keys.append(((k + u) / len(group), group[i].name, str(group[i].path), group[i]))
+    keys.sort(key=lambda x: x[:3])
+    return sorted((x[3] for x in keys[:n]), key=lambda r: (r.name, str(r.path)))
 
 
 # ------------------------------------------------------------------------------- assembling
@@ -761,8 +1040,11 @@ def assemble(scenes: list[tuple[SceneRef, dict]], cfg: ConvertConfig) -> tuple[D
                          ("rating", float(a["rating"])), ("scene_index", si), ("chunk_index", ci),
                          ("t_start_s", a["t_s"][s])):
                 par[k].append(v)
+        extra = json.loads(str(a["info"])) if "info" in a else {}
         scene_rows.append({"name": ref.name, "path": str(ref.path), "task": ref.task, "user": ref.user,
                            "scene": ref.scene, "rating": int(a["rating"]), "serials": str(a["serials"]).split(","),
+                           "cameras": extra.get("cameras", []), "ft_source": extra.get("ft_source", "base"),
+                           "dropped_records": extra.get("dropped_records", {}),
                            "start_ms": int(a["t0_ms"]), "grid_steps": n, "chunks": len(starts),
                            "split": int(sp)})
     split = np.asarray(cols["split"], np.int8)
@@ -807,11 +1089,28 @@ def run(cfg: ConvertConfig) -> Path:
     cdir.mkdir(parents=True, exist_ok=True)
     root = Path(cfg.root)
     refs = scan(root / f"RH20T_cfg{cfg.cfg}" if (root / f"RH20T_cfg{cfg.cfg}").is_dir() else root)
-    if cfg.max_scenes:
-        refs = refs[: cfg.max_scenes]
     converted: list[tuple[SceneRef, dict]] = []
     skips: list[dict] = []
-    for ref in tqdm(refs, desc=f"rh20t cfg{cfg.cfg}", unit="scene", disable=not cfg.progress):
+    candidates = []
+    for ref in refs:  # name-level skips (human demos, other / unknown cfg) are decided before subsetting
+        try:
+            check_scene_name(ref, cfg)
+            candidates.append(ref)
+        except SceneSkip as e:
+            skips.append({"scene": ref.name, "path": str(ref.path), "reason": e.reason, "message": e.message})
+    chosen = stratified_subset(candidates, cfg.max_scenes, cfg.subset_seed)
+    subset = None
+    if cfg.max_scenes:
+        per_task: dict[int, list[int]] = {}
+        for r in candidates:
+            per_task.setdefault(r.task, [0, 0])[0] += 1
+        for r in chosen:
+            per_task[r.task][1] += 1
+        subset = {"max_scenes": cfg.max_scenes, "subset_seed": cfg.subset_seed, "candidates": len(candidates),
+                  "sampled": len(chosen), "stratified_by": "task",
+                  "per_task": {str(t): {"candidates": c, "sampled": k} for t, (c, k) in sorted(per_task.items())},
+                  "scenes": [r.name for r in chosen]}
+    for ref in tqdm(chosen, desc=f"rh20t cfg{cfg.cfg}", unit="scene", disable=not cfg.progress):
         arrays, skip = convert_scene_cached(ref, cfg, cdir)
         if arrays is not None:
             converted.append((ref, arrays))
@@ -822,9 +1121,27 @@ def run(cfg: ConvertConfig) -> Path:
     counts: dict[str, int] = {}
     for s in skips:
         counts[s["reason"]] = counts.get(s["reason"], 0) + 1
+    rows = info.get("scenes", [])
+    camera_counts: dict[str, dict[str, int]] = {}
+    dropped_total: dict[str, dict[str, int]] = {}
+    ft_sources: dict[str, int] = {}
+    for r in rows:
+        for c in r["cameras"]:
+            per = camera_counts.setdefault(c["role"], {})
+            per[c["serial"]] = per.get(c["serial"], 0) + 1
+        for stream, kinds in r["dropped_records"].items():
+            for k, v in kinds.items():
+                dropped_total.setdefault(stream, {})[k] = dropped_total.setdefault(stream, {}).get(k, 0) + v
+        ft_sources[r["ft_source"]] = ft_sources.get(r["ft_source"], 0) + 1
     report = {
         "root": str(cfg.root), "cfg": cfg.cfg, "robot": ROBOTS[cfg.cfg], "camera": cfg.camera,
-        "scenes_found": len(refs), "scenes_converted": len(info.get("scenes", [])),
+        "scenes_found": len(refs), "scenes_candidate": len(candidates), "scenes_sampled": len(chosen),
+        "subset": subset, "scenes_converted": len(rows),
+        "camera_counts": {role: dict(sorted(v.items())) for role, v in sorted(camera_counts.items())},
+        "camera_fallback_scenes": sum(any(c["fallback"] for c in r["cameras"]) for r in rows),
+        "ft_source_counts": dict(sorted(ft_sources.items())),
+        "scenes_with_dropped_records": sum(bool(r["dropped_records"]) for r in rows),
+        "dropped_records": {k: dict(sorted(v.items())) for k, v in sorted(dropped_total.items())},
         "scenes_skipped": len(skips), "skip_counts": dict(sorted(counts.items())),
         "skip_reason_meaning": {k: SKIP_REASONS[k] for k in sorted(counts)},
         "skipped": skips, "episodes": 0 if ds is None else ds.num_episodes,
@@ -849,16 +1166,20 @@ def run(cfg: ConvertConfig) -> Path:
                        "tcp_quat (w,x,y,z); gripper_width [m]; time_s since scene start",
         "heldout_tasks": info["heldout_tasks"], "onset_base_rate": info["onset_base_rate"],
         "chunk_stride": info["chunk_stride"], "scenes": info["scenes"],
-        "skip_counts": report["skip_counts"],
+        "skip_counts": report["skip_counts"], "camera_counts": report["camera_counts"],
+        "ft_source_counts": report["ft_source_counts"], "dropped_records": report["dropped_records"],
+        "subset": subset,
     }
     save(ds, out, manifest)
     report["split_counts"] = ds.manifest["split_counts"]
     report["content_sha256"] = ds.manifest["content_sha256"]
     write_json(report_path, report)
     print(f"[rh20t] wrote {ds.num_episodes} episodes from {len(info['scenes'])} scenes to {out} "
-          f"({report['scenes_skipped']} scenes skipped: {report['skip_counts']})")
+          f"({report['scenes_skipped']} scenes skipped: {report['skip_counts']}; cameras {report['camera_counts']}; "
+          f"{report['scenes_with_dropped_records']} scenes with dropped records: {report['dropped_records']})")
     return out
 
 
 __all__ = ["ConvertConfig", "PRESETS", "make_config", "run", "scan", "parse_scene_name", "process_scene",
-           "SceneSkip", "SKIP_REASONS", "CAMERA_ROLES", "ROBOTS", "contact_onset", "split_scenes", "dataclasses"]
+           "SceneSkip", "SKIP_REASONS", "CAMERA_ROLES", "CAMERA_ROTATION", "ROBOTS", "contact_onset", "split_scenes",
+           "stratified_subset", "clean_records", "base_to_camera_rotations", "BAD_RECORD_KINDS", "dataclasses"]
