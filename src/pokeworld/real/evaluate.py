@@ -7,14 +7,15 @@ same windows, the same leak-free frozen trunk state at the window's last observa
 episode-grouped ridge (and optional MLP) probes, the same decoded prediction errors; only the targets
 differ.
 
-* ``readout``: R^2 of force (3-d, N), force magnitude and end-effector (TCP) position (3-d, m) at
+* ``readout``: R^2 (variance-weighted over components, :func:`r2`) of force (3-d, N), force magnitude and end-effector (TCP) position (3-d, m) at
   the probed observation.
 * ``onset``: contact-onset anticipation AUC. The label (``labels/contact_onset``) marks steps with
   ‖F‖ ≤ 10 N whose next 4 steps reach ‖F‖ > 10 N; windows whose last step is already in contact are
   excluded from fit and test, so the score is anticipation, not detection. The score is a ridge
   probe's output (AUC only needs a ranking).
 * ``forecast``: R^2 of force at t+Δ (Δ = 1, 4 steps = 0.1, 0.4 s) read from the state at t, against
-  persistence (F_{t+Δ} ≈ F_t), with a paired scene-bootstrap 95 % CI of model − persistence.
+  persistence (F_{t+Δ} ≈ F_t), with a paired scene-bootstrap 95 % CI of model − persistence; also
+  ``persistence_fit``, a ridge from F_t alone (what a state that merely holds F_t reaches).
 * ``prediction``: direct and autoregressive 16-step TCP-position errors from 8 context steps
   against static, all decoded through one ridge position decoder fit on encoder latents (cm).
 * ``untrained``: all of the above for a randomly initialised copy sharing only the input statistics.
@@ -36,7 +37,6 @@ from ..evaluate.prediction import prediction_quality
 from ..evaluate.probes import fit_predict
 from ..evaluate.state import EpisodeLatents, padded_actions, window_states
 from ..io import write_json
-from ..regressors import r2_scores
 from ..windows import make_windows
 
 TESTS = {"iid": "probe_test", "ood": "heldout"}
@@ -117,8 +117,16 @@ def roc_auc(labels: np.ndarray, scores: np.ndarray) -> float | None:
 
 
 def r2(y: np.ndarray, pred: np.ndarray) -> float:
-    """Mean per-dimension R^2 (the probe tables' convention for multi-dimensional targets)."""
-    return float(np.mean(r2_scores(np.asarray(y, float), np.asarray(pred, float))))
+    """Variance-weighted R^2 of a (multi-dimensional) target: 1 − Σ_dims SSE / Σ_dims SST.
+
+    Unlike the simulator tables' mean of per-dimension R^2, a component that barely varies (a force axis
+    nobody pushes along, a TCP axis the task never moves) cannot swing the score: each component
+    counts by its variance, so the readout is the share of the vector's variance explained.
+    """
+    y = np.asarray(y, float).reshape(len(y), -1)
+    p = np.asarray(pred, float).reshape(len(pred), -1)
+    sst = ((y - y.mean(0)) ** 2).sum()
+    return float(1.0 - ((y - p) ** 2).sum() / max(sst, 1e-12))
 
 
 def _group_sums(y: np.ndarray, preds: list[np.ndarray], groups: np.ndarray) -> tuple[np.ndarray, dict]:
@@ -150,8 +158,8 @@ def paired_bootstrap(y: np.ndarray, pred_a: np.ndarray, pred_b: np.ndarray, grou
 
     def r2_from(c: np.ndarray, sse: np.ndarray) -> np.ndarray:
         n, sy, syy = c @ st["n"], c @ st["sy"], c @ st["syy"]
-        sst = syy - sy ** 2 / n[:, None]
-        return (1.0 - (c @ sse) / np.maximum(sst, 1e-12)).mean(1)
+        sst = (syy - sy ** 2 / n[:, None]).sum(1)
+        return 1.0 - (c @ sse).sum(1) / np.maximum(sst, 1e-12)
 
     diffs = r2_from(counts, st["sse"][0]) - r2_from(counts, st["sse"][1])
     a, b = r2(y, pred_a), r2(y, pred_b)
@@ -246,13 +254,17 @@ def forecast(ds: Dataset, W: dict, X: dict, cfg: RealEvalConfig, tests: tuple[st
     Tf = {f"force_t+{d}": fut[d]["fit"] for d in cfg.forecast_deltas}
     preds = fit_predict(X["fit"][ok["fit"]], sub["fit"].episode, Tf, {k: X[k][ok[k]] for k in tests}, False,
                         cfg.seed)["ridge"]
+    # the paper's baseline repeats F_t; a ridge from F_t alone (regression to the mean) is the stronger
+    # baseline any state holding the current force matches without forecasting anything
+    fitted = fit_predict(now["fit"], sub["fit"].episode, Tf, {k: now[k] for k in tests}, False, cfg.seed)["ridge"]
     for d in cfg.forecast_deltas:
         row = {}
         for k in tests:
             y, pm = fut[d][k], preds[f"force_t+{d}"][k]
             bs = paired_bootstrap(y, pm, now[k], _groups(ds, sub[k]), cfg.bootstrap, cfg.seed)
             row[k] = {"model": bs["a"], "persistence": bs["b"], "diff": bs["diff"], "ci": [bs["lo"], bs["hi"]],
-                      "groups": bs["groups"], "windows": int(len(y))}
+                      "persistence_fit": r2(y, fitted[f"force_t+{d}"][k]), "groups": bs["groups"],
+                      "windows": int(len(y))}
         res[str(d)] = row
     return res
 
