@@ -42,6 +42,10 @@ COMMANDS: dict[str, Command] = {
     "rh20t-convert": Command("pokeworld.real.rh20t", "ConvertConfig", "convert RH20T scenes to a store", "root"),
     "rh20t-synth": Command("pokeworld.real.synthetic", "SynthConfig",
                            "write a synthetic RH20T-layout corpus with known force (and its truth)", "root"),
+    "real": Command("pokeworld.real.experiment", "RealConfig", "real-robot experiments over converted RH20T stores",
+                    "out"),
+    "real-eval": Command("pokeworld.real.evaluate", "RealEvalConfig", "real-robot metrics of one trained run",
+                         "run_dir"),
 }
 
 #: What ``--preset`` costs, shown by ``pokeworld --help`` and each command's ``--help`` (timings:
@@ -138,7 +142,7 @@ def main(argv: list[str] | None = None) -> int:
         preset, rest = split_args(argv, cmd.positional, _flag_arity(cls))
         default = getattr(mod, cmd.make)(preset)
         # the costs are per trained model, so only the commands that train quote them
-        cost = PRESET_COSTS.get(preset) if cmd.config in ("TrainConfig", "MapConfig") else None
+        cost = PRESET_COSTS.get(preset) if cmd.config in ("TrainConfig", "MapConfig", "RealConfig") else None
         cfg = tyro.cli(cls, default=default, args=rest, prog=f"pokeworld {name}",
                        description=f"{cmd.help} (preset {preset!r}" + (f": {cost})" if cost else ")"))
         getattr(mod, cmd.runner)(cfg)

@@ -197,6 +197,43 @@ def store_is_current(path: str | os.PathLike, content_config: dict, overwrite: b
     raise ConfigError(f"{path} holds a store built with a different config; pass --overwrite or choose another --out")
 
 
+def concatenate(datasets: list[Dataset], names: list[str] | None = None) -> Dataset:
+    """One store from several with the same episode length, frame size and stream widths (e.g. two
+    RH20T configurations for a configuration-blind model).
+
+    Episodes keep their split. Labels and params present in every input (with equal trailing shapes)
+    are kept, the rest dropped; ``params/source`` records the input index of every episode (for
+    evaluation and bookkeeping only: the model never reads params). Streams are concatenated as stored,
+    so each input keeps its own normalisation (converted RH20T stores are whitened with their own
+    train statistics).
+    """
+    if len(datasets) < 2:
+        raise DataError("concatenate needs at least two datasets")
+    first = datasets[0]
+    for i, ds in enumerate(datasets[1:], 1):
+        for name in STREAMS:
+            a, b = getattr(first, name), getattr(ds, name)
+            if a.shape[1:] != b.shape[1:]:
+                raise DataError(f"cannot concatenate: {name} of dataset {i} is {b.shape[1:]} per episode, "
+                                f"dataset 0 has {a.shape[1:]} (same episode length, frame size and widths needed)")
+    common = lambda attr: [k for k in getattr(first, attr)  # noqa: E731
+                           if all(k in getattr(d, attr) and getattr(d, attr)[k].shape[1:] == getattr(first, attr)[k].shape[1:]
+                                  for d in datasets)]
+    cat = lambda arrs: np.concatenate(arrs, 0)  # noqa: E731
+    params = {k: cat([d.params[k] for d in datasets]) for k in common("params") if k != "source"}
+    params["source"] = cat([np.full(d.num_episodes, i, np.float32) for i, d in enumerate(datasets)])
+    manifest = {"kind": "concat", "sources": names or [str(i) for i in range(len(datasets))],
+                "source_manifests": [{k: d.manifest.get(k) for k in ("kind", "robot", "content_sha256", "hz")}
+                                     for d in datasets]}
+    hz = {d.manifest.get("hz") for d in datasets}
+    if len(hz) == 1:
+        manifest["hz"] = hz.pop()
+    return Dataset(frames=cat([d.frames for d in datasets]), proprio=cat([d.proprio for d in datasets]),
+                   touch=cat([d.touch for d in datasets]), actions=cat([d.actions for d in datasets]),
+                   labels={k: cat([d.labels[k] for d in datasets]) for k in common("labels")},
+                   params=params, split=cat([d.split for d in datasets]), manifest=manifest)
+
+
 def assign_splits(num_episodes: int, fractions: tuple[float, float, float], rng: np.random.Generator) -> np.ndarray:
     """Random disjoint train / probe-fit / probe-test assignment with the given fractions."""
     if len(fractions) != 3 or min(fractions) < 0 or abs(sum(fractions) - 1) > 1e-6:

@@ -70,3 +70,67 @@ CORPUS_STATS = {  # observables of the paper's default corpus (the calibration t
     "glide_median_gamma16": ((0.049, 0.054), "App. C, ledger / Dose–response 1: median-γ reference"),
     "glide_loss_share": (0.32, "App. C, Dose–response 1: glide loss share at weight 1"),
 }
+
+# ----------------------------------------------------------------------------- real robot (§5, App. C)
+# Pairs are (IID, OOD) = (probe episodes, held-out tasks); errors in cm; readouts R^2 (ridge).
+REAL_KUKA = {  # Table "kuka" (cfg7, far camera); "pred16" is the table's "16-step (cm)" column, which §5
+    # calls the rollout error ("cut rollout error up to 29%": 8.2 -> 5.8)
+    "V": {"force": (-0.05, -0.49), "position": (0.76, 0.48), "pred16": 8.2, "auc": (0.70, 0.54)},
+    "VX": {"force": (-0.02, -0.70), "position": (0.75, 0.50), "pred16": 5.8, "auc": (0.77, 0.69)},
+    "VX_t": {"force": (-0.04, -0.61), "position": (0.77, 0.46), "pred16": 6.2, "auc": (0.80, 0.72)},
+    "VFX": {"force": (0.87, 0.56), "position": (0.98, 0.98), "pred16": 1.5, "auc": (0.86, 0.70)},
+}
+REAL_KUKA_STATIC16 = 3.8  # App. C "static baseline 3.8 cm"
+
+REAL_VIEWPOINT = {  # Table "viewpoint": camera-only force (VX), best camera-only position, 16-step (cm)
+    "far": {"force": -0.02, "position": (0.76, 0.48), "pred16": 5.8},
+    "close": {"force": 0.10, "position": (0.48, 0.17), "pred16": None},
+    "two_view": {"force": 0.08, "position": (0.81, 0.60), "pred16": 5.0},
+}
+REAL_VIEWPOINT_VFX = {"position": 0.98, "force_range": (0.84, 0.90)}  # App. C text: VFX across viewpoints
+
+REAL_CFG1 = {  # Table "cfg1": arm -> scenes -> metrics ("pred16" = direct 16-step, Fig. "scissors" right)
+    "V": {800: {"force": (-0.07, -0.32), "position": (0.18, -0.06), "pred16": 11.7, "auc_ood": 0.75},
+          2000: {"force": (-0.05, -0.35), "position": (0.14, 0.04), "pred16": 12.5, "auc_ood": 0.70},
+          4258: {"force": (-0.06, -0.30), "position": (0.23, 0.02), "pred16": 12.0, "auc_ood": 0.62}},
+    "VX": {800: {"force": (-0.03, -0.31), "position": (0.33, 0.30), "pred16": 10.0, "auc_ood": 0.76},
+           2000: {"force": (-0.03, -0.26), "position": (0.30, 0.22), "pred16": 10.2, "auc_ood": 0.73},
+           4258: {"force": (-0.04, -0.27), "position": (0.34, 0.24), "pred16": 10.4, "auc_ood": 0.77}},
+    "VF": {800: {"force": (0.15, -0.16), "position": (0.95, 0.95), "pred16": 2.9, "auc_ood": 0.78},
+           2000: {"force": (0.15, -0.19), "position": (0.95, 0.96), "pred16": 2.8, "auc_ood": 0.74},
+           4258: {"force": (0.15, -0.06), "position": (0.96, 0.96), "pred16": 2.7, "auc_ood": 0.85}},
+    "VFX": {800: {"force": (0.90, 0.86), "position": (0.96, 0.96), "pred16": 2.2, "auc_ood": 0.88},
+            2000: {"force": (0.91, 0.85), "position": (0.96, 0.97), "pred16": 2.5, "auc_ood": 0.88},
+            4258: {"force": (0.92, 0.89), "position": (0.97, 0.97), "pred16": 2.3, "auc_ood": 0.89}},
+}
+REAL_CFG1_SCENES = 4258
+REAL_CFG1_STATIC16 = 3.3
+REAL_CFG1_NOTES = {"V_position_compute_control": 0.16, "V_rollout16_full": 15.7}  # App. C text
+
+REAL_CROSS = {  # Table "cross-embodiment": V and VFX, cfg7 vs cfg1 (full scale)
+    "V": {"cfg7": {"position": (0.76, 0.48), "auc_ood": 0.54, "pred16": 8.2, "static16": 3.8},
+          "cfg1": {"position": (0.23, 0.02), "auc_ood": 0.62, "pred16": 15.7, "static16": 3.3}},
+    "VFX": {"cfg7": {"position": (0.98, 0.98), "force_ood": 0.56, "auc_ood": 0.70, "pred16": 1.5, "static16": 3.8},
+            "cfg1": {"position": (0.97, 0.97), "force_ood": 0.89, "auc_ood": 0.89, "pred16": 2.2, "static16": 3.3}},
+}
+
+REAL_UNTRAINED = {  # Table "rand": 16-step errors in metres
+    "VFX": {"force": (0.94, 0.91), "position": (0.97, 0.98), "pred16_m": 23.0, "auc": (0.87, 0.88)},
+    "V": {"force": (-0.01, -0.16), "position": (0.21, 0.13), "pred16_m": 185.0, "auc": (0.72, 0.51)},
+}
+REAL_FORCE_RETENTION = {"VF": 0.15, "untrained_VFX": 0.91}  # §5: VF far below the untrained bound (OOD)
+
+REAL_FORECAST = {  # Table "futforce": Δ (steps) -> (IID, OOD)
+    "VFX": {1: (0.72, 0.68), 4: (0.47, 0.51)},
+    "VX": {1: (0.18, -0.07), 4: (0.15, -0.05)},
+    "persistence": {1: (0.65, 0.61), 4: (0.24, 0.31)},
+}
+REAL_FORECAST_SCALING = {  # App. C text: held-out Δ=4 forecast R^2 per scale, and model − persistence 95 % CIs
+    "VFX": {800: 0.39, 2000: 0.50, 4258: 0.51},
+    "VX": {800: -0.05, 2000: -0.11, 4258: -0.05},
+}
+REAL_FORECAST_CI = {"VFX": {800: (0.01, 0.17), 4258: (0.14, 0.28)}, "VX": {"every scale": (-0.55, -0.15)}}
+
+REAL_JOINT = {  # §5 "One model, two robots": configuration-blind VFX vs the specialists
+    "kuka_force_ood": {"specialist": 0.56, "joint": 0.89},
+}

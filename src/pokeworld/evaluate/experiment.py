@@ -324,31 +324,36 @@ def _jobs(c: MapConfig, specs: list[RunSpec], threads: int, deadline: float = 0.
     return jobs
 
 
-def launch(c: MapConfig, jobs: list[dict]) -> list[dict]:
-    """Execute jobs locally (process pool) or through submitit; returns their result dicts."""
+def launch(c: MapConfig, jobs: list[dict], fn: Callable[[dict], dict] | None = None) -> list[dict]:
+    """Execute jobs locally (process pool) or through submitit; returns their result dicts.
+
+    ``fn`` is the top-level, picklable job function (default :func:`execute`; ``pokeworld real``
+    passes its own). ``c`` needs ``launcher``, ``workers``, ``out`` and the ``slurm_*`` fields.
+    """
+    fn = execute if fn is None else fn
     if not jobs:
         return []
     if c.launcher == "local":
         workers = c.workers or _default_workers(len(jobs))
         if workers == 1:
-            return [execute(j) for j in jobs]
+            return [fn(j) for j in jobs]
         ctx = __import__("multiprocessing").get_context("spawn")
         with cf.ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
-            return list(pool.map(execute, jobs))
+            return list(pool.map(fn, jobs))
     import submitit
 
     folder = Path(c.out) / "submitit"
     if c.launcher == "slurm":
         ex = submitit.AutoExecutor(folder=folder, cluster="slurm")
         params: dict[str, Any] = {"timeout_min": c.slurm_timeout_min, "gpus_per_node": c.slurm_gpus,
-                                  "cpus_per_task": 8, "name": "pokeworld-map"}
+                                  "cpus_per_task": 8, "name": "pokeworld-map" if fn is execute else f"pokeworld-{fn.__name__}"}
         if c.slurm_partition:
             params["slurm_partition"] = c.slurm_partition
         ex.update_parameters(**params)
     else:
         ex = submitit.AutoExecutor(folder=folder, cluster="local")
         ex.update_parameters(timeout_min=c.slurm_timeout_min)
-    handles = ex.map_array(execute, jobs)
+    handles = ex.map_array(fn, jobs)
     print(f"[map] submitted {len(handles)} jobs to {c.launcher}: {[h.job_id for h in handles][:4]}...")
     return [h.result() for h in handles]
 

@@ -1,0 +1,82 @@
+"""Frozen-state extraction shared by every measurement (simulator ``measure``, ``protocol``, real data).
+
+Encoder latents per episode, and the predictor (trunk) state at the last observation of fixed-length
+windows, read leak-free by default: the action taken *after* the probed observation is replaced by the
+neutral (raw zero) action, because on both corpora that action carries information about the future
+(the scripted policy reads the privileged object state; RH20T actions are achieved TCP deltas).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from ..data import Dataset
+
+
+@torch.no_grad()
+def encode_episodes(model, ds: Dataset, episodes: np.ndarray, batch: int = 64) -> np.ndarray:
+    """Encoder latents for whole episodes: (E', T+1, D) float32 (token models: mean over tokens)."""
+    out = []
+    model.eval()
+    for i in range(0, len(episodes), batch):
+        e = episodes[i:i + batch]
+        z = model.encode(ds.frames[e], ds.proprio[e], ds.touch[e])
+        if z.dim() == 4:
+            z = z.mean(2)
+        out.append(z.float().cpu().numpy())
+    return np.concatenate(out)
+
+
+@torch.no_grad()
+def _trunk_at(model, z_win: np.ndarray, a_win: np.ndarray, index: int, batch: int = 512) -> np.ndarray:
+    out = []
+    for i in range(0, len(z_win), batch):
+        zt = torch.as_tensor(z_win[i:i + batch])
+        h = model.trunk(zt, a_win[i:i + batch])
+        out.append(h[:, index].float().cpu().numpy())
+    return np.concatenate(out)
+
+
+def padded_actions(ds: Dataset) -> np.ndarray:
+    """Actions aligned with observations: (E, T+1, Da), the last one zero."""
+    return np.concatenate([ds.actions, np.zeros_like(ds.actions[:, :1])], 1)
+
+
+class EpisodeLatents:
+    """Encoder latents of a set of episodes, indexable by global episode id."""
+
+    def __init__(self, model, ds: Dataset, episodes: np.ndarray, batch: int):
+        self.index = {int(e): i for i, e in enumerate(episodes)}
+        self.z = encode_episodes(model, ds, episodes, batch)
+
+    def gather(self, w) -> np.ndarray:
+        rows = np.array([self.index[int(e)] for e in w.episode])
+        t = w.start[:, None] + np.arange(w.length)[None, :]
+        return self.z[rows[:, None], t]
+
+
+def window_states(model, ds: Dataset, lat: EpisodeLatents, w, acts: np.ndarray,
+                  neutral_last_action: bool = True) -> np.ndarray:
+    """Predictor state at the last observation of every window: (W, width).
+
+    ``neutral_last_action`` replaces the action taken after that observation by raw zeros before the
+    trunk sees it: the policy chose that action from the privileged object state, so a state conditioned
+    on it can expose the object state without the model having inferred anything. Zeros are the padding
+    every training episode ends with, so the trunk has seen this input.
+    """
+    a = w.gather(acts)
+    if neutral_last_action:
+        a = neutral_last(a)
+    return _trunk_at(model, lat.gather(w), a, w.length - 1)
+
+
+def neutral_last(a_win: np.ndarray) -> np.ndarray:
+    """Window actions (W, L, Da) with the last one, taken after the probed observation, set to raw zeros.
+
+    The leak-free readout convention shared by :func:`window_states` and :mod:`pokeworld.protocol`;
+    a copy, so the dataset's actions are untouched.
+    """
+    a = np.array(a_win, copy=True)
+    a[:, -1] = 0.0
+    return a
