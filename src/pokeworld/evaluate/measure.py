@@ -14,7 +14,7 @@ held-out R^2 on probe-test episodes (paper §3 "Measurement", §4, App. C).
   last window step's action replaced by the neutral action (raw zeros, the padding
   every training episode ends with); the action-conditioned readout is kept as a
   labelled secondary (``probes_action_conditioned``, ridge only).
-* Prediction: from 8 context observations, the direct Δ=16 head, the
+* Prediction: from ``context`` (8) context observations, the direct Δ=16 head, the
   autoregressive composition of the Δ=1 head and a static latent, all decoded
   to arena units through a ridge position probe fit on encoder latents; the static
   baseline is decoded through the same probe (``static16``; ``static16_true`` is the
@@ -22,6 +22,11 @@ held-out R^2 on probe-test episodes (paper §3 "Measurement", §4, App. C).
 * Functional glide test: the model's own direct 16-step prediction on pure-glide
   windows against analytic references (true gamma, population-median gamma, static),
   every candidate carrying the same decoder residual so the comparison is in one space.
+* Belief objective (``objective='belief'``): the probed state is the causal one, the trunk state
+  conditioned on the prior's mean (what the heads predict with from the past alone; ``XJEPA.trunk``).
+  ``probes_belief`` adds ridge probes of the prior mean itself (causal) and of the posterior mean on
+  the probe window (a leaky diagnostic: it sees the window's future; it says whether the latent carries
+  a quantity at all, never what the model knows).
 * Untrained bound: the same ridge probes on a randomly initialised model that shares
   only the trained model's input-normalisation statistics.
 """
@@ -50,6 +55,9 @@ READOUT = {
               "(raw zero) action: leak-free, the primary readout",
     "probes_action_conditioned": "state conditioned on the real action after the last observation, which the "
                                  "scripted policy computed from the object state: an upper, leaky readout",
+    "probes_belief": "belief objective only, ridge: 'prior_mean' reads μ_p(h_t) at the window's last observation "
+                     "(causal, neutral last action); 'posterior_mean' reads μ_q of the whole probe window, which "
+                     "sees the future: a leaky diagnostic of what the latent carries, not of what the model knows",
 }
 CONTEXT, HORIZON = 8, 16
 
@@ -80,6 +88,8 @@ class MeasureConfig:
     """Episodes encoded per forward pass."""
     seed: int = 0
     """Seed for subsampling and MLP probes."""
+    context: int = CONTEXT
+    """Context observations before the 16-step predictions and the glide test (paper: 8)."""
     overwrite: bool = False
     """Recompute even if measure.json is up to date."""
 
@@ -87,6 +97,8 @@ class MeasureConfig:
         bad = (set(self.kinds) | set(self.action_conditioned_kinds)) - set(KINDS)
         if bad:
             raise ConfigError(f"unknown window kinds {sorted(bad)}; choose from {list(KINDS)}")
+        if self.context < 1 or self.window < 2:
+            raise ConfigError(f"context must be ≥ 1 and window ≥ 2, got context={self.context}, window={self.window}")
 
 
 PRESETS = {"tiny": {"max_windows": 400, "mlp": False}, "cpu": {}, "paper": {"max_windows": 100000}}
@@ -252,6 +264,29 @@ def probe_windows(ds: Dataset, states, kinds: tuple[str, ...], window: int, stri
     return out
 
 
+@torch.no_grad()
+def belief_states(model, lat: EpisodeLatents, w, acts: np.ndarray, which: str, batch: int = 512) -> np.ndarray:
+    """Belief readout per window: ``prior`` -> μ_p at the last observation (causal, neutral last action);
+    ``posterior`` -> μ_q of the whole window (sees its future). (W, K)."""
+    z, a = lat.gather(w), neutral_last(w.gather(acts))
+    out = []
+    for i in range(0, len(z), batch):
+        zt, at = torch.as_tensor(z[i:i + batch]), a[i:i + batch]
+        mu = model.prior(zt, at)[0][:, -1] if which == "prior" else model.posterior(zt, at)[0]
+        out.append(mu.float().cpu().numpy())
+    return np.concatenate(out)
+
+
+def probe_belief(model, ds: Dataset, cfg: MeasureConfig, latents) -> dict:
+    """Ridge probes of the belief objective's prior mean (causal) and posterior mean (leaky diagnostic)."""
+    acts = padded_actions(ds)
+    lat = dict(zip(("fit", "test"), latents))
+    return {f"{which}_mean": probe_windows(ds, lambda w, part, which=which: belief_states(model, lat[part], w, acts,
+                                                                                         which),
+                                           cfg.kinds, cfg.window, cfg.stride, cfg.max_windows, cfg.seed, mlp=False)
+            for which in ("prior", "posterior")}
+
+
 # --------------------------------------------------------------------------- prediction
 def _position_decoder(ds: Dataset, lat_fit: EpisodeLatents, fit_eps: np.ndarray, rng) -> RidgeCV:
     z = lat_fit.z.reshape(-1, lat_fit.z.shape[-1])
@@ -262,27 +297,29 @@ def _position_decoder(ds: Dataset, lat_fit: EpisodeLatents, fit_eps: np.ndarray,
 
 
 @torch.no_grad()
-def prediction_quality(model, ds: Dataset, lat_fit: EpisodeLatents, lat_test: EpisodeLatents, seed: int) -> dict:
+def prediction_quality(model, ds: Dataset, lat_fit: EpisodeLatents, lat_test: EpisodeLatents, seed: int,
+                       context: int = CONTEXT) -> dict:
     """Decoded 16-step errors (arena units) of direct, autoregressive and static predictions; glide test.
 
     Every prediction, the static baseline included, goes through the same position decoder, so all
     candidates carry its error; ``probe_error`` is that decoder's error on the true future latent (the
     floor no decoded prediction can beat on average). ``static16_true`` / ``static8_true`` are the
-    undecoded static errors in true position space, for reference only.
+    undecoded static errors in true position space, for reference only. ``context`` observations precede
+    each prediction (windows of ``context + 16``; an episode too short for one raises DataError).
     """
     if model.objective == "recon":
         return {"note": "reconstruction objective: latent heads receive no gradient"}
     rng = np.random.default_rng(seed)
     fit_eps, test_eps = ds.episodes("probe_fit"), ds.episodes("probe_test")
     dec = _position_decoder(ds, lat_fit, fit_eps, rng)
-    L = CONTEXT + HORIZON
+    L = context + HORIZON
     w = make_windows(ds, test_eps, L, 4)
     acts = w.gather(padded_actions(ds))
     z = lat_test.gather(w)
     pos = w.gather(ds.labels["object_pos"])
-    truth, truth8, ctx_pos = pos[:, -1], pos[:, CONTEXT + 7], pos[:, CONTEXT - 1]
+    truth, truth8, ctx_pos = pos[:, -1], pos[:, context + 7], pos[:, context - 1]
     err = lambda p, q: float(np.linalg.norm(p - q, axis=-1).mean())  # noqa: E731
-    static_decoded = dec.predict(z[:, CONTEXT - 1])
+    static_decoded = dec.predict(z[:, context - 1])
     truth_decoded = dec.predict(z[:, -1])
     out = {"windows": len(w),
            "static16": err(static_decoded, truth), "static16_true": err(ctx_pos, truth),
@@ -295,27 +332,27 @@ def prediction_quality(model, ds: Dataset, lat_fit: EpisodeLatents, lat_test: Ep
             zt = torch.as_tensor(z[i:i + 512])
             h = model.trunk(zt, acts[i:i + 512])
             zh = model.predict(h, acts[i:i + 512], HORIZON)
-            preds.append(zh[:, CONTEXT - 1].float().cpu().numpy())
+            preds.append(zh[:, context - 1].float().cpu().numpy())
         direct = dec.predict(np.concatenate(preds))
         out["direct16"] = err(direct, truth)
     if 1 in model.horizons and not model.tokens:
         rolls = []
         for i in range(0, len(w), 512):
-            r = model.rollout(torch.as_tensor(z[i:i + 512, :CONTEXT]), acts[i:i + 512], HORIZON)
+            r = model.rollout(torch.as_tensor(z[i:i + 512, :context]), acts[i:i + 512], HORIZON)
             rolls.append(r.float().cpu().numpy())
         roll = np.concatenate(rolls)
         out["rollout16"] = err(dec.predict(roll[:, -1]), truth)
         out["rollout8"] = err(dec.predict(roll[:, 7]), truth8)
     if direct is not None:
-        out["glide_test"] = glide_test(ds, w, direct, fit_eps, residual=truth_decoded - truth)
+        out["glide_test"] = glide_test(ds, w, direct, fit_eps, residual=truth_decoded - truth, context=context)
     return out
 
 
 def glide_test(ds: Dataset, w, predicted_pos: np.ndarray, fit_eps: np.ndarray,
-               residual: np.ndarray | None = None) -> dict:
+               residual: np.ndarray | None = None, context: int = CONTEXT) -> dict:
     """The model's direct 16-step positions on pure-glide futures against analytic references.
 
-    ``w`` are (CONTEXT + HORIZON)-observation windows; a window qualifies when the object glides freely
+    ``w`` are (context + HORIZON)-observation windows; a window qualifies when the object glides freely
     (no finger or wall contact, moving) from the last context observation to the end. ``residual`` is
     the position decoder's error on the true future latent, per window (None: predictions are in true
     position space already). See :func:`glide_comparison` for the keys.
@@ -323,16 +360,16 @@ def glide_test(ds: Dataset, w, predicted_pos: np.ndarray, fit_eps: np.ndarray,
     if "gamma" not in ds.params:
         return {"windows": 0, "note": "no gamma parameter in this dataset"}
     dt = ds.manifest.get("config", {}).get("physics", {}).get("dt", 0.05)
-    contact = w.gather(ds.labels["contact"])[:, CONTEXT - 1:] > 0
-    walls = w.gather(wall_contact(ds))[:, CONTEXT - 1:]
+    contact = w.gather(ds.labels["contact"])[:, context - 1:] > 0
+    walls = w.gather(wall_contact(ds))[:, context - 1:]
     vel = w.gather(ds.labels["object_vel"])
-    speed = np.linalg.norm(vel[:, CONTEXT - 1:], axis=-1)
+    speed = np.linalg.norm(vel[:, context - 1:], axis=-1)
     ok = ~contact.any(1) & ~walls.any(1) & (speed > 0.02).all(1)
     if ok.sum() < 5:
         return {"windows": int(ok.sum())}
     pos = w.gather(ds.labels["object_pos"])
     residual = np.zeros_like(predicted_pos) if residual is None else residual
-    res = glide_comparison(predicted_pos[ok], residual[ok], pos[ok, -1], pos[ok, CONTEXT - 1], vel[ok, CONTEXT - 1],
+    res = glide_comparison(predicted_pos[ok], residual[ok], pos[ok, -1], pos[ok, context - 1], vel[ok, context - 1],
                            ds.params["gamma"][w.episode[ok]], float(np.median(ds.params["gamma"][fit_eps])),
                            HORIZON * dt)
     return {"windows": int(ok.sum()), **res}
@@ -382,7 +419,9 @@ def measure(model, ds: Dataset, cfg: MeasureConfig, untrained_model=None) -> dic
     if cfg.action_conditioned_kinds:
         res["probes_action_conditioned"], _ = probe_model(model, ds, cfg, mlp=False, kinds=cfg.action_conditioned_kinds,
                                                           neutral_last_action=False, latents=latents)
-    res["prediction"] = prediction_quality(model, ds, *latents, cfg.seed)
+    if getattr(model, "belief", None) is not None:
+        res["probes_belief"] = probe_belief(model, ds, cfg, latents)
+    res["prediction"] = prediction_quality(model, ds, *latents, cfg.seed, cfg.context)
     if untrained_model is not None:
         up, _ = probe_model(untrained_model, ds, cfg, mlp=False)
         res["untrained"] = up
@@ -427,7 +466,10 @@ def run(cfg: MeasureConfig) -> Path:
     data = cfg.data or run_cfg["data"]
     out = run_dir / ("measure.json" if not cfg.data else f"measure-{Path(cfg.data).name}.json")
     ds = load(data)
-    key = {"config": to_dict(cfg), "data_sha256": ds.manifest.get("content_sha256"),
+    cfg_key = to_dict(cfg)
+    if cfg.context == CONTEXT:  # added later: left out at its default so earlier measurements stay up to date
+        del cfg_key["context"]
+    key = {"config": cfg_key, "data_sha256": ds.manifest.get("content_sha256"),
            "final_mtime": (run_dir / "DONE").stat().st_mtime_ns}
     if out.exists() and not cfg.overwrite:
         prev = json.loads(out.read_text())
