@@ -1,4 +1,4 @@
-"""Losses for X-JEPA: SIGReg (Epps–Pulley on random projections), Gaussian NLL, masked MSE.
+"""Losses for X-JEPA: SIGReg (Epps–Pulley on random projections), Gaussian NLL, masked MSE, Gaussian KL.
 
 SIGReg ("Sketched Isotropic Gaussian Regularization", LeJEPA / LeWM) pushes the
 distribution of embeddings towards an isotropic standard Gaussian. It projects
@@ -190,6 +190,19 @@ def gaussian_nll(mean: torch.Tensor, logvar: torch.Tensor, target: torch.Tensor,
     return (nll * weight).sum() / weight.sum().clamp_min(1e-8)
 
 
+def gaussian_kl(mu_q: torch.Tensor, logvar_q: torch.Tensor, mu_p: torch.Tensor, logvar_p: torch.Tensor,
+                min_logvar: float = -8.0, max_logvar: float = 8.0) -> torch.Tensor:
+    """KL(q || p) of diagonal Gaussians, summed over the last dim (nats); log-variances clamped.
+
+    ``0.5 · Σ_d [s_p − s_q + (e^{s_q} + (μ_q − μ_p)²) e^{−s_p} − 1]`` with s = log σ². Shapes broadcast;
+    returns the broadcast shape without the last dim (the caller chooses how to average it).
+    """
+    sq = logvar_q.float().clamp(min_logvar, max_logvar)
+    sp = logvar_p.float().clamp(min_logvar, max_logvar)
+    d2 = (mu_q.float() - mu_p.float()).pow(2)
+    return 0.5 * (sp - sq + (sq.exp() + d2) * torch.exp(-sp) - 1.0).sum(-1)
+
+
 def glide_weights(glide: torch.Tensor, weight: float) -> torch.Tensor:
     """Per-frame prediction-loss weights: ``weight`` on glide frames (``glide`` True), 1 elsewhere."""
     return 1.0 + (float(weight) - 1.0) * glide.float()
@@ -226,5 +239,5 @@ def expected_null_ep(num_knots: int = 17, t_max: float = 3.0) -> float:
     return float(((1 - phi ** 2) * w).sum())
 
 
-__all__ = ["sigreg", "epps_pulley", "random_directions", "ep_knots", "masked_mse", "gaussian_nll",
+__all__ = ["sigreg", "epps_pulley", "random_directions", "ep_knots", "masked_mse", "gaussian_nll", "gaussian_kl",
            "glide_weights", "glide_loss_share", "expected_null_ep"]

@@ -69,8 +69,15 @@ class TrainConfig:
     horizons: tuple[int, ...] = (1, 4, 16)
     """Direct prediction horizons Δ; (1,) is the single-horizon mode."""
     objective: str = "latent"
-    """'latent' (MSE to latent targets), 'gnll' (latent heads also predict a log-variance) or 'recon'
-    (pixel-reconstruction control: shared deconv decoder replaces latent targets, SIGReg omitted)."""
+    """'latent' (MSE to latent targets), 'gnll' (latent heads also predict a log-variance), 'recon'
+    (pixel-reconstruction control: shared deconv decoder replaces latent targets, SIGReg omitted) or 'belief'
+    (episode-level latent: amortised posterior over the window, learned causal prior, KL term; an ELBO whose
+    optimum is not a conditional mean of the future, docs/model.md "belief")."""
+    belief_dim: int = 8
+    """objective='belief': dimension K of the episode-level latent u."""
+    belief_kl_weight: float = 0.01
+    """objective='belief': weight β of the mean-over-steps KL(q(u | window) ‖ p(u | h_t)) against the per-dim
+    MSE prediction terms (β = 2σ²/D for a Gaussian likelihood of variance σ² on D latent dims)."""
     tokens: bool = False
     """Token-based control: spatial tokens from the last CNN map, dense aligned Δ=1 token prediction,
     token-level SIGReg on subsampled rows. Forces horizons=(1,) for the latent target."""
@@ -203,6 +210,8 @@ def validate(cfg: TrainConfig) -> None:
         raise ConfigError(f"window {cfg.window} must exceed the largest horizon {max(hs)}")
     if cfg.tokens and cfg.objective != "latent":
         raise ConfigError("tokens=True supports objective='latent' only")
+    if cfg.objective == "belief" and cfg.belief_dim < 1:
+        raise ConfigError(f"belief_dim must be ≥ 1, got {cfg.belief_dim}")
     if cfg.image_size % 16 or cfg.image_size < 16:
         raise ConfigError(f"image_size must be a multiple of 16 (4 stride-2 stages), got {cfg.image_size}")
     if len(cfg.channels) != 4:
@@ -210,7 +219,7 @@ def validate(cfg: TrainConfig) -> None:
     for name in ("steps", "batch_size", "log_every", "ckpt_every"):
         if getattr(cfg, name) < 1:
             raise ConfigError(f"{name} must be ≥ 1, got {getattr(cfg, name)}")
-    if cfg.glide_loss_weight < 0 or cfg.sysid_weight < 0 or cfg.sigreg_weight < 0:
+    if min(cfg.glide_loss_weight, cfg.sysid_weight, cfg.sigreg_weight, cfg.belief_kl_weight) < 0:
         raise ConfigError("weights must be non-negative")
     if not math.isfinite(cfg.glide_loss_weight):
         raise ConfigError(f"glide_loss_weight must be finite, got {cfg.glide_loss_weight}")
@@ -264,7 +273,7 @@ def loss_kwargs(cfg: TrainConfig) -> dict[str, Any]:
     return dict(sigreg_weight=cfg.sigreg_weight, sigreg_dirs=cfg.sigreg_dirs, sigreg_knots=cfg.sigreg_knots,
                 token_rows=cfg.token_rows, token_dirs=cfg.token_dirs, touch_contact_weight=cfg.touch_contact_weight,
                 proprio_weight=cfg.proprio_weight, touch_weight=cfg.touch_weight, sysid_weight=cfg.sysid_weight,
-                glide_loss_weight=cfg.glide_loss_weight)
+                glide_loss_weight=cfg.glide_loss_weight, belief_kl_weight=cfg.belief_kl_weight)
 
 
 # ---------------------------------------------------------------------- data in memory
@@ -427,7 +436,7 @@ def model_kwargs(cfg: TrainConfig, dims: tuple[int, int, int]) -> dict[str, Any]
                 depth=cfg.depth, heads=cfg.heads, dropout=cfg.dropout,
                 horizons=(1,) if cfg.tokens else tuple(cfg.horizons), objective=cfg.objective, tokens=cfg.tokens,
                 sysid=cfg.sysid_weight > 0, max_len=max(128, cfg.window), vec_dim=cfg.vec_dim,
-                contact_channel=cfg.contact_channel, pool=cfg.pool)
+                contact_channel=cfg.contact_channel, pool=cfg.pool, belief_dim=cfg.belief_dim)
 
 
 def lr_lambda(step: int, warmup: int, total: int) -> float:

@@ -159,17 +159,20 @@ class RunSpec:
     train: dict = field(default_factory=dict)
     """TrainConfig overrides (variant, horizons, sigreg_weight, ...)."""
     seed: int = 0
+    measure: dict = field(default_factory=dict)
+    """MeasureConfig overrides (probe window, stride, prediction context); empty for the paper's protocol."""
 
 
 def _h(horizons) -> str:
     return "h" + "-".join(map(str, horizons))
 
 
-def _spec(exp, variant, seed, lam, horizons=(1, 4, 16), corpus="standard", measure_corpus="standard", **extra):
+def _spec(exp, variant, seed, lam, horizons=(1, 4, 16), corpus="standard", measure_corpus="standard",
+          measure: dict | None = None, **extra):
     tag = "".join(f"-{k}{v}" for k, v in sorted(extra.items()))
     name = f"{variant}-{_h(horizons)}-lam{lam:g}-{corpus}{tag}-s{seed}"
     train = dict(variant=variant, horizons=tuple(horizons), sigreg_weight=lam, seed=seed, **extra)
-    return RunSpec(name, exp, corpus, measure_corpus, train, seed)
+    return RunSpec(name, exp, corpus, measure_corpus, train, seed, dict(measure or {}))
 
 
 def exp_factorial(c: MapConfig) -> list[RunSpec]:
@@ -203,6 +206,23 @@ def exp_controls(c: MapConfig) -> list[RunSpec]:
             _spec("controls", "VFX", s, lam, tokens=True)]
 
 
+#: Whole-episode training window (64 control steps -> 65 observations) of the belief experiment's
+#: long-history runs, and how they are measured: every probe / prediction window is an episode prefix
+#: (stride past the episode end), the only windows whole-episode training ever shows the model, with 48
+#: observations of history at the probed state and before the 16-step predictions.
+LONG_WINDOW = 65
+LONG_MEASURE = {"window": 48, "stride": 64, "context": 48}
+
+
+def exp_belief(c: MapConfig) -> list[RunSpec]:
+    """Objective × history length on the VFX trunk: latent (the factorial's VFX run) and belief objectives,
+    each on the standard windows and on whole episodes (docs/model.md "belief")."""
+    s, lam = c.seeds[0], c.sigreg_weight
+    return [_spec("belief", "VFX", s, lam), _spec("belief", "VFX", s, lam, objective="belief"),
+            _spec("belief", "VFX", s, lam, measure=LONG_MEASURE, window=LONG_WINDOW),
+            _spec("belief", "VFX", s, lam, measure=LONG_MEASURE, objective="belief", window=LONG_WINDOW)]
+
+
 def exp_dose_touch(c: MapConfig) -> list[RunSpec]:
     return [_spec("dose_touch", "VFX", c.seeds[0], c.sigreg_weight, touch_contact_weight=w) for w in (4.0, 1.0, 0.25, 0.0)]
 
@@ -233,7 +253,7 @@ def exp_attributes(c: MapConfig) -> list[RunSpec]:
 EXPERIMENTS: dict[str, Callable[[MapConfig], list[RunSpec]]] = {
     "factorial": exp_factorial, "lazy": exp_lazy, "lambda": exp_lambda, "coverage": exp_coverage,
     "frame_averaged": exp_frame_averaged, "controls": exp_controls, "dose_touch": exp_dose_touch,
-    "dose_glide": exp_dose_glide, "attributes": exp_attributes,
+    "dose_glide": exp_dose_glide, "attributes": exp_attributes, "belief": exp_belief,
 }
 CORPUS_TARGETS = {"bias0.5": ("bias_x", "bias_y"), "bias1.5": ("bias_x", "bias_y"), "bias2.5": ("bias_x", "bias_y"),
                   "gain": ("gain",)}
@@ -304,7 +324,7 @@ def execute(job: dict) -> dict:
     if not (run_dir / "DONE").exists() or _past(deadline):
         return {"name": job["name"], "status": "partial"}
     mcfg = measure.make_config(job["preset"], run_dir=job["train"]["out"], data=job["measure_data"],
-                               mlp=job["mlp"], untrained=job["untrained"])
+                               mlp=job["mlp"], untrained=job["untrained"], **job.get("measure", {}))
     path = measure.run(mcfg)
     return {"name": job["name"], "status": "finished", "measure": str(path)}
 
@@ -320,7 +340,8 @@ def _jobs(c: MapConfig, specs: list[RunSpec], threads: int, deadline: float = 0.
             tr["threads"] = threads
         measure_data = str(corpus_dir(c, s.measure_corpus)) if s.measure_corpus != s.corpus else ""
         jobs.append({"name": s.name, "preset": c.preset, "train": tr, "measure_data": measure_data,
-                     "mlp": c.mlp_probes, "untrained": c.untrained, "threads": threads, "deadline": deadline})
+                     "mlp": c.mlp_probes, "untrained": c.untrained, "threads": threads, "deadline": deadline,
+                     "measure": dict(s.measure)})
     return jobs
 
 

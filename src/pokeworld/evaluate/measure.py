@@ -14,7 +14,7 @@ held-out R^2 on probe-test episodes (paper §3 "Measurement", §4, App. C).
   last window step's action replaced by the neutral action (raw zeros, the padding
   every training episode ends with); the action-conditioned readout is kept as a
   labelled secondary (``probes_action_conditioned``, ridge only).
-* Prediction: from 8 context observations, the direct Δ=16 head, the
+* Prediction: from ``context`` (8) context observations, the direct Δ=16 head, the
   autoregressive composition of the Δ=1 head and a static latent, all decoded
   to arena units through a ridge position probe fit on encoder latents; the static
   baseline is decoded through the same probe (``static16``; ``static16_true`` is the
@@ -22,6 +22,11 @@ held-out R^2 on probe-test episodes (paper §3 "Measurement", §4, App. C).
 * Functional glide test: the model's own direct 16-step prediction on pure-glide
   windows against analytic references (true gamma, population-median gamma, static),
   every candidate carrying the same decoder residual so the comparison is in one space.
+* Belief objective (``objective='belief'``): the probed state is the causal one, the trunk state
+  conditioned on the prior's mean (what the heads predict with from the past alone; ``XJEPA.trunk``).
+  ``probes_belief`` adds ridge probes of the prior mean itself (causal) and of the posterior mean on
+  the probe window (a leaky diagnostic: it sees the window's future; it says whether the latent carries
+  a quantity at all, never what the model knows).
 * Untrained bound: the same ridge probes on a randomly initialised model that shares
   only the trained model's input-normalisation statistics.
 
@@ -56,6 +61,9 @@ READOUT = {
               "(raw zero) action: leak-free, the primary readout",
     "probes_action_conditioned": "state conditioned on the real action after the last observation, which the "
                                  "scripted policy computed from the object state: an upper, leaky readout",
+    "probes_belief": "belief objective only, ridge: 'prior_mean' reads μ_p(h_t) at the window's last observation "
+                     "(causal, neutral last action); 'posterior_mean' reads μ_q of the whole probe window, which "
+                     "sees the future: a leaky diagnostic of what the latent carries, not of what the model knows",
 }
 CONTEXT, HORIZON = 8, 16
 
@@ -86,6 +94,8 @@ class MeasureConfig:
     """Episodes encoded per forward pass."""
     seed: int = 0
     """Seed for subsampling and MLP probes."""
+    context: int = CONTEXT
+    """Context observations before the 16-step predictions and the glide test (paper: 8)."""
     overwrite: bool = False
     """Recompute even if measure.json is up to date."""
 
@@ -93,9 +103,36 @@ class MeasureConfig:
         bad = (set(self.kinds) | set(self.action_conditioned_kinds)) - set(KINDS)
         if bad:
             raise ConfigError(f"unknown window kinds {sorted(bad)}; choose from {list(KINDS)}")
+        if self.context < 1 or self.window < 2:
+            raise ConfigError(f"context must be ≥ 1 and window ≥ 2, got context={self.context}, window={self.window}")
 
 
 PRESETS = {"tiny": {"max_windows": 400, "mlp": False}, "cpu": {}, "paper": {"max_windows": 100000}}
+
+
+# --------------------------------------------------------------------------- belief objective
+@torch.no_grad()
+def belief_states(model, lat: EpisodeLatents, w, acts: np.ndarray, which: str, batch: int = 512) -> np.ndarray:
+    """Belief readout per window: ``prior`` -> μ_p at the last observation (causal, neutral last action);
+    ``posterior`` -> μ_q of the whole window (sees its future). (W, K)."""
+    z, a = lat.gather(w), neutral_last(w.gather(acts))
+    out = []
+    for i in range(0, len(z), batch):
+        zt, at = torch.as_tensor(z[i:i + batch]), a[i:i + batch]
+        mu = model.prior(zt, at)[0][:, -1] if which == "prior" else model.posterior(zt, at)[0]
+        out.append(mu.float().cpu().numpy())
+    return np.concatenate(out)
+
+
+def probe_belief(model, ds: Dataset, cfg: MeasureConfig, latents) -> dict:
+    """Ridge probes of the belief objective's prior mean (causal) and posterior mean (leaky diagnostic)."""
+    acts = padded_actions(ds)
+    lat = dict(zip(("fit", "test"), latents))
+    return {f"{which}_mean": probe_windows(ds, lambda w, part, which=which: belief_states(model, lat[part], w, acts,
+                                                                                         which),
+                                           cfg.kinds, cfg.window, cfg.stride, cfg.max_windows, cfg.seed, mlp=False)
+            for which in ("prior", "posterior")}
+
 
 
 def make_config(preset: str = "cpu", **overrides) -> MeasureConfig:
@@ -111,7 +148,9 @@ def measure(model, ds: Dataset, cfg: MeasureConfig, untrained_model=None) -> dic
     if cfg.action_conditioned_kinds:
         res["probes_action_conditioned"], _ = probe_model(model, ds, cfg, mlp=False, kinds=cfg.action_conditioned_kinds,
                                                           neutral_last_action=False, latents=latents)
-    res["prediction"] = prediction_quality(model, ds, *latents, cfg.seed)
+    if getattr(model, "belief", None) is not None:
+        res["probes_belief"] = probe_belief(model, ds, cfg, latents)
+    res["prediction"] = prediction_quality(model, ds, *latents, cfg.seed, context=cfg.context)
     if untrained_model is not None:
         up, _ = probe_model(untrained_model, ds, cfg, mlp=False)
         res["untrained"] = up
@@ -156,7 +195,10 @@ def run(cfg: MeasureConfig) -> Path:
     data = cfg.data or run_cfg["data"]
     out = run_dir / ("measure.json" if not cfg.data else f"measure-{Path(cfg.data).name}.json")
     ds = load(data)
-    key = {"config": to_dict(cfg), "data_sha256": ds.manifest.get("content_sha256"),
+    cfg_key = to_dict(cfg)
+    if cfg.context == CONTEXT:  # added later: left out at its default so earlier measurements stay up to date
+        del cfg_key["context"]
+    key = {"config": cfg_key, "data_sha256": ds.manifest.get("content_sha256"),
            "final_mtime": (run_dir / "DONE").stat().st_mtime_ns}
     if out.exists() and not cfg.overwrite:
         prev = json.loads(out.read_text())

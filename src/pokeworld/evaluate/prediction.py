@@ -82,15 +82,15 @@ def prediction_quality(model, ds: Dataset, lat_fit: EpisodeLatents, lat_test: Ep
         out[f"rollout{H}"] = err(dec.predict(roll[:, -1]), truth)
         out[f"rollout{half}"] = err(dec.predict(roll[:, half - 1]), truth_half)
     if glide and direct is not None:
-        out["glide_test"] = glide_test(ds, w, direct, fit_eps, residual=truth_decoded - truth)
+        out["glide_test"] = glide_test(ds, w, direct, fit_eps, residual=truth_decoded - truth, context=context)
     return out
 
 
 def glide_test(ds: Dataset, w, predicted_pos: np.ndarray, fit_eps: np.ndarray,
-               residual: np.ndarray | None = None) -> dict:
+               residual: np.ndarray | None = None, context: int = CONTEXT) -> dict:
     """The model's direct 16-step positions on pure-glide futures against analytic references.
 
-    ``w`` are (CONTEXT + HORIZON)-observation windows; a window qualifies when the object glides freely
+    ``w`` are (context + HORIZON)-observation windows; a window qualifies when the object glides freely
     (no finger or wall contact, moving) from the last context observation to the end. ``residual`` is
     the position decoder's error on the true future latent, per window (None: predictions are in true
     position space already). See :func:`glide_comparison` for the keys.
@@ -98,16 +98,16 @@ def glide_test(ds: Dataset, w, predicted_pos: np.ndarray, fit_eps: np.ndarray,
     if "gamma" not in ds.params:
         return {"windows": 0, "note": "no gamma parameter in this dataset"}
     dt = ds.manifest.get("config", {}).get("physics", {}).get("dt", 0.05)
-    contact = w.gather(ds.labels["contact"])[:, CONTEXT - 1:] > 0
-    walls = w.gather(wall_contact(ds))[:, CONTEXT - 1:]
+    contact = w.gather(ds.labels["contact"])[:, context - 1:] > 0
+    walls = w.gather(wall_contact(ds))[:, context - 1:]
     vel = w.gather(ds.labels["object_vel"])
-    speed = np.linalg.norm(vel[:, CONTEXT - 1:], axis=-1)
+    speed = np.linalg.norm(vel[:, context - 1:], axis=-1)
     ok = ~contact.any(1) & ~walls.any(1) & (speed > 0.02).all(1)
     if ok.sum() < 5:
         return {"windows": int(ok.sum())}
     pos = w.gather(ds.labels["object_pos"])
     residual = np.zeros_like(predicted_pos) if residual is None else residual
-    res = glide_comparison(predicted_pos[ok], residual[ok], pos[ok, -1], pos[ok, CONTEXT - 1], vel[ok, CONTEXT - 1],
+    res = glide_comparison(predicted_pos[ok], residual[ok], pos[ok, -1], pos[ok, context - 1], vel[ok, context - 1],
                            ds.params["gamma"][w.episode[ok]], float(np.median(ds.params["gamma"][fit_eps])),
                            HORIZON * dt)
     return {"windows": int(ok.sum()), **res}

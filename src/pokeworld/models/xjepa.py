@@ -11,7 +11,9 @@ dataset arrays.
 Variants (inputs × targets, paper Table "targets"); see :data:`VARIANTS`.
 Objectives: ``latent`` (MSE to jointly learned encoder targets, no stop-gradient),
 ``gnll`` (latent heads also output a log-variance; Gaussian NLL), ``recon`` (a shared
-deconvolutional decoder reconstructs future frames instead of latent targets; SIGReg off).
+deconvolutional decoder reconstructs future frames instead of latent targets; SIGReg off),
+``belief`` (an episode-level latent u: amortised posterior q(u | whole window), learned causal prior
+p(u | trunk state h_t), every head reads h_t + W·u; MSE + β·KL(q ‖ p_t), an ELBO; docs/model.md "belief").
 Controls: ``sysid`` head (trunk -> whitened (log m, γ, log k)), ``tokens`` (spatial tokens,
 dense aligned Δ=1 token prediction, token-level SIGReg subsampling).
 """
@@ -26,7 +28,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from ..errors import ConfigError
-from ..losses import gaussian_nll, glide_loss_share, glide_weights, masked_mse, sigreg
+from ..losses import gaussian_kl, gaussian_nll, glide_loss_share, glide_weights, masked_mse, sigreg
 from .encoders import FusedEncoder
 from .predictor import CausalPredictor
 
@@ -39,7 +41,7 @@ VARIANTS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "VX": (("vision",), ("latent", "proprio", "touch")),
     "VFX": (("vision", "proprio", "touch"), ("latent", "proprio", "touch")),
 }
-OBJECTIVES = ("latent", "gnll", "recon")
+OBJECTIVES = ("latent", "gnll", "recon", "belief")
 SYSID_PARAMS = ("log_m", "gamma", "log_k")
 
 
@@ -95,6 +97,35 @@ class Decoder(nn.Module):
         return torch.sigmoid(self.net(v.reshape(-1, self.c0, self.s0, self.s0)))
 
 
+class BeliefModule(nn.Module):
+    """Episode-level latent u ∈ R^K for the ``belief`` objective: posterior, causal prior, conditioning.
+
+    * posterior q(u | window): a set encoder over the window's transitions (z_t, z_{t+1}, a_t), mean-pooled
+      over t, then Linear -> (μ_q, log σ²_q). A permutation-invariant summary of transitions can hold what
+      is constant over the window (an episode parameter is) far more easily than time-specific events;
+    * prior p(u | h_t): MLP on each causal trunk state -> (μ_p, log σ²_p) per step t;
+    * conditioning: ``h + Linear(u)``, so every head keeps its input width and form.
+    """
+
+    def __init__(self, latent_dim: int, action_dim: int, width: int, belief_dim: int):
+        super().__init__()
+        self.dim = belief_dim
+        self.transition = nn.Sequential(nn.Linear(2 * latent_dim + action_dim, width), nn.GELU(),
+                                        nn.Linear(width, width), nn.GELU())
+        self.post_out = nn.Linear(width, 2 * belief_dim)
+        self.prior = nn.Sequential(nn.Linear(width, width), nn.GELU(), nn.Linear(width, 2 * belief_dim))
+        self.inp = nn.Linear(belief_dim, width)
+
+    def posterior(self, z: torch.Tensor, a: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """z (B, L, D), normalised actions a (B, L, Da) -> μ_q, log σ²_q (B, K) from the L−1 transitions."""
+        x = torch.cat([z[:, :-1], z[:, 1:], a[:, :-1]], -1)
+        return self.post_out(self.transition(x).mean(1)).chunk(2, -1)
+
+    def prior_of(self, h: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(B, L, width) causal states -> μ_p, log σ²_p (B, L, K)."""
+        return self.prior(h).chunk(2, -1)
+
+
 class XJEPA(nn.Module):
     """The X-JEPA model. Construct with :meth:`__init__` kwargs (stored in ``self.config`` for checkpoints).
 
@@ -108,7 +139,7 @@ class XJEPA(nn.Module):
                  width: int = 192, depth: int = 4, heads: int = 8, dropout: float = 0.1,
                  horizons: tuple[int, ...] = (1, 4, 16), objective: str = "latent", tokens: bool = False,
                  sysid: bool = False, max_len: int = 128, vec_dim: int = 64, contact_channel: int = 6,
-                 recon_positions: int = 8, pool: bool = False):
+                 recon_positions: int = 8, pool: bool = False, belief_dim: int = 8):
         super().__init__()
         check_variant(variant)
         if objective not in OBJECTIVES:
@@ -118,12 +149,14 @@ class XJEPA(nn.Module):
             raise ConfigError(f"horizons must be positive integers, got {horizons}")
         if tokens and objective != "latent":
             raise ConfigError("the token variant supports objective='latent' only")
+        if objective == "belief" and belief_dim < 1:
+            raise ConfigError(f"belief_dim must be ≥ 1 for objective='belief', got {belief_dim}")
         self.config: dict[str, Any] = dict(
             variant=variant, proprio_dim=proprio_dim, touch_dim=touch_dim, action_dim=action_dim,
             image_size=image_size, channels=tuple(channels), latent_dim=latent_dim, width=width, depth=depth,
             heads=heads, dropout=dropout, horizons=horizons, objective=objective, tokens=tokens, sysid=sysid,
             max_len=max_len, vec_dim=vec_dim, contact_channel=contact_channel, recon_positions=recon_positions,
-            pool=pool)
+            pool=pool, belief_dim=belief_dim)
         self.variant, self.horizons, self.latent_dim, self.width = variant, horizons, latent_dim, width
         self.inputs, self.targets = VARIANTS[variant]
         self.objective, self.tokens, self.image_size = objective, tokens, image_size
@@ -146,6 +179,7 @@ class XJEPA(nn.Module):
                     {str(d): DeltaHead(width, d * action_dim, self.dims[m]) for d in horizons})
         self.sysid_head = (nn.Sequential(nn.Linear(width, width), nn.GELU(), nn.Linear(width, len(SYSID_PARAMS)))
                            if sysid else None)
+        self.belief = (BeliefModule(latent_dim, action_dim, width, belief_dim) if objective == "belief" else None)
         if objective == "recon":
             self.decoder = Decoder(tuple(channels), image_size)
             self.adapters = nn.ModuleDict({str(d): nn.Linear(width + (d * action_dim if d > 1 else 0),
@@ -217,7 +251,7 @@ class XJEPA(nn.Module):
         return self.predictor(z, self.norm("action", actions))
 
     def trunk(self, z: torch.Tensor, actions) -> torch.Tensor:
-        """Causal predictor states.
+        """Causal predictor states: the state every head reads when only the past is known.
 
         Args:
             z: (B, L, latent_dim) from :meth:`encode` (token mode: (B, L, S, latent_dim)).
@@ -225,9 +259,38 @@ class XJEPA(nn.Module):
                 (pad the last one with zeros when it is unknown). State t depends on z[:, :t+1] and
                 actions[:, :t+1] only.
         Returns:
-            h: (B, L, width) (token mode: mean over the S token states).
+            h: (B, L, width) (token mode: mean over the S token states). For ``objective='belief'`` the
+            transformer state conditioned on the causal prior's mean, h_t + W·μ_p(h_t) (still causal;
+            :meth:`trunk_raw` gives the unconditioned state).
         """
+        h = self.trunk_raw(z, actions)
+        if self.belief is not None:
+            h = self.condition(h, self.belief.prior_of(h)[0])
+        return h
+
+    def trunk_raw(self, z: torch.Tensor, actions) -> torch.Tensor:
+        """Transformer states (B, L, width) before any belief conditioning (equal to :meth:`trunk` otherwise)."""
         return self.trunk_tokens(z, actions).mean(2)
+
+    def _need_belief(self) -> "BeliefModule":
+        if self.belief is None:
+            raise ValueError(f"objective {self.objective!r} has no episode-level latent (objective='belief' has)")
+        return self.belief
+
+    def condition(self, h: torch.Tensor, u: torch.Tensor) -> torch.Tensor:
+        """Heads' input given belief sample / mean u: (B, L, width) + (B, K) or (B, L, K) -> (B, L, width)."""
+        if u.dim() == h.dim() - 1:
+            u = u[:, None]
+        return h + self._need_belief().inp(u)
+
+    def prior(self, z: torch.Tensor, actions) -> tuple[torch.Tensor, torch.Tensor]:
+        """Causal prior p(u | history ≤ t): μ_p, log σ²_p (B, L, K) from latents (B, L, D) and raw actions."""
+        return self._need_belief().prior_of(self.trunk_raw(z, actions))
+
+    def posterior(self, z: torch.Tensor, actions) -> tuple[torch.Tensor, torch.Tensor]:
+        """Amortised posterior q(u | whole window): μ_q, log σ²_q (B, K). Sees the window's future, so it is
+        a training device and a leaky diagnostic, never the probed state."""
+        return self._need_belief().posterior(z, self.norm("action", actions))
 
     def action_window(self, actions, delta: int) -> torch.Tensor:
         """(B, L, Da) raw -> (B, L, delta·Da): normalised actions[t:t+delta] flattened, zero past the end."""
@@ -333,7 +396,7 @@ class XJEPA(nn.Module):
     def loss(self, batch: dict[str, torch.Tensor], *, sigreg_weight: float = 0.02, sigreg_dirs: int = 1024,
              sigreg_seed: int = 0, sigreg_knots: int = 17, token_rows: int = 4096, token_dirs: int = 256,
              touch_contact_weight: float = 4.0, proprio_weight: float = 1.0, touch_weight: float = 1.0,
-             sysid_weight: float = 0.5, glide_loss_weight: float = 1.0,
+             sysid_weight: float = 0.5, glide_loss_weight: float = 1.0, belief_kl_weight: float = 0.01,
              sigreg_directions: torch.Tensor | None = None) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """Training loss on a batch of windows.
 
@@ -348,6 +411,8 @@ class XJEPA(nn.Module):
             sigreg_directions: optional (latent_dim, K) SIGReg directions replacing the ones drawn from
                 ``sigreg_seed`` (K = ``sigreg_dirs``, or ``token_dirs`` in token mode); the trainer draws the
                 same ones on the host and uploads them without a sync.
+            belief_kl_weight: β of the ``belief`` objective: the loss adds β · mean_t KL(q(u | window) ‖
+                p(u | h_t)), reported as ``kl`` (and ``kl_last``, the KL at the window's last step).
         Returns:
             (total loss, {term name: detached scalar}).
         """
@@ -358,6 +423,16 @@ class XJEPA(nn.Module):
         h = hs.mean(2)
         terms: dict[str, torch.Tensor] = {}
         total = z.new_zeros((), dtype=torch.float32)
+        if self.belief is not None:
+            # one ELBO per step t with a shared variational posterior: q may depend on anything (here the
+            # whole window), the bound holds for each t; prediction terms below read h_t + W·u, u ~ q
+            mu_q, lv_q = self.posterior(z, actions)
+            mu_p, lv_p = self.belief.prior_of(h)
+            kl = gaussian_kl(mu_q[:, None], lv_q[:, None], mu_p, lv_p)  # (B, L)
+            terms["kl"], terms["kl_last"] = kl.mean(), kl[:, -1].mean()
+            total = total + belief_kl_weight * terms["kl"]
+            u = mu_q + torch.exp(0.5 * lv_q.float().clamp(-8.0, 8.0)).to(mu_q.dtype) * torch.randn_like(mu_q)
+            h = self.condition(h, u)
         valid = [d for d in self.horizons if d < L]
         # (B, L) per-target-frame weights; None at W = 1 keeps the unweighted losses bit-for-bit
         gw = None
@@ -381,7 +456,7 @@ class XJEPA(nn.Module):
             flat = z.reshape(-1, z.shape[-1])
             terms["sigreg"] = sigreg(flat, token_dirs, sigreg_seed, sigreg_knots, max_rows=token_rows,
                                      directions=sigreg_directions)
-        elif self.objective in ("latent", "gnll"):
+        elif self.objective in ("latent", "gnll", "belief"):
             losses = []
             for d in valid:
                 mean, logvar = self.predict(h, actions, d, return_logvar=True)
