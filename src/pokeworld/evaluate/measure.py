@@ -154,6 +154,7 @@ def measure(model, ds: Dataset, cfg: MeasureConfig, untrained_model=None) -> dic
     if untrained_model is not None:
         up, _ = probe_model(untrained_model, ds, cfg, mlp=False)
         res["untrained"] = up
+    res["readout"] = {k: v for k, v in READOUT.items() if k in res}  # describe the readouts this run has
     return res
 
 
