@@ -27,7 +27,7 @@ from typing import Any, Callable
 
 from ..config import from_preset, to_dict
 from ..errors import ConfigError
-from ..io import write_json
+from ..io import atomic_path, write_json
 
 VARIANT_ORDER = ("V", "VF", "VX_p", "VX_t", "VX", "VFX")
 
@@ -50,6 +50,9 @@ class MapConfig:
     """Training seeds of the factorial."""
     lambdas: tuple[float, ...] = (0.3, 0.1, 0.02, 0.01, 0.005)
     """SIGReg weights of the lambda sweep."""
+    planning_variants: tuple[str, ...] = ("V", "VX_t", "VX_p", "VFX")
+    """Variants planned with in the planning experiment (their factorial runs, seeds ``seeds``; paper Table
+    "planning"), beside a random controller."""
     lazy_variants: tuple[str, ...] = ("V", "VX_p", "VX_t", "VX", "VFX")
     """Variants trained single-horizon (Δ = 1 only) in the lazy-equilibrium experiment."""
     sigreg_weight: float = 0.02
@@ -98,7 +101,7 @@ class MapConfig:
             raise ConfigError(f"unknown experiments {sorted(bad)}; choose from {sorted(EXPERIMENTS)}")
         from ..models.xjepa import VARIANTS
 
-        badv = (set(self.variants) | set(self.lazy_variants)) - set(VARIANTS)
+        badv = (set(self.variants) | set(self.lazy_variants) | set(self.planning_variants)) - set(VARIANTS)
         if badv:
             raise ConfigError(f"unknown variants {sorted(badv)}; choose from {list(VARIANTS)}")
         if self.launcher not in ("local", "slurm", "submitit-local"):
@@ -218,6 +221,12 @@ def dose_glide_label(results: dict, run: dict) -> str:
     return f"glide loss weight {w:g} (glide loss share {share})"
 
 
+def exp_planning(c: MapConfig) -> list[RunSpec]:
+    """Closed-loop planning (App. C): the factorial's own multi-horizon runs (same names, so a map that runs the
+    factorial trains each once); the planner itself runs after training (:func:`ensure_planning`)."""
+    return [_spec("factorial", v, s, c.sigreg_weight) for v in c.planning_variants for s in c.seeds]
+
+
 def exp_attributes(c: MapConfig) -> list[RunSpec]:
     return [_spec("attributes", "VFX", c.seeds[0], c.sigreg_weight, corpus=corp, measure_corpus=corp)
             for corp in ("bias0.5", "bias1.5", "bias2.5", "gain")]
@@ -226,7 +235,7 @@ def exp_attributes(c: MapConfig) -> list[RunSpec]:
 EXPERIMENTS: dict[str, Callable[[MapConfig], list[RunSpec]]] = {
     "factorial": exp_factorial, "lazy": exp_lazy, "lambda": exp_lambda, "coverage": exp_coverage,
     "frame_averaged": exp_frame_averaged, "controls": exp_controls, "dose_touch": exp_dose_touch,
-    "dose_glide": exp_dose_glide, "attributes": exp_attributes,
+    "dose_glide": exp_dose_glide, "attributes": exp_attributes, "planning": exp_planning,
 }
 CORPUS_TARGETS = {"bias0.5": ("bias_x", "bias_y"), "bias1.5": ("bias_x", "bias_y"), "bias2.5": ("bias_x", "bias_y"),
                   "gain": ("gain",)}
@@ -266,6 +275,45 @@ def ensure_certificates(c: MapConfig, corpus: str) -> dict:
     path = certify.run(certify.make_config(c.preset, data=str(corpus_dir(c, corpus)), targets=targets,
                                            estimators=c.certify_estimators, kinds=c.certify_kinds))
     return json.loads(Path(path).read_text())
+
+
+def planning_dir(c: MapConfig) -> Path:
+    return Path(c.out) / "planning"
+
+
+def ensure_planning(c: MapConfig) -> dict:
+    """Plan with the planning variants' finished runs and a random controller (same planner, budget, starts
+    and goals for all); writes ``planning/planning.json``, ``distances.npz`` and the episode figure.
+
+    Skipped when ``planning.json`` was computed with the same planner config from the same finished runs.
+    Returns ``{"config", "summary", "runs", "figure"}`` (summary: controller -> reach, median improvement).
+    """
+    from .. import plan
+
+    pcfg = plan.make_config(c.preset, out=str(planning_dir(c)), seed=c.data_seed)
+    runs = {v: [str(Path(c.out) / "runs" / _spec("factorial", v, s, c.sigreg_weight).name) for s in c.seeds]
+            for v in c.planning_variants}
+    key = {"config": to_dict(pcfg), "runs": {v: [[Path(d).name, (Path(d) / "DONE").stat().st_mtime_ns]
+                                                  for d in dirs] for v, dirs in runs.items()}}
+    out = planning_dir(c)
+    path = out / "planning.json"
+    if path.exists():
+        prev = json.loads(path.read_text())
+        if prev.get("key") == key:
+            print(f"[map] {path} is up to date; skipping planning")
+            return prev["result"]
+    out.mkdir(parents=True, exist_ok=True)
+    planned = plan.plan_runs(pcfg, runs, data=str(corpus_dir(c, "standard")))
+    import numpy as np
+
+    with atomic_path(out / "distances.npz") as tmp:
+        with open(tmp, "wb") as f:
+            np.savez_compressed(f, **{k: v["distance"] for k, v in planned["episodes"].items()})
+    figs = plan.figure(planned, out, pcfg.goal_radius)
+    result = {"config": to_dict(pcfg), "summary": planned["summary"], "runs": runs,
+              "figure": [str(p.relative_to(Path(c.out))) for p in figs]}
+    write_json(path, {"key": key, "result": result})
+    return result
 
 
 def _past(deadline: float) -> bool:
@@ -390,7 +438,7 @@ def write_progress(c: MapConfig, specs: list[RunSpec], started: float) -> dict:
 
 #: Files ``pack`` takes, as globs relative to the map directory (all small: JSON, markdown, figures).
 PACK_GLOBS = ("map_config.json", "progress.json", "results.json", "results.md", "identifiability_map.png",
-              "identifiability_map.pdf", "data/*/certificates.json", "data/*/manifest.json",
+              "identifiability_map.pdf", "planning/planning.json", "planning/plan_episode.png", "data/*/certificates.json", "data/*/manifest.json",
               "runs/*/config.json", "runs/*/metrics.jsonl", "runs/*/measure*.json")
 
 
@@ -451,6 +499,8 @@ def run(c: MapConfig) -> Path:
     prog = write_progress(c, specs, started)
     if prog["complete"] and prepared:
         results = report.collect(c, specs, certificates)
+        if "planning" in c.experiments:
+            results["planning"] = ensure_planning(c)
         write_json(out / "results.json", results)
         report.write_all(c, results)
         print(f"[map] wrote {out / 'results.json'}, {out / 'results.md'}, {out / 'identifiability_map.png'}")

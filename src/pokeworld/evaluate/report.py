@@ -313,6 +313,24 @@ def frame_averaged_lines(results: dict) -> list[str]:
             f"with frame-averaged touch: ours {fmt(k_fa)} (paper: unrecoverable).", ""]
 
 
+def planning_table(results: dict) -> list[str]:
+    """App. C Table "planning": goal-region reach and median distance improvement per controller."""
+    pl = results.get("planning")
+    if not pl:
+        return []
+    from ..plan import table_lines
+
+    cfg = pl["config"]
+    return ["## Closed-loop planning (push-to-goal; same planner, budget, starts and goals for every controller)", "",
+            f"CEM over two-knot action programs scored by the direct Δ=4/16 heads, {cfg['episodes']} held-out "
+            f"episodes of {cfg['steps']} steps, replanning every {cfg['replan']} steps, population {cfg['population']}"
+            f" × {cfg['iterations']} iterations; reach = the object's centre enters the goal radius "
+            f"{cfg['goal_radius']:g}; improvement = initial minus final object-goal distance (median over episodes). "
+            "Representations are the factorial's runs (mean over seeds; per seed in results.json). Figure: "
+            + ", ".join(f"`{f}`" for f in pl.get("figure", [])[:1]) + ".", "",
+            *table_lines(pl["summary"]), ""]
+
+
 def markdown(results: dict) -> str:
     prov = results["provenance"]
     out = ["# Identifiability map: results", "",
@@ -337,6 +355,7 @@ def markdown(results: dict) -> str:
                         lambda r: dose_glide_label(results, r), qs=("gamma", "log_k", "object_vel"))
     out += simple_table(results, "attributes", "Attribute matrix corpora", lambda r: r["corpus"],
                         qs=("bias_x", "gain", "log_k", "gamma"))
+    out += planning_table(results)
     out += readout_table(results)
     return "\n".join(out) + "\n"
 
