@@ -194,6 +194,28 @@ def drag_estimates(speed: np.ndarray, glide: np.ndarray, dt: float, fallback: fl
     return out
 
 
+def linear_sequence_r2(X_fit: np.ndarray, y_fit: np.ndarray, groups: np.ndarray, X_test: np.ndarray,
+                       y_test: np.ndarray) -> float:
+    """Held-out R^2 of ridge (episode-grouped CV) from a per-window sequence (W, L[, D]) to a scalar target.
+
+    The linear certificate of a coordinate: on pure glides log|v_t| = log|v_0| - γ t dt, so γ is a linear
+    functional of the log-speed sequence (its negated least-squares slope) and this certificate can read it,
+    while in plain speed the same trace is a ratio.
+    """
+    model = RidgeCV().fit(X_fit.reshape(len(X_fit), -1), np.asarray(y_fit, float).reshape(-1, 1), groups)
+    pred = model.predict(X_test.reshape(len(X_test), -1))
+    return float(r2_scores(np.asarray(y_test, float).reshape(-1, 1), pred)[0])
+
+
+def log_speed_channel(ds: Dataset) -> np.ndarray | None:
+    """The store's sensed log-speed channel (E, T+1), when it has one (``manifest["proprio_channels"]``
+    names ``log_speed``: a derived corpus such as ``flow``), else None."""
+    names = ds.manifest.get("proprio_channels", [])
+    if "log_speed" not in names:
+        return None
+    return ds.proprio[..., names.index("log_speed")]
+
+
 def _glide_pairs(ds: Dataset, w: Windows) -> np.ndarray:
     contact = w.gather(ds.labels["contact"]) > 0
     walls = w.gather(wall_contact(ds))
