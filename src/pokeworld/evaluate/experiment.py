@@ -227,6 +227,13 @@ def exp_planning(c: MapConfig) -> list[RunSpec]:
     return [_spec("factorial", v, s, c.sigreg_weight) for v in c.planning_variants for s in c.seeds]
 
 
+def exp_coordinate(c: MapConfig) -> list[RunSpec]:
+    """The coordinate test (App. C): VFX on the ``flow`` corpus (a frozen self-supervised flow sensor's velocity
+    and log speed appended to proprioception) beside the factorial's VFX on the standard corpus."""
+    s, lam = c.seeds[0], c.sigreg_weight
+    return [_spec("factorial", "VFX", s, lam), _spec("coordinate", "VFX", s, lam, corpus="flow", measure_corpus="flow")]
+
+
 def exp_attributes(c: MapConfig) -> list[RunSpec]:
     return [_spec("attributes", "VFX", c.seeds[0], c.sigreg_weight, corpus=corp, measure_corpus=corp)
             for corp in ("bias0.5", "bias1.5", "bias2.5", "gain")]
@@ -236,6 +243,7 @@ EXPERIMENTS: dict[str, Callable[[MapConfig], list[RunSpec]]] = {
     "factorial": exp_factorial, "lazy": exp_lazy, "lambda": exp_lambda, "coverage": exp_coverage,
     "frame_averaged": exp_frame_averaged, "controls": exp_controls, "dose_touch": exp_dose_touch,
     "dose_glide": exp_dose_glide, "attributes": exp_attributes, "planning": exp_planning,
+    "coordinate": exp_coordinate,
 }
 CORPUS_TARGETS = {"bias0.5": ("bias_x", "bias_y"), "bias1.5": ("bias_x", "bias_y"), "bias2.5": ("bias_x", "bias_y"),
                   "gain": ("gain",)}
@@ -262,6 +270,12 @@ def corpus_dir(c: MapConfig, corpus: str) -> Path:
 def ensure_corpus(c: MapConfig, corpus: str) -> Path:
     from ..sim import generate
 
+    if corpus == "flow":  # derived from the standard corpus by the frozen flow sensor
+        from ..models import flow
+        from .coordinate import build_flow_corpus
+
+        return build_flow_corpus(ensure_corpus(c, "standard"), corpus_dir(c, "flow"), flow.make_config(c.preset))
+
     overrides: dict[str, Any] = {"out": str(corpus_dir(c, corpus)), "corpus": corpus, "seed": c.data_seed}
     if c.num_episodes:
         overrides["num_episodes"] = c.num_episodes
@@ -270,6 +284,20 @@ def ensure_corpus(c: MapConfig, corpus: str) -> Path:
 
 def ensure_certificates(c: MapConfig, corpus: str) -> dict:
     from .. import certify
+
+    if corpus == "flow":
+        # same episodes and physics as the standard corpus, whose state-based estimators do not read the
+        # appended channels: only the log-speed certificate is new; the rest (and the gate) are the standard's
+        std = ensure_certificates(c, "standard")
+        path = certify.run(certify.make_config(c.preset, data=str(corpus_dir(c, corpus)), targets=("gamma",),
+                                               estimators=("linear_logspeed",), kinds=c.certify_kinds))
+        own = json.loads(Path(path).read_text())
+        est = {**std.get("estimators", {}), **own["estimators"]}
+        cert = certify.certificate_table(est, ("log_m", "gamma", "log_k"))
+        manifest = json.loads((corpus_dir(c, corpus) / "manifest.json").read_text())
+        sensor = manifest.get("flow", {}).get("sensor", {})
+        return {**own, "estimators": est, "certificate": cert, "gate": certify.gate(cert, est),
+                "counts": std.get("counts", {}), "flow_sensor": sensor}
 
     targets = ("log_m", "gamma", "log_k") + CORPUS_TARGETS.get(corpus, ())
     path = certify.run(certify.make_config(c.preset, data=str(corpus_dir(c, corpus)), targets=targets,
@@ -483,7 +511,7 @@ def run(c: MapConfig) -> Path:
             prepared = False
             break
         ensure_corpus(c, corpus)
-    for corpus in corpora:
+    for corpus in sorted(corpora, key=lambda k: k == "flow"):  # flow's certificates build on the standard's
         if not prepared or corpus == "contact_poor":
             continue
         if _past(deadline):

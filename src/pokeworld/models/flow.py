@@ -133,7 +133,7 @@ def train_flow(frames: np.ndarray, cfg: FlowConfig, log_every: int = 0) -> FlowN
         opt.step()
         sched.step()
         if log_every and (step % log_every == 0 or step == cfg.steps - 1):
-            print(f"[flow] step {step:5d} loss {float(loss):.4f} photometric {terms['photometric']:.4f} "
+            print(f"[flow] step {step:5d} loss {loss.item():.4f} photometric {terms['photometric']:.4f} "
                   f"smoothness {terms['smoothness']:.4f}")
     net.eval()
     for p in net.parameters():
