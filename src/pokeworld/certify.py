@@ -20,6 +20,9 @@ probe-fit episodes and scored by held-out R^2 on probe-test episodes:
               vision and proprioception could know at best (the bound of the vision-input arms);
 * ``gru_pixel_notouch`` the same from pixel-derived object state (optionally at a model's
               smaller ``pixel_size``): the vision-input bound without privileged object state.
+* ``linear_logspeed`` the linear certificate in the sensed log-speed coordinate (the coordinate test,
+              App. C): ridge from the window's log-speed sequence to γ, on stores that carry a
+              ``log_speed`` proprio channel (the ``flow`` corpus); skipped elsewhere.
 
 A parameter's certificate is the best R^2 of any estimator on contact
 windows. The gate is the paper's rule (App. A, "The oracle estimator"): the
@@ -45,7 +48,7 @@ from .windows import Windows, make_windows, wall_contact
 GATES = {"log_m": 0.4, "gamma": 0.4, "log_k": 0.25}
 GATE_ESTIMATOR = "gru"  # the paper's oracle: the gate reads this estimator, not the best one
 ESTIMATORS = ("gru", "gru_geom", "linear", "mlp", "drag", "gru_pixel", "drag_pixel", "gru_notouch",
-              "gru_pixel_notouch")
+              "gru_pixel_notouch", "linear_logspeed")
 GEOMETRY = ("gru_geom", "gru_notouch", "gru_pixel_notouch")  # estimators fed the contact-geometry channels
 # feature columns of window_features: proprio 0-3, touch 4-10, action 11-12, object position 13-14,
 # velocity 15-16, and with geometry=True the displacement object - finger 17-18 and the overlap 19
@@ -63,9 +66,9 @@ class CertifyConfig:
     """Where to write certificates.json (default: <data>/certificates.json)."""
     targets: tuple[str, ...] = ("log_m", "gamma", "log_k")
     """Per-episode parameters to certify (names under params/ in the store)."""
-    estimators: tuple[str, ...] = ESTIMATORS
+    estimators: tuple[str, ...] = ESTIMATORS[:-1]
     """Estimators to run (subset of ESTIMATORS: gru, gru_geom, linear, mlp, drag, gru_pixel, drag_pixel,
-    gru_notouch, gru_pixel_notouch)."""
+    gru_notouch, gru_pixel_notouch, linear_logspeed; the last only on stores with a log-speed channel)."""
     pixel_size: int = 0
     """Frame side the pixel-derived estimators read (frames area-pooled to it first; 0 = stored size).
     Set it to a model's ``image_size`` to bound what that model's input resolution reveals."""
@@ -164,7 +167,9 @@ def window_features(ds: Dataset, w: Windows, object_pos: np.ndarray, object_vel:
     disk overlap max(0, r_f + r_o - distance) in units of the object radius (1).
     """
     actions = np.concatenate([ds.actions, np.zeros_like(ds.actions[:, :1])], 1)
-    proprio, obj = w.gather(ds.proprio), w.gather(object_pos)
+    # finger position and velocity only: derived corpora (flow) append sensed channels after them, and the
+    # column layout below (TOUCH_COLUMNS, NO_TOUCH) must not shift
+    proprio, obj = w.gather(ds.proprio[..., :4]), w.gather(object_pos)
     cols = [proprio, w.gather(ds.touch), w.gather(actions), obj, w.gather(object_vel)]
     if geometry:
         cfg = ds.manifest.get("config", {}).get("physics", {})
@@ -192,6 +197,28 @@ def drag_estimates(speed: np.ndarray, glide: np.ndarray, dt: float, fallback: fl
     if has.any():
         out[has] = np.nanmedian(rate[has], axis=1)
     return out
+
+
+def linear_sequence_r2(X_fit: np.ndarray, y_fit: np.ndarray, groups: np.ndarray, X_test: np.ndarray,
+                       y_test: np.ndarray) -> float:
+    """Held-out R^2 of ridge (episode-grouped CV) from a per-window sequence (W, L[, D]) to a scalar target.
+
+    The linear certificate of a coordinate: on pure glides log|v_t| = log|v_0| - γ t dt, so γ is a linear
+    functional of the log-speed sequence (its negated least-squares slope) and this certificate can read it,
+    while in plain speed the same trace is a ratio.
+    """
+    model = RidgeCV().fit(X_fit.reshape(len(X_fit), -1), np.asarray(y_fit, float).reshape(-1, 1), groups)
+    pred = model.predict(X_test.reshape(len(X_test), -1))
+    return float(r2_scores(np.asarray(y_test, float).reshape(-1, 1), pred)[0])
+
+
+def log_speed_channel(ds: Dataset) -> np.ndarray | None:
+    """The store's sensed log-speed channel (E, T+1), when it has one (``manifest["proprio_channels"]``
+    names ``log_speed``: a derived corpus such as ``flow``), else None."""
+    names = ds.manifest.get("proprio_channels", [])
+    if "log_speed" not in names:
+        return None
+    return ds.proprio[..., names.index("log_speed")]
 
 
 def _glide_pairs(ds: Dataset, w: Windows) -> np.ndarray:
@@ -238,7 +265,15 @@ def certify(ds: Dataset, cfg: CertifyConfig) -> dict:
         for est in cfg.estimators:
             source = "pixel" if "_pixel" in est else "state"
             pos, vel = state[source]
-            if est.startswith("drag"):
+            if est == "linear_logspeed":
+                channel = log_speed_channel(ds)
+                if channel is None or "gamma" not in cfg.targets:
+                    print(f"[certify] {est}: this store has no log_speed channel (or gamma is not a target); skipping")
+                    continue
+                g_idx = cfg.targets.index("gamma")
+                r2 = {"gamma": linear_sequence_r2(w_fit.gather(channel), y_fit[:, g_idx], w_fit.episode,
+                                                  w_test.gather(channel), y_test[:, g_idx])}
+            elif est.startswith("drag"):
                 if "gamma" not in cfg.targets:
                     continue
                 g_idx = cfg.targets.index("gamma")

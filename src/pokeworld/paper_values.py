@@ -134,3 +134,16 @@ REAL_FORECAST_CI = {"VFX": {800: (0.01, 0.17), 4258: (0.14, 0.28)}, "VX": {"ever
 REAL_JOINT = {  # §5 "One model, two robots": configuration-blind VFX vs the specialists
     "kuka_force_ood": {"specialist": 0.56, "joint": 0.89},
 }
+
+PLANNING = {  # App. C Table "planning": controller -> (goal-region reach, median distance improvement)
+    "random": (0.01, 0.00), "V": (0.20, 0.02), "VX_t": (0.38, 0.15), "VX_p": (0.44, 0.18), "VFX": (0.57, 0.24),
+}
+
+COORDINATE = {  # App. C "The coordinate test" and the γ ledger (frozen flow velocity sensor)
+    "gamma_linear_certificate_logspeed": 0.52,  # ridge on log-speed sequences over glide windows (696/351)
+    "gamma_linear_certificate_standard": 0.0,  # Table "matrix": ≈ 0 in the standard coordinates
+    "gamma_glide_readout": (0.08, 0.33),  # model readout on glide windows, before / after (ridge)
+    "object_vel": (0.79, 0.88),  # velocity readout before / after the frozen flow sensor (ledger)
+    "glide_test_model_after": 0.114,  # functional glide test with the log-speed channel
+    "glide_test_median_gamma": 0.054,  # its median-γ reference
+}

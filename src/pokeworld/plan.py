@@ -21,7 +21,8 @@ import torch
 from .config import from_preset, to_dict
 from .data import load
 from .errors import ConfigError
-from .io import write_json
+from .io import atomic_path, write_json
+from .paper_values import PLANNING
 from .sim import PhysicsConfig, PokeWorldSim
 
 PROGRAM = 16
@@ -140,6 +141,7 @@ def control(cfg: PlanConfig, setup: dict, scorer: LatentScorer | None) -> dict:
     goal = setup["goal"]
     hist = {"frames": [obs["vision"]], "proprio": [obs["proprio"]], "touch": [obs["touch"]], "actions": []}
     dist = [np.linalg.norm(sim.state[:, 4:6] - goal, axis=1)]
+    obj_path, finger_path = [sim.state[:, 4:6].copy()], [sim.state[:, 0:2].copy()]
     plan = np.zeros((n, PROGRAM, 2))
     for t in range(cfg.steps):
         k = t % cfg.replan
@@ -167,10 +169,107 @@ def control(cfg: PlanConfig, setup: dict, scorer: LatentScorer | None) -> dict:
         hist["touch"].append(obs["touch"])
         hist["actions"].append(a.astype(np.float32))
         dist.append(np.linalg.norm(sim.state[:, 4:6] - goal, axis=1))
+        obj_path.append(sim.state[:, 4:6].copy())
+        finger_path.append(sim.state[:, 0:2].copy())
     d = np.stack(dist, 1)
     return {"reach": float((d.min(1) < cfg.goal_radius).mean()),
             "median_improvement": float(np.median(d[:, 0] - d[:, -1])), "distance": d,
-            "finger_final": sim.state[:, 0:2].copy()}
+            "finger_final": sim.state[:, 0:2].copy(), "object_path": np.stack(obj_path, 1),
+            "finger_path": np.stack(finger_path, 1)}
+
+
+PAPER = PLANNING
+"""Paper Table "planning": controller -> (goal-region reach, median distance improvement)."""
+
+
+def plan_runs(cfg: PlanConfig, runs: dict[str, list[str]], data: str = "") -> dict:
+    """Plan with every run and with the random controller on one shared start/goal set.
+
+    ``runs`` maps a controller label (e.g. a variant) to its run directories (seeds); a label's reach and
+    median improvement are the means over its runs (per-run values under ``per_run``). Returns
+    ``{"summary": {label: {"reach", "median_improvement", "per_run"}}, "episodes": {label: control output of
+    its first run}, "setup": episode_setup(cfg)}``; ``data`` overrides each run's decoder-fit corpus.
+    """
+    setup = episode_setup(cfg)
+    episodes = {"random": control(cfg, setup, None)}
+    summary = {"random": {"reach": episodes["random"]["reach"],
+                          "median_improvement": episodes["random"]["median_improvement"], "per_run": {}}}
+    for label, dirs in runs.items():
+        per = {}
+        for r in dirs:
+            res = control(cfg, setup, LatentScorer(r, data or cfg.data))
+            episodes.setdefault(label, res)
+            per[Path(r).name] = {"reach": res["reach"], "median_improvement": res["median_improvement"]}
+            print(f"[plan] {label} ({Path(r).name}): reach {res['reach']:.0%}, "
+                  f"median improvement {res['median_improvement']:+.3f}")
+        summary[label] = {k: float(np.mean([v[k] for v in per.values()])) for k in ("reach", "median_improvement")}
+        summary[label]["per_run"] = per
+    return {"summary": summary, "episodes": episodes, "setup": setup}
+
+
+def showcase_episode(episodes: dict, left: str, right: str) -> int:
+    """The held-out episode the figure shows: the one where ``right`` beats ``left`` by the largest final
+    object-goal distance (a fixed rule, so the figure is not hand-picked)."""
+    gain = episodes[left]["distance"][:, -1] - episodes[right]["distance"][:, -1]
+    return int(np.argmax(gain))
+
+
+def figure(planned: dict, out: Path, goal_radius: float, left: str | None = None, right: str | None = None) -> list[Path]:
+    """The paper's plan figure: one held-out episode under two representations, plus both distance curves.
+
+    ``left`` / ``right`` default to the first and last planned representation (e.g. V and VFX).
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    eps = planned["episodes"]
+    labels = [k for k in eps if k != "random"] or ["random"]
+    left, right = left or labels[0], right or labels[-1]
+    i = showcase_episode(eps, left, right)
+    goal = planned["setup"]["goal"][i]
+    fig, axes = plt.subplots(1, 3, figsize=(12, 4))
+    for ax, label in zip(axes[:2], (left, right)):
+        res = eps[label]
+        op, fp = res["object_path"][i], res["finger_path"][i]
+        ax.add_patch(plt.Circle(goal, goal_radius, color="tab:green", alpha=0.25, lw=0))
+        ax.scatter(op[:, 0], op[:, 1], c=np.arange(len(op)), cmap="Blues", s=12, vmin=-len(op) / 3)
+        ax.plot(fp[:, 0], fp[:, 1], ":", color="goldenrod", lw=1.5)
+        ax.scatter(*op[0], s=120, facecolors="none", edgecolors="tab:blue", lw=1.5)
+        reached = res["distance"][i].min() < goal_radius
+        ax.set_title(f"{label} {'✓' if reached else '×'} (final distance {res['distance'][i, -1]:.2f})", fontsize=10)
+        ax.set_xlim(0, 1)
+        ax.set_ylim(0, 1)
+        ax.set_aspect("equal")
+        ax.set_xticks([])
+        ax.set_yticks([])
+    for label, style in ((left, "--"), (right, "-")):
+        axes[2].plot(eps[label]["distance"][i], style, label=label)
+    axes[2].axhline(goal_radius, color="tab:green", lw=1, alpha=0.6, label="goal region")
+    axes[2].set_xlabel("control step")
+    axes[2].set_ylabel("object-goal distance")
+    axes[2].legend(fontsize=8)
+    fig.suptitle(f"Held-out episode {i}: same planner and budget, two frozen latents", fontsize=10)
+    fig.tight_layout()
+    paths = [out / "plan_episode.png", out / "plan_episode.pdf"]
+    for p in paths:
+        tmp = p.with_name(f".{p.stem}.tmp{p.suffix}")
+        fig.savefig(tmp, dpi=150)
+        tmp.replace(p)
+    plt.close(fig)
+    return paths
+
+
+def table_lines(summary: dict) -> list[str]:
+    """Markdown rows: controller, reach and median improvement, ours beside the paper's."""
+    lines = ["| controller | goal-region reach (ours / paper) | median distance improvement (ours / paper) |",
+             "|---|---|---|"]
+    for k, v in summary.items():
+        p = PAPER.get(k)
+        lines.append(f"| {k} | {v['reach']:.0%} / {f'{p[0]:.0%}' if p else '—'} | "
+                     f"{v['median_improvement']:+.3f} / {f'{p[1]:.2f}' if p else '—'} |")
+    return lines
 
 
 def run(cfg: PlanConfig) -> Path:
@@ -178,20 +277,14 @@ def run(cfg: PlanConfig) -> Path:
         raise ConfigError("give at least one trained run directory with --runs")
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
-    setup = episode_setup(cfg)
-    results = {"random": control(cfg, setup, None)}
-    for r in cfg.runs:
-        name = Path(r).name
-        results[name] = control(cfg, setup, LatentScorer(r, cfg.data))
-        print(f"[plan] {name}: reach {results[name]['reach']:.0%}, "
-              f"median improvement {results[name]['median_improvement']:+.3f}")
-    summary = {k: {"reach": v["reach"], "median_improvement": v["median_improvement"]} for k, v in results.items()}
+    planned = plan_runs(cfg, {Path(r).name: [r] for r in cfg.runs})
+    summary = planned["summary"]
     write_json(out / "plan.json", {"config": to_dict(cfg), "results": summary,
-                                   "paper": {"random": [0.01, 0.0], "V": [0.20, 0.02], "VX_t": [0.38, 0.15],
-                                             "VX_p": [0.44, 0.18], "VFX": [0.57, 0.24]}})
-    np.savez_compressed(out / "distances.npz", **{k: v["distance"] for k, v in results.items()})
-    lines = ["| controller | goal-region reach | median distance improvement |", "|---|---|---|"]
-    lines += [f"| {k} | {v['reach']:.0%} | {v['median_improvement']:+.3f} |" for k, v in summary.items()]
-    (out / "plan.md").write_text("\n".join(lines) + "\n")
+                                   "paper": {k: list(v) for k, v in PAPER.items()}})
+    np.savez_compressed(out / "distances.npz", **{k: v["distance"] for k, v in planned["episodes"].items()})
+    lines = table_lines(summary)
+    with atomic_path(out / "plan.md") as tmp:
+        tmp.write_text("\n".join(lines) + "\n")
+    figure(planned, out, cfg.goal_radius)
     print("\n".join(lines))
     return out

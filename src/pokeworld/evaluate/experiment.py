@@ -27,7 +27,7 @@ from typing import Any, Callable
 
 from ..config import from_preset, to_dict
 from ..errors import ConfigError
-from ..io import write_json
+from ..io import atomic_path, write_json
 
 VARIANT_ORDER = ("V", "VF", "VX_p", "VX_t", "VX", "VFX")
 
@@ -50,6 +50,9 @@ class MapConfig:
     """Training seeds of the factorial."""
     lambdas: tuple[float, ...] = (0.3, 0.1, 0.02, 0.01, 0.005)
     """SIGReg weights of the lambda sweep."""
+    planning_variants: tuple[str, ...] = ("V", "VX_t", "VX_p", "VFX")
+    """Variants planned with in the planning experiment (their factorial runs, seeds ``seeds``; paper Table
+    "planning"), beside a random controller."""
     lazy_variants: tuple[str, ...] = ("V", "VX_p", "VX_t", "VX", "VFX")
     """Variants trained single-horizon (Δ = 1 only) in the lazy-equilibrium experiment."""
     sigreg_weight: float = 0.02
@@ -102,7 +105,7 @@ class MapConfig:
             raise ConfigError(f"unknown experiments {sorted(bad)}; choose from {sorted(EXPERIMENTS)}")
         from ..models.xjepa import VARIANTS
 
-        badv = (set(self.variants) | set(self.lazy_variants)) - set(VARIANTS)
+        badv = (set(self.variants) | set(self.lazy_variants) | set(self.planning_variants)) - set(VARIANTS)
         if badv:
             raise ConfigError(f"unknown variants {sorted(badv)}; choose from {list(VARIANTS)}")
         if self.launcher not in ("local", "slurm", "submitit-local"):
@@ -245,6 +248,19 @@ def dose_glide_label(results: dict, run: dict) -> str:
     return f"glide loss weight {w:g} (glide loss share {share})"
 
 
+def exp_planning(c: MapConfig) -> list[RunSpec]:
+    """Closed-loop planning (App. C): the factorial's own multi-horizon runs (same names, so a map that runs the
+    factorial trains each once); the planner itself runs after training (:func:`ensure_planning`)."""
+    return [_spec("factorial", v, s, c.sigreg_weight) for v in c.planning_variants for s in c.seeds]
+
+
+def exp_coordinate(c: MapConfig) -> list[RunSpec]:
+    """The coordinate test (App. C): VFX on the ``flow`` corpus (a frozen self-supervised flow sensor's velocity
+    and log speed appended to proprioception) beside the factorial's VFX on the standard corpus."""
+    s, lam = c.seeds[0], c.sigreg_weight
+    return [_spec("factorial", "VFX", s, lam), _spec("coordinate", "VFX", s, lam, corpus="flow", measure_corpus="flow")]
+
+
 def exp_attributes(c: MapConfig) -> list[RunSpec]:
     return [_spec("attributes", "VFX", c.seeds[0], c.sigreg_weight, corpus=corp, measure_corpus=corp)
             for corp in ("bias0.5", "bias1.5", "bias2.5", "gain")]
@@ -253,7 +269,8 @@ def exp_attributes(c: MapConfig) -> list[RunSpec]:
 EXPERIMENTS: dict[str, Callable[[MapConfig], list[RunSpec]]] = {
     "factorial": exp_factorial, "lazy": exp_lazy, "lambda": exp_lambda, "coverage": exp_coverage,
     "frame_averaged": exp_frame_averaged, "controls": exp_controls, "dose_touch": exp_dose_touch,
-    "dose_glide": exp_dose_glide, "attributes": exp_attributes, "belief": exp_belief,
+    "dose_glide": exp_dose_glide, "attributes": exp_attributes, "belief": exp_belief, "planning": exp_planning,
+    "coordinate": exp_coordinate,
 }
 CORPUS_TARGETS = {"bias0.5": ("bias_x", "bias_y"), "bias1.5": ("bias_x", "bias_y"), "bias2.5": ("bias_x", "bias_y"),
                   "gain": ("gain",)}
@@ -280,6 +297,12 @@ def corpus_dir(c: MapConfig, corpus: str) -> Path:
 def ensure_corpus(c: MapConfig, corpus: str) -> Path:
     from ..sim import generate
 
+    if corpus == "flow":  # derived from the standard corpus by the frozen flow sensor
+        from ..models import flow
+        from .coordinate import build_flow_corpus
+
+        return build_flow_corpus(ensure_corpus(c, "standard"), corpus_dir(c, "flow"), flow.make_config(c.preset))
+
     overrides: dict[str, Any] = {"out": str(corpus_dir(c, corpus)), "corpus": corpus, "seed": c.data_seed}
     if c.num_episodes:
         overrides["num_episodes"] = c.num_episodes
@@ -289,11 +312,64 @@ def ensure_corpus(c: MapConfig, corpus: str) -> Path:
 def ensure_certificates(c: MapConfig, corpus: str) -> dict:
     from .. import certify
 
+    if corpus == "flow":
+        # same episodes and physics as the standard corpus, whose state-based estimators do not read the
+        # appended channels: only the log-speed certificate is new; the rest (and the gate) are the standard's
+        std = ensure_certificates(c, "standard")
+        path = certify.run(certify.make_config(c.preset, data=str(corpus_dir(c, corpus)), targets=("gamma",),
+                                               estimators=("linear_logspeed",), kinds=c.certify_kinds))
+        own = json.loads(Path(path).read_text())
+        est = {**std.get("estimators", {}), **own["estimators"]}
+        cert = certify.certificate_table(est, ("log_m", "gamma", "log_k"))
+        manifest = json.loads((corpus_dir(c, corpus) / "manifest.json").read_text())
+        sensor = manifest.get("flow", {}).get("sensor", {})
+        return {**own, "estimators": est, "certificate": cert, "gate": certify.gate(cert, est),
+                "counts": std.get("counts", {}), "flow_sensor": sensor}
+
     targets = ("log_m", "gamma", "log_k") + CORPUS_TARGETS.get(corpus, ())
     cost = {k: v for k, v in (("max_windows", c.certify_max_windows), ("epochs", c.certify_epochs)) if v}
     path = certify.run(certify.make_config(c.preset, data=str(corpus_dir(c, corpus)), targets=targets,
                                            estimators=c.certify_estimators, kinds=c.certify_kinds, **cost))
     return json.loads(Path(path).read_text())
+
+
+def planning_dir(c: MapConfig) -> Path:
+    return Path(c.out) / "planning"
+
+
+def ensure_planning(c: MapConfig) -> dict:
+    """Plan with the planning variants' finished runs and a random controller (same planner, budget, starts
+    and goals for all); writes ``planning/planning.json``, ``distances.npz`` and the episode figure.
+
+    Skipped when ``planning.json`` was computed with the same planner config from the same finished runs.
+    Returns ``{"config", "summary", "runs", "figure"}`` (summary: controller -> reach, median improvement).
+    """
+    from .. import plan
+
+    pcfg = plan.make_config(c.preset, out=str(planning_dir(c)), seed=c.data_seed)
+    runs = {v: [str(Path(c.out) / "runs" / _spec("factorial", v, s, c.sigreg_weight).name) for s in c.seeds]
+            for v in c.planning_variants}
+    key = {"config": to_dict(pcfg), "runs": {v: [[Path(d).name, (Path(d) / "DONE").stat().st_mtime_ns]
+                                                  for d in dirs] for v, dirs in runs.items()}}
+    out = planning_dir(c)
+    path = out / "planning.json"
+    if path.exists():
+        prev = json.loads(path.read_text())
+        if prev.get("key") == key:
+            print(f"[map] {path} is up to date; skipping planning")
+            return prev["result"]
+    out.mkdir(parents=True, exist_ok=True)
+    planned = plan.plan_runs(pcfg, runs, data=str(corpus_dir(c, "standard")))
+    import numpy as np
+
+    with atomic_path(out / "distances.npz") as tmp:
+        with open(tmp, "wb") as f:
+            np.savez_compressed(f, **{k: v["distance"] for k, v in planned["episodes"].items()})
+    figs = plan.figure(planned, out, pcfg.goal_radius)
+    result = {"config": to_dict(pcfg), "summary": planned["summary"], "runs": runs,
+              "figure": [str(p.relative_to(Path(c.out))) for p in figs]}
+    write_json(path, {"key": key, "result": result})
+    return result
 
 
 def _past(deadline: float) -> bool:
@@ -424,7 +500,7 @@ def write_progress(c: MapConfig, specs: list[RunSpec], started: float) -> dict:
 
 #: Files ``pack`` takes, as globs relative to the map directory (all small: JSON, markdown, figures).
 PACK_GLOBS = ("map_config.json", "progress.json", "results.json", "results.md", "identifiability_map.png",
-              "identifiability_map.pdf", "data/*/certificates.json", "data/*/manifest.json",
+              "identifiability_map.pdf", "planning/planning.json", "planning/plan_episode.png", "data/*/certificates.json", "data/*/manifest.json",
               "runs/*/config.json", "runs/*/metrics.jsonl", "runs/*/measure*.json")
 
 
@@ -469,7 +545,7 @@ def run(c: MapConfig) -> Path:
             prepared = False
             break
         ensure_corpus(c, corpus)
-    for corpus in corpora:
+    for corpus in sorted(corpora, key=lambda k: k == "flow"):  # flow's certificates build on the standard's
         if not prepared or corpus == "contact_poor":
             continue
         if _past(deadline):
@@ -485,6 +561,8 @@ def run(c: MapConfig) -> Path:
     prog = write_progress(c, specs, started)
     if prog["complete"] and prepared:
         results = report.collect(c, specs, certificates)
+        if "planning" in c.experiments:
+            results["planning"] = ensure_planning(c)
         write_json(out / "results.json", results)
         report.write_all(c, results)
         table = report.certificate_table(results) + report.factorial_table(results)

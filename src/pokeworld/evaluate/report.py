@@ -49,7 +49,8 @@ def collect(c, specs, certificates: dict) -> dict:
                         "probes_belief": m.get("probes_belief", {}), "measure": dict(s.measure)}
     # gate_of: certificates stored before the paper-rule gate are re-gated on the GRU oracle
     certs = {k: {"certificate": v.get("certificate", {}), "gate": gate_of(v),
-                 "estimators": v.get("estimators", {}), "counts": v.get("counts", {})}
+                 "estimators": v.get("estimators", {}), "counts": v.get("counts", {}),
+                 **({"flow_sensor": v["flow_sensor"]} if "flow_sensor" in v else {})}
              for k, v in certificates.items()}
     return {"runs": runs, "certificates": certs, "experiments": spec_experiments(c), "map_config": to_dict(c),
             "provenance": {"command": "pokeworld " + " ".join(sys.argv[1:]) if sys.argv and "pokeworld" in sys.argv[0]
@@ -424,6 +425,65 @@ def frame_averaged_lines(results: dict) -> list[str]:
             f"with frame-averaged touch: ours {fmt(k_fa)} (paper: unrecoverable).", ""]
 
 
+def planning_table(results: dict) -> list[str]:
+    """App. C Table "planning": goal-region reach and median distance improvement per controller."""
+    pl = results.get("planning")
+    if not pl:
+        return []
+    from ..plan import table_lines
+
+    cfg = pl["config"]
+    return ["## Closed-loop planning (push-to-goal; same planner, budget, starts and goals for every controller)", "",
+            f"CEM over two-knot action programs scored by the direct Δ=4/16 heads, {cfg['episodes']} held-out "
+            f"episodes of {cfg['steps']} steps, replanning every {cfg['replan']} steps, population {cfg['population']}"
+            f" × {cfg['iterations']} iterations; reach = the object's centre enters the goal radius "
+            f"{cfg['goal_radius']:g}; improvement = initial minus final object-goal distance (median over episodes). "
+            "Representations are the factorial's runs (mean over seeds; per seed in results.json). Figure: "
+            + ", ".join(f"`{f}`" for f in pl.get("figure", [])[:1]) + ".", "",
+            *table_lines(pl["summary"]), ""]
+
+
+def coordinate_table(results: dict) -> list[str]:
+    """App. C "The coordinate test": VFX without and with the sensed log-speed channel."""
+    if "coordinate" not in results["experiments"]:
+        return []
+    runs = {results["runs"][n]["corpus"]: results["runs"][n] for n in results["experiments"]["coordinate"]}
+    before, after = runs.get("standard"), runs.get("flow")
+    certs = results["certificates"]
+    lin = lambda corpus, est: certs.get(corpus, {}).get("estimators", {}).get(est, {}).get("glide", {}).get("gamma")  # noqa: E731
+    C = P.COORDINATE
+    gl = lambda r, k: None if r is None else r["prediction"].get("glide_test", {}).get(k)  # noqa: E731
+    pr = lambda r, q, kind: None if r is None else probe(r, q, kind)  # noqa: E731
+    rows = [("linear γ certificate, glide windows (standard coordinates / log-speed sequence)",
+             lin("standard", "linear"), lin("flow", "linear_logspeed"),
+             (C["gamma_linear_certificate_standard"], C["gamma_linear_certificate_logspeed"]), 2),
+            ("model γ readout, glide windows (ridge)", pr(before, "gamma", "glide"), pr(after, "gamma", "glide"),
+             C["gamma_glide_readout"], 2),
+            ("object-velocity readout, contact windows (ridge)", pr(before, "object_vel", "contact"),
+             pr(after, "object_vel", "contact"), C["object_vel"], 2),
+            ("γ readout, contact windows (ridge)", pr(before, "gamma", "contact"), pr(after, "gamma", "contact"),
+             (None, None), 2),
+            ("log k readout, contact windows (ridge)", pr(before, "log_k", "contact"), pr(after, "log_k", "contact"),
+             (None, None), 2),
+            ("functional glide test: model error (decoded)", gl(before, "model"), gl(after, "model"),
+             (None, C["glide_test_model_after"]), 3),
+            ("functional glide test: median-γ reference", gl(before, "median_gamma"), gl(after, "median_gamma"),
+             (None, C["glide_test_median_gamma"]), 3)]
+    lines = ["## The coordinate test (VFX; a frozen self-supervised flow sensor's velocity and log speed as input)", "",
+             "| quantity | before (ours / paper) | with the log-speed channel (ours / paper) |", "|---|---|---|"]
+    for label, b, a, (pb, pa), d in rows:
+        lines.append(f"| {label} | {fmt(b, d)} / {fmt(pb, d)} | {fmt(a, d)} / {fmt(pa, d)} |")
+    sensor = certs.get("flow", {}).get("flow_sensor", {})
+    if sensor:
+        lines.append("\nFlow sensor on probe-test episodes (trained on frames only, labels used to score): "
+                     f"velocity R² {fmt(sensor.get('velocity_r2'))}, on glide frames "
+                     f"{fmt(sensor.get('glide_velocity_r2'))}, glide log speed {fmt(sensor.get('glide_log_speed_r2'))}.")
+    lines.append("\nThe model uses γ functionally only if its glide-test error beats the median-γ reference; the "
+                 "paper's γ readout and certificate here are on glide windows, the velocity pair is the γ ledger's "
+                 "frozen flow velocity sensor.")
+    return lines + [""]
+
+
 def markdown(results: dict) -> str:
     prov = results["provenance"]
     out = ["# Identifiability map: results", "",
@@ -449,6 +509,8 @@ def markdown(results: dict) -> str:
     out += simple_table(results, "attributes", "Attribute matrix corpora", lambda r: r["corpus"],
                         qs=("bias_x", "gain", "log_k", "gamma"))
     out += belief_table(results)
+    out += coordinate_table(results)
+    out += planning_table(results)
     out += readout_table(results)
     return "\n".join(out) + "\n"
 
