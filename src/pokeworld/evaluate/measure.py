@@ -37,7 +37,6 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 import torch
 
 from ..config import from_preset, to_dict
@@ -57,7 +56,6 @@ READOUT = {
     "probes_action_conditioned": "state conditioned on the real action after the last observation, which the "
                                  "scripted policy computed from the object state: an upper, leaky readout",
 }
-CONTEXT, HORIZON = 8, 16
 
 
 @dataclass
@@ -182,3 +180,10 @@ def summary_line(res: dict) -> str:
     p = res.get("prediction", {})
     parts += [f"{k}={p[k]:.3f}" for k in ("direct16", "rollout16", "static16") if k in p]
     return " ".join(parts)
+
+
+__all__ = ["MeasureConfig", "PRESETS", "READOUT", "make_config", "measure", "run", "summary_line", "untrained_copy",
+           "untrained_like", "CONTEXT", "HORIZON", "KINDS", "PARAM_TARGETS", "STATE_TARGETS", "EpisodeLatents",
+           "encode_episodes", "fit_predict", "fit_probes", "glide_comparison", "glide_reference", "glide_test",
+           "neutral_last", "padded_actions", "prediction_quality", "probe_latents", "probe_model", "probe_targets",
+           "probe_windows", "window_states", "_position_decoder", "_trunk_at"]
