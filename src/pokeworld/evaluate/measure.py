@@ -42,7 +42,6 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 import torch
 
 from ..config import from_preset, to_dict
@@ -65,7 +64,6 @@ READOUT = {
                      "(causal, neutral last action); 'posterior_mean' reads μ_q of the whole probe window, which "
                      "sees the future: a leaky diagnostic of what the latent carries, not of what the model knows",
 }
-CONTEXT, HORIZON = 8, 16
 
 
 @dataclass
@@ -225,3 +223,10 @@ def summary_line(res: dict) -> str:
     p = res.get("prediction", {})
     parts += [f"{k}={p[k]:.3f}" for k in ("direct16", "rollout16", "static16") if k in p]
     return " ".join(parts)
+
+
+__all__ = ["MeasureConfig", "PRESETS", "READOUT", "make_config", "measure", "run", "summary_line", "untrained_copy",
+           "untrained_like", "CONTEXT", "HORIZON", "KINDS", "PARAM_TARGETS", "STATE_TARGETS", "EpisodeLatents",
+           "encode_episodes", "fit_predict", "fit_probes", "glide_comparison", "glide_reference", "glide_test",
+           "neutral_last", "padded_actions", "prediction_quality", "probe_latents", "probe_model", "probe_targets",
+           "probe_windows", "window_states", "_position_decoder", "_trunk_at"]
