@@ -106,6 +106,39 @@ class _ECF(torch.autograd.Function):
         return (c * gs - s * gc).sum(-1), None
 
 
+class _ECFVmap(torch.autograd.Function):
+    """:class:`_ECF` in the ``setup_context`` form with a generated vmap rule, used under ``torch.vmap``
+    (stacked ensembles, :mod:`pokeworld.train_stacked`), where the combined form is refused.
+
+    That form cannot stash intermediates on ``ctx``, so the full cos/sin tensors come back as extra,
+    non-differentiable outputs to keep the fused backward; :func:`epps_pulley` drops them."""
+
+    generate_vmap_rule = True
+
+    @staticmethod
+    def forward(x, t):
+        xt = x.unsqueeze(-1) * t  # (..., N, K, knots)
+        c, s = torch.cos(xt), torch.sin(xt)
+        return c.mean(-3), s.mean(-3), c, s
+
+    @staticmethod
+    def setup_context(ctx, inputs, output):
+        x, t = inputs
+        ctx.mark_non_differentiable(output[2], output[3])
+        ctx.save_for_backward(output[2], output[3], t)
+        ctx.n = x.shape[-2]
+
+    @staticmethod
+    def backward(ctx, grad_cos, grad_sin, _grad_c, _grad_s):
+        return _ECF.backward(ctx, grad_cos, grad_sin)
+
+
+def _ecf(x: torch.Tensor, t: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    if torch._C._are_functorch_transforms_active():
+        return _ECFVmap.apply(x, t)[:2]
+    return _ECF.apply(x, t)
+
+
 def epps_pulley(x: torch.Tensor, num_knots: int = 17, t_max: float = 3.0) -> torch.Tensor:
     """Epps–Pulley normality statistic of 1-d samples along dim -2.
 
@@ -116,7 +149,7 @@ def epps_pulley(x: torch.Tensor, num_knots: int = 17, t_max: float = 3.0) -> tor
         (N is then the global sample count).
     """
     t, w, phi = ep_knots(num_knots, t_max, x.device)
-    cos_m, sin_m = _ECF.apply(x.float(), t)  # (..., K, knots) each
+    cos_m, sin_m = _ecf(x.float(), t)  # (..., K, knots) each
     cos_m, sin_m = _dist_mean(cos_m), _dist_mean(sin_m)
     err = (cos_m - phi) ** 2 + sin_m ** 2  # (..., K, knots)
     n = x.shape[-2] * _dist_world()
