@@ -57,7 +57,7 @@ def test_gru_recovers_a_planted_temporally_gated_parameter(rng):
 def test_certify_on_tiny_corpus_reports_every_estimator(tiny_dataset):
     cfg = make_config("tiny", kinds=("contact",))
     res = certify(tiny_dataset, cfg)
-    assert set(res["estimators"]) == set(ESTIMATORS)
+    assert set(res["estimators"]) == set(cfg.estimators) == set(ESTIMATORS) - {"linear_logspeed"}  # needs a flow corpus
     assert set(res["gate"]) == {"log_m", "gamma", "log_k"}
     best = res["certificate"]["contact"]["gamma"]
     assert best["r2"] == max(r["contact"]["gamma"] for r in res["estimators"].values() if "contact" in r)
