@@ -61,7 +61,7 @@ def _assert_same_run(a, b, rtol=1e-4, atol=1e-5):
     ra, rb = _rows(a), _rows(b)
     assert [r["step"] for r in ra] == [r["step"] for r in rb] == [0, 2, 4]
     for x, y in zip(ra[1:], rb[1:]):
-        terms = set(x) - {"frames_per_s", "steps_per_s"}
+        terms = set(x) - {"frames_per_s", "steps_per_s", "stacked_members"}
         assert terms <= set(y) and "loss" in terms and "grad_norm" in terms
         for k in terms:
             assert y[k] == pytest.approx(x[k], rel=rtol, abs=atol), k
@@ -116,6 +116,9 @@ def test_one_stacked_step_equals_the_separate_steps():
         for k in ref_terms:
             torch.testing.assert_close(terms[k][i], ref_terms[k], rtol=1e-5, atol=1e-6, msg=k)
         own = dict(m.named_parameters())
+        # conv biases ahead of a GroupNorm have an exactly-zero true gradient, so tolerances are relative
+        # to the member's largest gradient, not per element (as tests/test_fast_path.py)
+        scale = max(float(p.grad.abs().max()) for p in own.values() if p.grad is not None)
         for n, p in g.params.items():
             gs = p.grad[i]
             if n not in own:  # a part of the superset the V member lacks: exactly zero gradient
@@ -126,7 +129,6 @@ def test_one_stacked_step_equals_the_separate_steps():
             sub, rest = gs[lead], gs.clone()
             rest[lead] = 0
             assert rest.abs().max() == 0, n  # the zero-padded columns get no gradient
-            scale = float(gr.abs().max()) + 1e-8
             torch.testing.assert_close(sub, gr, rtol=1e-4, atol=1e-4 * scale, msg=n)
 
 

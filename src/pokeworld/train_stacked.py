@@ -3,7 +3,8 @@
 One small model leaves a GPU mostly idle (``paper`` preset: 2.4 % of the H100's bf16 peak), so runs
 that can share every kernel launch are trained together: their parameters are stacked along a new
 leading member axis (``torch.func.stack_module_state``) and one ``functional_call`` of the model's
-loss runs under ``torch.vmap`` over that axis. Every member keeps what its separate run
+loss runs under ``torch.vmap`` over that axis. A GPU lever: on a CPU the step is compute-bound and
+stacking measured slower than separate models (docs/model.md). Every member keeps what its separate run
 (:func:`pokeworld.train.run`) would have had:
 
 * its own initialisation (the same ``torch.manual_seed(seed)`` before construction), its own window
