@@ -415,12 +415,13 @@ def measure(model, ds: Dataset, cfg: MeasureConfig, untrained_model=None) -> dic
     """Probes (leak-free primary, action-conditioned secondary), prediction quality and the untrained bound."""
     torch.manual_seed(cfg.seed)
     probes, latents = probe_model(model, ds, cfg, cfg.mlp)
-    res = {"readout": READOUT, "probes": probes}
+    res = {"readout": {k: v for k, v in READOUT.items() if k != "probes_belief"}, "probes": probes}
     if cfg.action_conditioned_kinds:
         res["probes_action_conditioned"], _ = probe_model(model, ds, cfg, mlp=False, kinds=cfg.action_conditioned_kinds,
                                                           neutral_last_action=False, latents=latents)
     if getattr(model, "belief", None) is not None:
         res["probes_belief"] = probe_belief(model, ds, cfg, latents)
+        res["readout"]["probes_belief"] = READOUT["probes_belief"]
     res["prediction"] = prediction_quality(model, ds, *latents, cfg.seed, cfg.context)
     if untrained_model is not None:
         up, _ = probe_model(untrained_model, ds, cfg, mlp=False)
