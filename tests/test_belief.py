@@ -147,7 +147,7 @@ def test_tiny_map_runs_the_belief_experiment(tmp_path):
     assert objectives == [("belief", 0), ("belief", 65), ("latent", 0), ("latent", 65)]
     for name, r in res["runs"].items():
         m = json.loads((out / "runs" / name / "measure.json").read_text())
-        assert ("probes_belief" in m) == (r["train"].get("objective") == "belief")
+        assert ("probes_belief" in m) == (r["train"].get("objective") == "belief") == ("probes_belief" in m["readout"])
         long = r["train"].get("window") == 65
         assert m["key"]["config"]["window"] == (48 if long else 16)
         assert m["prediction"]["static16"] > 0 and "direct16" in m["prediction"]

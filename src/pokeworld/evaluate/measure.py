@@ -143,7 +143,7 @@ def measure(model, ds: Dataset, cfg: MeasureConfig, untrained_model=None) -> dic
     """Probes (leak-free primary, action-conditioned secondary), prediction quality and the untrained bound."""
     torch.manual_seed(cfg.seed)
     probes, latents = probe_model(model, ds, cfg, cfg.mlp)
-    res = {"readout": READOUT, "probes": probes}
+    res: dict = {"probes": probes}
     if cfg.action_conditioned_kinds:
         res["probes_action_conditioned"], _ = probe_model(model, ds, cfg, mlp=False, kinds=cfg.action_conditioned_kinds,
                                                           neutral_last_action=False, latents=latents)
