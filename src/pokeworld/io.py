@@ -86,3 +86,16 @@ def hash_arrays(arrays: dict[str, np.ndarray]) -> str:
 
 def make_tmpdir(prefix: str = "pokeworld-") -> Path:
     return Path(tempfile.mkdtemp(prefix=prefix))
+
+
+def save_figure(fig, out: Path, stem: str, dpi: int = 150) -> list[Path]:
+    """Write ``fig`` as ``out/stem.png`` and ``.pdf``, each atomically (temporary name, then rename); closes it."""
+    import matplotlib.pyplot as plt
+
+    paths = [Path(out) / f"{stem}.png", Path(out) / f"{stem}.pdf"]
+    for p in paths:
+        tmp = p.with_name(f".{p.stem}.tmp{p.suffix}")
+        fig.savefig(tmp, dpi=dpi)
+        tmp.replace(p)
+    plt.close(fig)
+    return paths

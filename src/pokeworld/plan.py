@@ -252,13 +252,9 @@ def figure(planned: dict, out: Path, goal_radius: float, left: str | None = None
     axes[2].legend(fontsize=8)
     fig.suptitle(f"Held-out episode {i}: same planner and budget, two frozen latents", fontsize=10)
     fig.tight_layout()
-    paths = [out / "plan_episode.png", out / "plan_episode.pdf"]
-    for p in paths:
-        tmp = p.with_name(f".{p.stem}.tmp{p.suffix}")
-        fig.savefig(tmp, dpi=150)
-        tmp.replace(p)
-    plt.close(fig)
-    return paths
+    from .io import save_figure
+
+    return save_figure(fig, out, "plan_episode")
 
 
 def table_lines(summary: dict) -> list[str]:

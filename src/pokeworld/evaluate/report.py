@@ -572,13 +572,9 @@ def figure(results: dict, out: Path) -> list[Path]:
     ax.set_title(f"Identifiability map (ridge R², contact windows; preset {prov['preset']})", fontsize=10)
     fig.colorbar(im, ax=ax, fraction=0.04, label="held-out R²")
     fig.tight_layout()
-    paths = [out / "identifiability_map.png", out / "identifiability_map.pdf"]
-    for p in paths:
-        tmp = p.with_name(f".{p.stem}.tmp{p.suffix}")
-        fig.savefig(tmp, dpi=150)
-        tmp.replace(p)
-    plt.close(fig)
-    return paths
+    from ..io import save_figure
+
+    return save_figure(fig, out, "identifiability_map")
 
 
 def write_all(c, results: dict) -> None:
