@@ -436,8 +436,8 @@ def run(cfgs: Sequence[T.TrainConfig], *, mix_variants: bool = True, max_members
     """Train (or resume, or skip if finished) every run of ``cfgs``, stacking those that can share a step
     (:func:`plan_groups`); returns the run directories in the order of ``cfgs``."""
     cfgs = list(cfgs)
+    plan_groups(cfgs, mix_variants, max_members)  # validates all runs (stackable, distinct outs) up front
     for c in cfgs:
-        T.validate(c)
         _check_existing(c)
     todo = [i for i, c in enumerate(cfgs) if not (Path(c.out) / "DONE").exists()]
     # members resume together only from the same step: the checkpoint step joins the group key
