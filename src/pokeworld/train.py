@@ -468,6 +468,42 @@ def _atomic_save(obj: Any, path: Path) -> None:
     os.replace(tmp, path)
 
 
+class MetricsLog:
+    """A run's metrics record: one JSON line per row in ``metrics.jsonl`` and, when ``tensorboard``, the same
+    scalars under ``tb/`` (``purge_step`` drops events a resumed run will write again)."""
+
+    def __init__(self, out: Path, tensorboard: bool, step: int):
+        self.path = Path(out) / "metrics.jsonl"
+        self.writer = None
+        if tensorboard:
+            from torch.utils.tensorboard import SummaryWriter
+
+            self.writer = SummaryWriter(str(Path(out) / "tb"), purge_step=step or None)
+
+    def write(self, row: dict[str, Any]) -> None:
+        from .io import append_jsonl
+
+        append_jsonl(self.path, row)
+        if self.writer is not None:
+            for k, v in row.items():
+                if k != "step":
+                    self.writer.add_scalar(f"train/{k}", v, row["step"])
+
+    def close(self) -> None:
+        if self.writer is not None:
+            self.writer.close()
+
+
+def finished_run_config(run_dir: str | os.PathLike) -> dict[str, Any]:
+    """The config.json of a finished run; ConfigError when ``run_dir`` is not a run or has not finished."""
+    run_dir = Path(run_dir)
+    if not (run_dir / "config.json").exists():
+        raise ConfigError(f"{run_dir} is not a training run (no config.json)")
+    if not (run_dir / "DONE").exists():
+        raise ConfigError(f"{run_dir} has not finished training; re-run `pokeworld train` to resume it")
+    return json.loads((run_dir / "config.json").read_text())
+
+
 def load_model(run_dir: str | os.PathLike, map_location: str | torch.device = "cpu", final: bool | None = None) -> XJEPA:
     """Load a trained model (eval mode) from a run directory: ``final.pt`` if present, else ``ckpt.pt``."""
     run_dir = Path(run_dir)
@@ -633,11 +669,7 @@ def run(cfg: TrainConfig) -> Path:
                           "rng": _rng_state(), "sampler": sampler.gen.get_state(), "step": s, "model_kwargs": mk,
                           "config": cfg_dict}, ckpt_path)
 
-    writer = None
-    if main and cfg.tensorboard:
-        from torch.utils.tensorboard import SummaryWriter
-
-        writer = SummaryWriter(str(out / "tb"), purge_step=step or None)
+    log = MetricsLog(out, cfg.tensorboard, step) if main else None
     pbar = None
     if main and cfg.progress:
         from tqdm.auto import tqdm
@@ -686,13 +718,7 @@ def run(cfg: TrainConfig) -> Path:
                        "steps_per_s": n_acc / max(dt, 1e-9)}
                 row.update({k: float(v) / n_acc for k, v in acc.items()})
                 if main:
-                    from .io import append_jsonl
-
-                    append_jsonl(out / "metrics.jsonl", row)
-                    if writer is not None:
-                        for k, v in row.items():
-                            if k != "step":
-                                writer.add_scalar(f"train/{k}", v, step)
+                    log.write(row)
                     if pbar is not None:
                         pbar.set_postfix(loss=f"{row['loss']:.4f}", fps=f"{row['frames_per_s']:.0f}")
                 acc, n_acc, t0 = {}, 0, time.perf_counter()
@@ -703,8 +729,8 @@ def run(cfg: TrainConfig) -> Path:
     finally:
         if pbar is not None:
             pbar.close()
-        if writer is not None:
-            writer.close()
+        if log is not None:
+            log.close()
     if step >= cfg.steps and main:
         _atomic_save({"model": model.state_dict(), "model_kwargs": mk, "config": cfg_dict, "step": step},
                      out / "final.pt")

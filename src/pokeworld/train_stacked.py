@@ -451,7 +451,7 @@ def run(cfgs: Sequence[T.TrainConfig], *, mix_variants: bool = True, max_members
 
 
 def _run_group(cfgs: list[T.TrainConfig]) -> None:
-    from .io import append_jsonl, read_jsonl, write_json
+    from .io import read_jsonl, write_json
 
     c0 = cfgs[0]
     if c0.deadline > 0 and T.wall_clock() >= c0.deadline:
@@ -491,12 +491,7 @@ def _run_group(cfgs: list[T.TrainConfig]) -> None:
                             "scheduler": g.sched.state_dict(), "rng": rng, "sampler": g.gens[i].get_state(),
                             "step": s, "model_kwargs": g.mks[i], "config": to_dict(c)}, out / "ckpt.pt")
 
-    writers: list[Any] = [None] * M
-    for i, (c, out) in enumerate(zip(cfgs, outs)):
-        if c.tensorboard:
-            from torch.utils.tensorboard import SummaryWriter
-
-            writers[i] = SummaryWriter(str(out / "tb"), purge_step=step or None)
+    logs = [T.MetricsLog(out, c.tensorboard, step) for c, out in zip(cfgs, outs)]
     pbar = None
     if c0.progress:
         from tqdm.auto import tqdm
@@ -533,17 +528,13 @@ def _run_group(cfgs: list[T.TrainConfig]) -> None:
                     torch.cuda.synchronize(dev)
                 dt = time.perf_counter() - t0
                 vals = {k: (v / n_acc).cpu() for k, v in acc.items()}
-                for i, out in enumerate(outs):
+                for i, log in enumerate(logs):
                     row = {"step": step, "lr": g.sched.get_last_lr()[0],
                            "frames_per_s": n_acc * c0.batch_size * c0.window / max(dt, 1e-9),
                            "steps_per_s": n_acc / max(dt, 1e-9), "stacked_members": M}
                     row.update({k: float(v[i]) for k, v in vals.items()
                                 if k not in ("proprio", "touch") or k in g.own_terms[i]})
-                    append_jsonl(out / "metrics.jsonl", row)
-                    if writers[i] is not None:
-                        for k, v in row.items():
-                            if k != "step":
-                                writers[i].add_scalar(f"train/{k}", v, step)
+                    log.write(row)
                 if pbar is not None:
                     pbar.set_postfix(loss=f"{float(vals['loss'].mean()):.4f}")
                 acc, n_acc, t0 = {}, 0, time.perf_counter()
@@ -554,9 +545,8 @@ def _run_group(cfgs: list[T.TrainConfig]) -> None:
     finally:
         if pbar is not None:
             pbar.close()
-        for w in writers:
-            if w is not None:
-                w.close()
+        for log in logs:
+            log.close()
     if step >= c0.steps:
         for i, (c, out) in enumerate(zip(cfgs, outs)):
             T._atomic_save({"model": g.member_state(i), "model_kwargs": g.mks[i], "config": to_dict(c), "step": step},

@@ -33,7 +33,27 @@ VARIANT_ORDER = ("V", "VF", "VX_p", "VX_t", "VX", "VFX")
 
 
 @dataclass
-class MapConfig:
+class LaunchOptions:
+    """Where and how runs execute (:func:`launch`); shared by ``pokeworld map`` and ``pokeworld real``."""
+
+    launcher: str = "local"
+    """local (process pool), slurm (submitit job array) or submitit-local (submitit's local executor)."""
+    workers: int = 0
+    """Parallel local runs (0: one per CPU core on CPU, 1 on a GPU)."""
+    slurm_partition: str = ""
+    """SLURM partition for --launcher slurm."""
+    slurm_timeout_min: int = 180
+    """SLURM time limit per run in minutes."""
+    slurm_gpus: int = 1
+    """GPUs per SLURM job."""
+
+    def __post_init__(self) -> None:
+        if self.launcher not in ("local", "slurm", "submitit-local"):
+            raise ConfigError(f"launcher must be local, slurm or submitit-local, got {self.launcher!r}")
+
+
+@dataclass
+class MapConfig(LaunchOptions):
     """Run the identifiability map (or the small demo)."""
 
     out: str = "out/map"
@@ -80,16 +100,6 @@ class MapConfig:
     """Fit early-stopped MLP probes besides ridge."""
     untrained: bool = True
     """Probe randomly initialised models too (the untrained bound)."""
-    launcher: str = "local"
-    """local (process pool), slurm (submitit job array) or submitit-local (submitit's local executor)."""
-    workers: int = 0
-    """Parallel local runs (0: one per CPU core on CPU, 1 on a GPU)."""
-    slurm_partition: str = ""
-    """SLURM partition for --launcher slurm."""
-    slurm_timeout_min: int = 180
-    """SLURM time limit per run in minutes."""
-    slurm_gpus: int = 1
-    """GPUs per SLURM job."""
     time_budget_min: float = 0.0
     """Wall-clock budget of this invocation in minutes (0 = none). Training stops with a checkpoint
     ``time_reserve_min`` before it ends, unfinished runs are reported in progress.json, the command
@@ -103,6 +113,7 @@ class MapConfig:
     progress.json, results.json/.md and the figure; never checkpoints, TensorBoard events or data."""
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         bad = set(self.experiments) - set(EXPERIMENTS)
         if bad:
             raise ConfigError(f"unknown experiments {sorted(bad)}; choose from {sorted(EXPERIMENTS)}")
@@ -113,8 +124,6 @@ class MapConfig:
             raise ConfigError(f"unknown variants {sorted(badv)}; choose from {list(VARIANTS)}")
         if not self.belief_histories or set(self.belief_histories) - {"window", "episode"}:
             raise ConfigError(f"belief_histories must name 'window' and/or 'episode', got {self.belief_histories}")
-        if self.launcher not in ("local", "slurm", "submitit-local"):
-            raise ConfigError(f"launcher must be local, slurm or submitit-local, got {self.launcher!r}")
         if self.preset not in ("tiny", "cpu", "paper"):
             raise ConfigError(f"unknown preset {self.preset!r}; choose tiny, cpu or paper")
         if self.time_budget_min < 0 or self.time_reserve_min < 0:

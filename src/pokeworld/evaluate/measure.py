@@ -184,14 +184,10 @@ def untrained_like(run_dir: Path, ds: Dataset | None = None, seed: int = 12345):
 
 def run(cfg: MeasureConfig) -> Path:
     """Measure ``cfg.run_dir`` and write ``measure.json`` there (skipped when up to date)."""
-    from ..train import load_model
+    from ..train import finished_run_config, load_model
 
     run_dir = Path(cfg.run_dir)
-    if not (run_dir / "config.json").exists():
-        raise ConfigError(f"{run_dir} is not a training run (no config.json)")
-    if not (run_dir / "DONE").exists():
-        raise ConfigError(f"{run_dir} has not finished training; re-run `pokeworld train` to resume it")
-    run_cfg = json.loads((run_dir / "config.json").read_text())
+    run_cfg = finished_run_config(run_dir)
     data = cfg.data or run_cfg["data"]
     out = run_dir / ("measure.json" if not cfg.data else f"measure-{Path(cfg.data).name}.json")
     ds = load(data)

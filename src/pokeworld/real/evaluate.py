@@ -284,14 +284,10 @@ def result_path(run_dir: Path, data: str) -> Path:
 def run(cfg: RealEvalConfig) -> Path:
     """Evaluate ``cfg.run_dir`` on a converted store and write ``real_eval[-<store>].json`` there."""
     from ..evaluate.measure import untrained_copy
-    from ..train import load_model
+    from ..train import finished_run_config, load_model
 
     run_dir = Path(cfg.run_dir)
-    if not (run_dir / "config.json").exists():
-        raise ConfigError(f"{run_dir} is not a training run (no config.json)")
-    if not (run_dir / "DONE").exists():
-        raise ConfigError(f"{run_dir} has not finished training; re-run `pokeworld train` to resume it")
-    run_cfg = json.loads((run_dir / "config.json").read_text())
+    run_cfg = finished_run_config(run_dir)
     data = cfg.data or run_cfg["data"]
     out = result_path(run_dir, cfg.data)
     ds = load(data)

@@ -31,6 +31,7 @@ import numpy as np
 from ..config import from_preset, to_dict
 from ..data import Dataset, concatenate, is_complete, load, save
 from ..errors import ConfigError, DataError
+from ..evaluate.experiment import LaunchOptions, _cores, _default_workers, launch
 from ..io import write_json
 
 STORES = ("kuka", "kuka_close", "kuka_two_view", "flexiv")
@@ -38,7 +39,7 @@ STORES = ("kuka", "kuka_close", "kuka_two_view", "flexiv")
 
 
 @dataclass
-class RealConfig:
+class RealConfig(LaunchOptions):
     """Run the real-robot experiments over converted RH20T stores."""
 
     out: str = "out/real"
@@ -77,18 +78,9 @@ class RealConfig:
     """Also fit MLP probes (tables report ridge)."""
     untrained: bool = True
     """Evaluate untrained copies too (the untrained-encoder bounds)."""
-    launcher: str = "local"
-    """local (process pool), slurm (submitit job array) or submitit-local."""
-    workers: int = 0
-    """Parallel local runs (0: one per CPU core on CPU, 1 on a GPU)."""
-    slurm_partition: str = ""
-    """SLURM partition for --launcher slurm."""
-    slurm_timeout_min: int = 180
-    """SLURM time limit per run in minutes."""
-    slurm_gpus: int = 1
-    """GPUs per SLURM job."""
 
     def __post_init__(self) -> None:
+        super().__post_init__()
         from ..models.xjepa import VARIANTS
 
         bad = set(self.experiments) - set(EXPERIMENTS)
@@ -99,8 +91,6 @@ class RealConfig:
             raise ConfigError(f"unknown variants {sorted(badv)}; choose from {list(VARIANTS)}")
         if self.preset not in ("tiny", "cpu", "paper"):
             raise ConfigError(f"unknown preset {self.preset!r}; choose tiny, cpu or paper")
-        if self.launcher not in ("local", "slurm", "submitit-local"):
-            raise ConfigError(f"launcher must be local, slurm or submitit-local, got {self.launcher!r}")
         if not self.scales or min(self.scales) <= 0:
             raise ConfigError(f"scales must be positive (scene counts > 1 or fractions <= 1), got {self.scales}")
         if self.compute_control < 0:
@@ -302,7 +292,6 @@ def jobs(c: RealConfig, runs: list[RealRun], stores: dict[str, str], threads: in
 
 def run(c: RealConfig) -> Path:
     """Build derived stores, train and evaluate every run, write results.json, results.md, scissors.png."""
-    from ..evaluate.experiment import _cores, _default_workers, launch
     from . import report
 
     out = Path(c.out)
