@@ -202,7 +202,7 @@ def concatenate(datasets: list[Dataset], names: list[str] | None = None) -> Data
     RH20T configurations for a configuration-blind model).
 
     Episodes keep their split. Labels and params present in every input (with equal trailing shapes)
-    are kept, the rest dropped; ``params/source`` records the input index of every episode (for
+    are kept, the rest dropped (``scene_index`` offset per input so scenes of different inputs stay distinct); ``params/source`` records the input index of every episode (for
     evaluation and bookkeeping only: the model never reads params). Streams are concatenated as stored,
     so each input keeps its own normalisation (converted RH20T stores are whitened with their own
     train statistics).
@@ -222,6 +222,10 @@ def concatenate(datasets: list[Dataset], names: list[str] | None = None) -> Data
     cat = lambda arrs: np.concatenate(arrs, 0)  # noqa: E731
     params = {k: cat([d.params[k] for d in datasets]) for k in common("params") if k != "source"}
     params["source"] = cat([np.full(d.num_episodes, i, np.float32) for i, d in enumerate(datasets)])
+    if "scene_index" in params:  # each input numbers its scenes from 0: offset them so scenes stay distinct
+        offsets = np.cumsum([0] + [d.params["scene_index"].max() + 1 for d in datasets[:-1]])
+        params["scene_index"] = cat([d.params["scene_index"] + o for d, o in zip(datasets, offsets)]).astype(
+            params["scene_index"].dtype)
     manifest = {"kind": "concat", "sources": names or [str(i) for i in range(len(datasets))],
                 "source_manifests": [{k: d.manifest.get(k) for k in ("kind", "robot", "content_sha256", "hz")}
                                      for d in datasets]}

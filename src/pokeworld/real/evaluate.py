@@ -99,21 +99,13 @@ def make_config(preset: str = "cpu", **overrides) -> RealEvalConfig:
 
 # --------------------------------------------------------------------------- statistics
 def roc_auc(labels: np.ndarray, scores: np.ndarray) -> float | None:
-    """Area under the ROC curve (Mann–Whitney U with mid-ranks for ties); None without both classes."""
+    """Area under the ROC curve (scikit-learn's, ties counted half); None without both classes."""
+    from sklearn.metrics import roc_auc_score
+
     y = np.asarray(labels).astype(bool).ravel()
-    s = np.asarray(scores, float).ravel()
-    n1, n0 = int(y.sum()), int((~y).sum())
-    if n1 == 0 or n0 == 0:
+    if y.all() or not y.any():
         return None
-    order = np.argsort(s, kind="mergesort")
-    ranks = np.empty(len(s))
-    sorted_s = s[order]
-    # mid-ranks: every member of a tie block gets the block's mean rank
-    starts = np.r_[0, np.flatnonzero(np.diff(sorted_s)) + 1]
-    ends = np.r_[starts[1:], len(s)]
-    for a, b in zip(starts, ends):
-        ranks[order[a:b]] = 0.5 * (a + b - 1) + 1
-    return float((ranks[y].sum() - n1 * (n1 + 1) / 2) / (n1 * n0))
+    return float(roc_auc_score(y, np.asarray(scores, float).ravel()))
 
 
 def r2(y: np.ndarray, pred: np.ndarray) -> float:

@@ -15,21 +15,22 @@ the scaling points, or the concatenation for the joint model) and is evaluated b
 :mod:`pokeworld.real.evaluate` on its evaluation store(s). Runs execute through the identifiability
 map's launcher (:func:`pokeworld.evaluate.experiment.launch`: local process pool or submitit), and
 re-running skips finished runs and resumes unfinished ones. Results land in ``out/results.json``,
-``out/results.md`` (tables with the paper's numbers beside ours) and ``out/scissors.png``.
+``out/results.md`` (tables with the paper's numbers beside ours) and, when the scaling experiment ran, ``out/scissors.png``.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
 
 from ..config import from_preset, to_dict
-from ..data import Dataset, concatenate, is_complete, load, save
+from ..data import Dataset, concatenate, is_complete, load, save, store_is_current
 from ..errors import ConfigError, DataError
 from ..evaluate.experiment import LaunchOptions, _cores, _default_workers, launch
 from ..io import write_json
@@ -43,7 +44,7 @@ class RealConfig(LaunchOptions):
     """Run the real-robot experiments over converted RH20T stores."""
 
     out: str = "out/real"
-    """Output directory: derived stores, runs/, results.json, results.md, scissors.png."""
+    """Output directory: derived stores, runs/, results.json, results.md, scissors.png (scaling experiment only)."""
     preset: str = "cpu"
     """Preset of every stage (train, evaluate): tiny (seconds, tests), cpu (2 CPU cores) or paper (GPU)."""
     kuka: str = ""
@@ -99,8 +100,7 @@ class RealConfig(LaunchOptions):
 
 PRESETS: dict[str, dict] = {
     # tests: two variants / arms, two scales, fixture-sized stores
-    "tiny": {"preset": "tiny", "variants": ("V", "VFX"), "arms": ("VX", "VFX"), "scales": (0.5, 1.0),
-             "untrained": True},
+    "tiny": {"preset": "tiny", "variants": ("V", "VFX"), "arms": ("VX", "VFX"), "scales": (0.5, 1.0)},
     # 2 CPU cores: fractions (synthetic corpora are small), 1,500 steps per run at 32x32
     "cpu": {"preset": "cpu", "scales": (0.2, 0.5, 1.0), "train_steps": 1500},
     # App. B/C: 20k steps, 96x96 frames, 800 / 2,000 / 4,258 scenes
@@ -127,17 +127,12 @@ class RealRun:
     steps_factor: float = 1.0
     """Training steps relative to the fixed-compute budget."""
     scale: float = 1.0
-    meta: dict = field(default_factory=dict, compare=False, hash=False)
 
 
 def _run(exp, store, variant, evals=None, steps_factor=1.0, scale=1.0, seed=0) -> RealRun:
     tag = "" if steps_factor == 1.0 else f"-x{steps_factor:g}"
     return RealRun(f"{store.replace('@', '-n')}-{variant}{tag}-s{seed}", exp, store, variant,
                    tuple(evals or (store,)), steps_factor, scale)
-
-
-def _full(s: float) -> bool:
-    return s == 1.0
 
 
 def exp_kuka(c: RealConfig) -> list[RealRun]:
@@ -152,7 +147,7 @@ def exp_scaling(c: RealConfig) -> list[RealRun]:
     runs = []
     for arm in c.arms:
         for s in c.scales:
-            store = "flexiv" if _full(s) else f"flexiv@{s:g}"
+            store = "flexiv" if s == 1.0 else f"flexiv@{s:g}"
             runs.append(_run("scaling", store, arm, evals=("flexiv",), scale=s, seed=c.seed))
         if c.compute_control:
             runs.append(_run("scaling", "flexiv", arm, steps_factor=c.compute_control, seed=c.seed))
@@ -194,8 +189,7 @@ def all_runs(c: RealConfig) -> list[RealRun]:
         for r in EXPERIMENTS[exp](c):
             if r.name in seen:  # a run shared by two experiments trains once, evaluated on the union
                 old = seen[r.name]
-                seen[r.name] = RealRun(old.name, old.experiment, old.store, old.variant,
-                                       tuple(dict.fromkeys(old.evals + r.evals)), old.steps_factor, old.scale)
+                seen[r.name] = dataclasses.replace(old, evals=tuple(dict.fromkeys(old.evals + r.evals)))
             else:
                 seen[r.name] = r
     return list(seen.values())
@@ -207,19 +201,24 @@ def run_experiments(c: RealConfig) -> dict[str, list[str]]:
 
 # --------------------------------------------------------------------------- stores
 def subset_train_scenes(ds: Dataset, scale: float, seed: int) -> tuple[Dataset, dict]:
-    """``ds`` with its training split reduced to a seeded random share of its training scenes.
+    """``ds`` with its training split reduced to a seeded, task-stratified, nested share of its training scenes
+    (the converter's ``--max-scenes`` sampling, :func:`pokeworld.real.rh20t.stratified_indices`).
 
     ``scale`` > 1 is a number of corpus scenes (all splits), mapped to the same share of training
     scenes; ``scale`` <= 1 is that share directly. Probe-fit, probe-test and held-out episodes stay.
     """
+    from .rh20t import stratified_indices
+
     scene = ds.params["scene_index"].astype(int) if "scene_index" in ds.params else np.arange(ds.num_episodes)
+    task = ds.params["task_id"].astype(int) if "task_id" in ds.params else np.zeros(ds.num_episodes, int)
     total = np.unique(scene).size
-    train_scenes = np.unique(scene[ds.split == 0])
+    train_scenes, first = np.unique(scene[ds.split == 0], return_index=True)
     if scale > 1 and scale > total:
         raise ConfigError(f"scale {scale:g} scenes exceeds the corpus's {total} scenes")
     frac = scale / total if scale > 1 else scale
     keep_n = max(1, int(round(frac * train_scenes.size)))
-    keep = np.random.default_rng(seed).permutation(train_scenes)[:keep_n]
+    chosen = stratified_indices(task[ds.split == 0][first], [int(x) for x in train_scenes], keep_n, seed)
+    keep = train_scenes[chosen]
     idx = np.flatnonzero((ds.split != 0) | np.isin(scene, keep))
     sub = ds.subset(idx)
     info = {"scale": scale, "corpus_scenes": int(total), "train_scenes": int(keep_n),
@@ -233,6 +232,11 @@ def _store_dir(c: RealConfig, key: str) -> Path:
     return Path(c.out) / "data" / key.replace("@", "-n")
 
 
+def _content_sha(store: str) -> str:
+    """A store's content hash from its manifest, without loading the arrays."""
+    return json.loads((Path(store) / "manifest.json").read_text())["content_sha256"]
+
+
 def ensure_stores(c: RealConfig, runs: list[RealRun]) -> dict[str, str]:
     """Paths of every store the runs use, building the scene subsets and the concatenation once."""
     paths: dict[str, str] = {}
@@ -241,15 +245,23 @@ def ensure_stores(c: RealConfig, runs: list[RealRun]) -> dict[str, str]:
         if key in STORES:
             if not is_complete(path):
                 raise DataError(f"--{key.replace('_', '-')} {path} is not a converted store (no data.h5/manifest.json)")
-        elif not is_complete(path):
+        else:
+            # a derived store is reused only if it was built from these inputs (else ConfigError: its runs
+            # were trained on other data, so a fresh --out is needed)
             if key == "joint":
-                ds = concatenate([load(c.kuka), load(c.flexiv)], names=["kuka", "flexiv"])
-                save(ds, path)
+                derived = {"kind": "joint", "sources": [_content_sha(c.kuka), _content_sha(c.flexiv)]}
             else:
                 scale = next(r.scale for r in runs if r.store == key)
-                sub, info = subset_train_scenes(load(c.flexiv), scale, c.seed)
-                save(sub, path, {"subset_of": str(c.flexiv), "subset": info})
-            print(f"[real] wrote {path}")
+                derived = {"kind": "subset", "source": _content_sha(c.flexiv), "scale": scale, "seed": c.seed}
+            if not store_is_current(path, derived):
+                if key == "joint":
+                    ds, extra = concatenate([load(c.kuka), load(c.flexiv)], names=["kuka", "flexiv"]), {}
+                else:
+                    src = load(c.flexiv)
+                    ds, info = subset_train_scenes(src, scale, c.seed)
+                    extra = {"subset_of": str(c.flexiv), "subset": info, "source_config": src.manifest.get("config")}
+                save(ds, path, {"config": derived, **extra})
+                print(f"[real] wrote {path}")
         paths[key] = str(path)
     return paths
 
@@ -291,7 +303,7 @@ def jobs(c: RealConfig, runs: list[RealRun], stores: dict[str, str], threads: in
 
 
 def run(c: RealConfig) -> Path:
-    """Build derived stores, train and evaluate every run, write results.json, results.md, scissors.png."""
+    """Build derived stores, train and evaluate every run, write results.json, results.md (and scissors.png after scaling)."""
     from . import report
 
     out = Path(c.out)
@@ -302,20 +314,12 @@ def run(c: RealConfig) -> Path:
     workers = c.workers or _default_workers(len(runs))
     threads = max(1, _cores() // workers) if (c.launcher == "local" and workers > 1) else 0
     print(f"[real] {len(runs)} runs ({', '.join(experiments(c))}), launcher={c.launcher}, workers={workers}")
-    launch(dataclass_view(c, workers), jobs(c, runs, stores, threads), fn=execute)
+    launch(dataclasses.replace(c, workers=workers), jobs(c, runs, stores, threads), fn=execute)
     results = collect(c, runs, stores)
     write_json(out / "results.json", results)
-    report.write_all(out, results)
-    print(f"[real] wrote {out / 'results.json'}, {out / 'results.md'}, {out / 'scissors.png'}")
+    written = report.write_all(out, results)
+    print(f"[real] wrote {', '.join(str(p) for p in [out / 'results.json', *written])}")
     return out
-
-
-def dataclass_view(c: RealConfig, workers: int):
-    """The fields :func:`pokeworld.evaluate.experiment.launch` reads, with the resolved worker count."""
-    import types
-
-    return types.SimpleNamespace(launcher=c.launcher, workers=workers, out=c.out, slurm_partition=c.slurm_partition,
-                                 slurm_timeout_min=c.slurm_timeout_min, slurm_gpus=c.slurm_gpus)
 
 
 def collect(c: RealConfig, runs: list[RealRun], stores: dict[str, str]) -> dict:

@@ -115,7 +115,7 @@ def write_mp4(path: Path, frames: list[np.ndarray], fps: int = 10, options: dict
     raise RuntimeError(f"no usable mp4 encoder (libx264, mpeg4): {last}")
 
 
-def _save_dict(path: Path, obj) -> None:
+def save_dict(path: Path, obj) -> None:
     np.save(path, obj, allow_pickle=True)  # RH20T stores python dicts as 0-d object arrays
 
 
@@ -165,7 +165,7 @@ def write_scene(cfg_dir: Path, name: str, k: int, *, cfg: int = 7, duration_s: f
             for ti, f in zip(ts, frames):
                 cv2.imwrite(str(cam / "color" / f"{int(ti)}.jpg"), f[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, 95])
         else:
-            _save_dict(cam / "timestamps.npy", {"color": [int(x) for x in ts], "depth": [int(x) for x in ts]})
+            save_dict(cam / "timestamps.npy", {"color": [int(x) for x in ts], "depth": [int(x) for x in ts]})
             mp4 = cam / "color.mp4"
             if defect == "empty_video" and role == "far":
                 mp4.write_bytes(b"")
@@ -177,11 +177,11 @@ def write_scene(cfg_dir: Path, name: str, k: int, *, cfg: int = 7, duration_s: f
                     raw = mp4.read_bytes()
                     mp4.write_bytes(raw[: len(raw) * 2 // 5])
     tr = d / "transformed"
-    _save_dict(tr / "tcp_base.npy", tcp_d)
+    save_dict(tr / "tcp_base.npy", tcp_d)
     if defect != "missing_ft":
-        _save_dict(tr / "force_torque_base.npy", ft_d)
-    _save_dict(tr / "gripper.npy", gr_d)
-    _save_dict(tr / "joint.npy", jt_d)
+        save_dict(tr / "force_torque_base.npy", ft_d)
+    save_dict(tr / "gripper.npy", gr_d)
+    save_dict(tr / "joint.npy", jt_d)
     all_ts = np.concatenate(list(cam_ts.values()))
     calib = -1 if defect == "missing_calib" else T0_MS - 86_400_000
     meta = {"calib": calib, "rating": 1 if defect == "low_rating" else rating, "bad_calib_view": [],
@@ -195,8 +195,8 @@ def write_calib(cfg_dir: Path, cfg: int) -> None:
     c.mkdir(parents=True, exist_ok=True)
     roles = CAMERA_ROLES[cfg]
     eye = {roles[r][0]: np.eye(4)[None] for r in ("far", "close")}
-    _save_dict(c / "extrinsics.npy", eye)
-    _save_dict(c / "intrinsics.npy", {s: np.eye(3, 4) for s in eye})
+    save_dict(c / "extrinsics.npy", eye)
+    save_dict(c / "intrinsics.npy", {s: np.eye(3, 4) for s in eye})
     np.save(c / "tcp.npy", np.array([0.4, -0.1, 0.3, 1.0, 0.0, 0.0, 0.0]))
 
 

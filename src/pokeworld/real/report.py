@@ -199,7 +199,8 @@ def untrained_table(results: dict) -> list[str]:
                      fmt(None if d16 is None else d16 / 100, 2) + " m", f"{p['pred16_m']:g} m",
                      pair(auc(m, "iid"), auc(m, "ood")), ppair(p["auc"])])
     retention = []
-    for arm in results["config"]["arms"]:
+    # the variants that were trained on this store: the scaling arms on cfg1, the kuka variants on cfg7
+    for arm in results["config"]["arms" if store == "flexiv" else "variants"]:
         m = metrics(results, run_name(results, store, arm), store)
         retention.append(f"{arm} {fmt(force(m, 'ood'))}")
     u = metrics(results, run_name(results, store, "VFX"), store, "untrained")
@@ -238,7 +239,7 @@ def forecast_table(results: dict) -> list[str]:
     # across scale: held-out Δ=4 forecast and the paired scene-bootstrap CI of model − persistence
     c = results["config"]
     srows = []
-    for arm in ("VFX", "VX"):
+    for arm in ("VFX", "VX") if "scaling" in results["experiments"] else ():
         if arm not in c["arms"]:
             continue
         for s in c["scales"]:
@@ -374,7 +375,15 @@ def scissors(results: dict, out: Path) -> Path | None:
     return path
 
 
-def write_all(out: Path, results: dict) -> None:
+def write_all(out: Path, results: dict) -> list[Path]:
+    """Write results.md and, when the scaling experiment ran, scissors.png; returns the paths written.
+    A scissors.png left by an earlier scaling run in ``out`` is removed rather than reported as current."""
     with atomic_path(out / "results.md") as tmp:
         Path(tmp).write_text(markdown(results))
-    scissors(results, out)
+    written = [out / "results.md"]
+    fig = scissors(results, out)
+    if fig is not None:
+        written.append(fig)
+    else:
+        (out / "scissors.png").unlink(missing_ok=True)
+    return written

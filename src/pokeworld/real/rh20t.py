@@ -51,6 +51,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 from tqdm.auto import tqdm
 
 from .. import __version__
@@ -457,43 +458,21 @@ def clean_records(ts: np.ndarray, vals: np.ndarray, stream: str, what: str,
 # ------------------------------------------------------------- camera-frame F/T -> base frame
 
 
-def _rot_x(a: float) -> np.ndarray:
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[1, 0, 0], [0, c, -s], [0, s, c]])
-
-
-def _rot_y(a: float) -> np.ndarray:
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
-
-
-def _rot_z(a: float) -> np.ndarray:
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
-
-
+# Rotations through scipy (conventions pinned by tests/test_rh20t.py): quaternions here are (w, x, y, z),
+# scipy's are (x, y, z, w); transforms3d's default Euler axes ``sxyz`` are scipy's static "xyz".
 def euler_sxyz_to_mat(ai: float, aj: float, ak: float) -> np.ndarray:
     """Static-axes x-y-z Euler angles (transforms3d's default ``sxyz``, used by rh20t_api) -> rotation matrix."""
-    return _rot_z(ak) @ _rot_y(aj) @ _rot_x(ai)
+    return Rotation.from_euler("xyz", [ai, aj, ak]).as_matrix()
 
 
 def quat_to_mat(q: np.ndarray) -> np.ndarray:
-    """Unit quaternion (w, x, y, z) -> rotation matrix."""
-    w, x, y, z = np.asarray(q, np.float64) / np.linalg.norm(q)
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    """Quaternion (w, x, y, z), normalised first -> rotation matrix."""
+    return Rotation.from_quat(np.roll(np.asarray(q, np.float64), -1)).as_matrix()
 
 
 def rotvec_to_mat(v: np.ndarray) -> np.ndarray:
-    """Rotation vector (axis * angle) -> rotation matrix (Rodrigues)."""
-    v = np.asarray(v, np.float64)
-    a = float(np.linalg.norm(v))
-    if a < 1e-12:
-        return np.eye(3)
-    k = v / a
-    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + math.sin(a) * K + (1 - math.cos(a)) * K @ K
+    """Rotation vector (axis * angle) -> rotation matrix."""
+    return Rotation.from_rotvec(np.asarray(v, np.float64)).as_matrix()
 
 
 def calib_tcp_rotation(tcp: np.ndarray, cfg_num: int) -> np.ndarray:
@@ -910,29 +889,36 @@ def convert_scene_cached(ref: SceneRef, cfg: ConvertConfig, cdir: Path) -> tuple
 # ------------------------------------------------------------------------------- subsets
 
 
-def stratified_subset(refs: list[SceneRef], n: int, seed: int) -> list[SceneRef]:
-    """A seeded random subset of ``n`` scenes stratified by task (systematic sampling; nested in ``n``).
+def stratified_indices(tasks, keys, n: int, seed: int) -> list[int]:
+    """Indices of a seeded random subset of ``n`` items stratified by task (systematic sampling; nested in ``n``).
 
-    Every task's scenes are put in a seeded random order and scene ``k`` of a task with ``n_t`` scenes gets the
-    key ``(k + u_t) / n_t`` (``u_t`` a seeded uniform offset per task); the ``n`` smallest keys are kept. So each
-    task contributes ``n * n_t / N`` scenes up to rounding (at most one off), the draw is random within each
-    task, and a smaller ``n`` (same seed) is a subset of a larger one, which keeps scaling curves nested.
-    Returns the chosen scenes sorted by name; all of them when ``n <= 0`` or ``n >= len(refs)``.
+    Every task's items (in ``keys`` order) are put in a seeded random order and item ``k`` of a task with ``n_t``
+    items gets the key ``(k + u_t) / n_t`` (``u_t`` a seeded uniform offset per task); the ``n`` smallest keys are
+    kept. So each task contributes ``n * n_t / N`` items up to rounding (at most one off), the draw is random
+    within each task, and a smaller ``n`` (same seed) is a subset of a larger one, which keeps scaling curves
+    nested. Returns the chosen indices in ``keys`` order; all of them when ``n <= 0`` or ``n >= len(keys)``.
     """
-    if n <= 0 or n >= len(refs):
-        return sorted(refs, key=lambda r: (r.name, str(r.path)))
-    keys: list[tuple[float, str, str, SceneRef]] = []
-    by_task: dict[int, list[SceneRef]] = {}
-    for r in sorted(refs, key=lambda r: (r.name, str(r.path))):
-        by_task.setdefault(r.task, []).append(r)
+    order_all = sorted(range(len(keys)), key=lambda i: keys[i])
+    if n <= 0 or n >= len(keys):
+        return order_all
+    by_task: dict[int, list[int]] = {}
+    for i in order_all:
+        by_task.setdefault(int(tasks[i]), []).append(i)
+    ranked: list[tuple[float, Any, int]] = []
     for task, group in sorted(by_task.items()):
         rng = np.random.default_rng([seed, 0x5EED, task])  # per task: a task's draw ignores the other tasks
-        order = rng.permutation(len(group))
+        u_order = rng.permutation(len(group))
         u = rng.random()
-        for k, i in enumerate(order):
-            keys.append(((k + u) / len(group), group[i].name, str(group[i].path), group[i]))
-    keys.sort(key=lambda x: x[:3])
-    return sorted((x[3] for x in keys[:n]), key=lambda r: (r.name, str(r.path)))
+        for k, j in enumerate(u_order):
+            ranked.append(((k + u) / len(group), keys[group[j]], group[j]))
+    ranked.sort(key=lambda x: x[:2])
+    return sorted((x[2] for x in ranked[:n]), key=lambda i: keys[i])
+
+
+def stratified_subset(refs: list[SceneRef], n: int, seed: int) -> list[SceneRef]:
+    """A seeded, task-stratified, nested random subset of ``n`` scenes (:func:`stratified_indices`), sorted by name."""
+    keys = [(r.name, str(r.path)) for r in refs]
+    return [refs[i] for i in stratified_indices([r.task for r in refs], keys, n, seed)]
 
 
 # ------------------------------------------------------------------------------- assembling

@@ -51,9 +51,9 @@ from ..io import atomic_path, write_json
 from ..sim.core import PARAM_NAMES, ParamRanges, PhysicsConfig, PokeWorldSim
 from ..sim.physics import render_kernel
 from ..sim.policy import MixedPolicy, PolicyConfig
-from .fixtures import write_mp4
+from .fixtures import save_dict, write_mp4
 from .rh20t import (CAMERA_ROLES, IN_HAND_CALIB, ROBOTS, SKIP_REASONS, contact_onset, euler_sxyz_to_mat,
-                    quat_to_mat)
+                    quat_mul, quat_to_mat)
 
 T0_MS = 1_700_000_000_000
 """First scene's start (13-digit ms); scene i starts one hour after scene i-1."""
@@ -263,13 +263,6 @@ def _camera_times(rng: np.random.Generator, t0_ms: int, span_ms: float) -> np.nd
     return np.asarray(ts[:-1], np.int64)
 
 
-def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    aw, ax, ay, az = np.moveaxis(a, -1, 0)
-    bw, bx, by, bz = np.moveaxis(b, -1, 0)
-    return np.stack([aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
-                     aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw], -1)
-
-
 def _small_rotations(rng: np.random.Generator, n: int, sigma: float) -> np.ndarray:
     v = rng.normal(0, sigma, (n, 3))
     ang = np.linalg.norm(v, axis=1, keepdims=True)
@@ -286,10 +279,6 @@ def _homog(r: np.ndarray, t) -> np.ndarray:
     m = np.eye(4)
     m[:3, :3], m[:3, 3] = r, t
     return m
-
-
-def _save_dict(path: Path, obj) -> None:
-    np.save(path, obj, allow_pickle=True)  # RH20T stores python dicts as 0-d object arrays
 
 
 def _render(pos_f: np.ndarray, pos_o: np.ndarray, view: str, cfg: SynthConfig) -> np.ndarray:
@@ -373,12 +362,12 @@ def base_to_camera(cal: dict, serial: str, cfg_num: int) -> np.ndarray:
 def write_calib(cfg_dir: Path, cal: dict) -> None:
     c = cfg_dir / "calib" / str(CALIB_MS)
     c.mkdir(parents=True, exist_ok=True)
-    _save_dict(c / "extrinsics.npy", cal["extrinsics"])
-    _save_dict(c / "intrinsics.npy", {s: np.eye(3, 4) for s in cal["extrinsics"]})
+    save_dict(c / "extrinsics.npy", cal["extrinsics"])
+    save_dict(c / "intrinsics.npy", {s: np.eye(3, 4) for s in cal["extrinsics"]})
     np.save(c / "tcp.npy", cal["tcp"])
     e = cfg_dir / "calib" / str(EMPTY_CALIB_MS)  # intrinsics only: the camera-frame F/T fallback cannot work
     e.mkdir(parents=True, exist_ok=True)
-    _save_dict(e / "intrinsics.npy", {s: np.eye(3, 4) for s in cal["extrinsics"]})
+    save_dict(e / "intrinsics.npy", {s: np.eye(3, 4) for s in cal["extrinsics"]})
 
 
 # --------------------------------------------------------------------------------- one scene
@@ -434,7 +423,7 @@ def write_scene(cfg_dir: Path, truth_dir: Path, plan: ScenePlan, cfg: SynthConfi
         n = len(ts)
         t_s = (ts - t0) / 1000.0
         pos = tcp_at(t_s)
-        quat = _quat_mul(_small_rotations(rng, n, cfg.quat_noise_rad), QUAT_DOWN[None])
+        quat = quat_mul(_small_rotations(rng, n, cfg.quat_noise_rad), QUAT_DOWN[None])
         ft_true = _interp(t_s, t_f, ft_knots)
         noise = rng.uniform(-cfg.ft_noise_n, cfg.ft_noise_n, (n, 6))
         noise[:, 2:] = 0.0
@@ -499,19 +488,19 @@ def write_scene(cfg_dir: Path, truth_dir: Path, plan: ScenePlan, cfg: SynthConfi
             for ti, f in zip(ts, frames):
                 cv2.imwrite(str(cam / "color" / f"{int(ti)}.jpg"), f, [cv2.IMWRITE_JPEG_QUALITY, 95])
         else:
-            _save_dict(cam / "timestamps.npy", {"color": [int(x) for x in ts], "depth": [int(x) for x in ts]})
+            save_dict(cam / "timestamps.npy", {"color": [int(x) for x in ts], "depth": [int(x) for x in ts]})
             rgb = [np.repeat(f[..., None], 3, axis=2) for f in frames]
             if plan.defect == "truncated_video" and role == "far":
                 rgb = rgb[: len(rgb) - 10]
             write_mp4(cam / "color.mp4", rgb, options={"preset": "ultrafast", "crf": "18"})
     if not plan.human:
         tr = d / "transformed"
-        _save_dict(tr / "tcp_base.npy", tcp_d)
+        save_dict(tr / "tcp_base.npy", tcp_d)
         if plan.defect not in ("camera_frame_ft", "camera_frame_ft_no_calib"):
-            _save_dict(tr / "force_torque_base.npy", ft_d)
-        _save_dict(tr / "force_torque.npy", ftc_d)
-        _save_dict(tr / "gripper.npy", gr_d)
-        _save_dict(tr / "joint.npy", jt_d)
+            save_dict(tr / "force_torque_base.npy", ft_d)
+        save_dict(tr / "force_torque.npy", ftc_d)
+        save_dict(tr / "gripper.npy", gr_d)
+        save_dict(tr / "joint.npy", jt_d)
     calib = EMPTY_CALIB_MS if plan.defect == "camera_frame_ft_no_calib" else CALIB_MS
     meta = {"calib": calib, "rating": 1 if plan.defect == "low_rating" else int(rng.integers(3, 10)),
             "bad_calib_view": [], "start_time": int(start_ms), "finish_time": int(finish_ms)}
