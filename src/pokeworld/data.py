@@ -141,8 +141,9 @@ def save(ds: Dataset, out_dir: str | os.PathLike, manifest: dict[str, Any] | Non
     return out_dir
 
 
-def load(path: str | os.PathLike, verify: bool = True) -> Dataset:
-    """Load a dataset directory, checking presence, structure and (by default) the content hash."""
+def read_manifest(path: str | os.PathLike) -> dict[str, Any]:
+    """A dataset directory's manifest (content hash, config, splits) without reading the arrays: what a
+    cache check needs before deciding whether to load the store at all."""
     path = Path(path)
     h5, mf = path / "data.h5", path / "manifest.json"
     if not path.is_dir():
@@ -155,6 +156,14 @@ def load(path: str | os.PathLike, verify: bool = True) -> Dataset:
         raise DataError(f"{mf} is not valid JSON ({e}); the dataset is corrupt") from None
     if manifest.get("format_version") != FORMAT_VERSION:
         raise DataError(f"{path}: format version {manifest.get('format_version')} != supported {FORMAT_VERSION}")
+    return manifest
+
+
+def load(path: str | os.PathLike, verify: bool = True) -> Dataset:
+    """Load a dataset directory, checking presence, structure and (by default) the content hash."""
+    path = Path(path)
+    h5 = path / "data.h5"
+    manifest = read_manifest(path)
     try:
         with h5py.File(h5, "r") as f:
             missing = [n for n in (*STREAMS, "split") if n not in f]
@@ -192,7 +201,7 @@ def store_is_current(path: str | os.PathLike, content_config: dict, overwrite: b
 
     if overwrite or not is_complete(path):
         return False
-    if load(path, verify=False).manifest.get("config") == content_config:
+    if read_manifest(path).get("config") == content_config:
         return True
     raise ConfigError(f"{path} holds a store built with a different config; pass --overwrite or choose another --out")
 

@@ -46,7 +46,7 @@ import numpy as np
 import torch
 
 from ..config import from_preset, to_dict
-from ..data import Dataset, load
+from ..data import Dataset, load, read_manifest
 from ..errors import ConfigError
 from ..io import write_json
 from .prediction import (CONTEXT, HORIZON, _position_decoder, glide_comparison, glide_reference,  # noqa: F401
@@ -190,17 +190,17 @@ def run(cfg: MeasureConfig) -> Path:
     run_cfg = finished_run_config(run_dir)
     data = cfg.data or run_cfg["data"]
     out = run_dir / ("measure.json" if not cfg.data else f"measure-{Path(cfg.data).name}.json")
-    ds = load(data)
     cfg_key = to_dict(cfg)
     if cfg.context == CONTEXT:  # added later: left out at its default so earlier measurements stay up to date
         del cfg_key["context"]
-    key = {"config": cfg_key, "data_sha256": ds.manifest.get("content_sha256"),
+    key = {"config": cfg_key, "data_sha256": read_manifest(data).get("content_sha256"),
            "final_mtime": (run_dir / "DONE").stat().st_mtime_ns}
     if out.exists() and not cfg.overwrite:
         prev = json.loads(out.read_text())
         if prev.get("key") == key:
             print(f"[measure] {out} is up to date; skipping")
             return out
+    ds = load(data)
     torch.set_num_threads(max(1, torch.get_num_threads()))
     model = load_model(run_dir, map_location="cpu")
     res = measure(model, ds, cfg, untrained_like(run_dir, ds) if cfg.untrained else None)

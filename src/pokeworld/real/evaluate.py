@@ -31,7 +31,7 @@ import numpy as np
 import torch
 
 from ..config import from_preset, to_dict
-from ..data import Dataset, load
+from ..data import Dataset, load, read_manifest
 from ..errors import ConfigError, DataError
 from ..evaluate.prediction import prediction_quality
 from ..evaluate.probes import fit_predict
@@ -270,7 +270,11 @@ def evaluate(model, ds: Dataset, cfg: RealEvalConfig, untrained_model=None) -> d
 
 
 def result_path(run_dir: Path, data: str) -> Path:
-    return run_dir / (f"real_eval-{Path(data).name}.json" if data else "real_eval.json")
+    """Where a run's evaluation on store ``data`` lives ("" = its training store). Named by the store's folder
+    and content hash, so two stores whose folders share a name never overwrite each other."""
+    if not data:
+        return run_dir / "real_eval.json"
+    return run_dir / f"real_eval-{Path(data).name}-{read_manifest(data)['content_sha256'][:8]}.json"
 
 
 def run(cfg: RealEvalConfig) -> Path:
@@ -282,12 +286,12 @@ def run(cfg: RealEvalConfig) -> Path:
     run_cfg = finished_run_config(run_dir)
     data = cfg.data or run_cfg["data"]
     out = result_path(run_dir, cfg.data)
-    ds = load(data)
-    key = {"config": to_dict(cfg), "data_sha256": ds.manifest.get("content_sha256"),
+    key = {"config": to_dict(cfg), "data_sha256": read_manifest(data).get("content_sha256"),
            "final_mtime": (run_dir / "DONE").stat().st_mtime_ns}
     if out.exists() and not cfg.overwrite and json.loads(out.read_text()).get("key") == key:
         print(f"[real] {out} is up to date; skipping")
         return out
+    ds = load(data)
     model = load_model(run_dir, map_location="cpu")
     dims = (ds.proprio.shape[-1], ds.touch.shape[-1], ds.actions.shape[-1])
     if dims != (model.dims["proprio"], model.dims["touch"], model.action_dim):

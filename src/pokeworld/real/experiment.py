@@ -30,7 +30,7 @@ from typing import Any, Callable
 import numpy as np
 
 from ..config import from_preset, to_dict
-from ..data import Dataset, concatenate, is_complete, load, save, store_is_current
+from ..data import Dataset, concatenate, is_complete, load, read_manifest, save, store_is_current
 from ..errors import ConfigError, DataError
 from ..evaluate.experiment import LaunchOptions, _cores, _default_workers, launch
 from ..io import write_json
@@ -233,8 +233,7 @@ def _store_dir(c: RealConfig, key: str) -> Path:
 
 
 def _content_sha(store: str) -> str:
-    """A store's content hash from its manifest, without loading the arrays."""
-    return json.loads((Path(store) / "manifest.json").read_text())["content_sha256"]
+    return read_manifest(store)["content_sha256"]
 
 
 def ensure_stores(c: RealConfig, runs: list[RealRun]) -> dict[str, str]:
@@ -338,7 +337,7 @@ def collect(c: RealConfig, runs: list[RealRun], stores: dict[str, str]) -> dict:
         res["runs"][r.name] = {"experiment": r.experiment, "store": r.store, "variant": r.variant,
                                "scale": r.scale, "steps_factor": r.steps_factor, "evals": evals}
     for key, path in stores.items():
-        man = json.loads((Path(path) / "manifest.json").read_text())
+        man = read_manifest(path)
         res.setdefault("store_info", {})[key] = {
             "episodes": man.get("num_episodes"), "split_counts": man.get("split_counts"),
             "scenes": len(man.get("scenes", [])) or None, "onset_base_rate": man.get("onset_base_rate"),
