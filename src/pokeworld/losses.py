@@ -223,8 +223,12 @@ def gaussian_nll(mean: torch.Tensor, logvar: torch.Tensor, target: torch.Tensor,
     return (nll * weight).sum() / weight.sum().clamp_min(1e-8)
 
 
+LOGVAR_RANGE = (-8.0, 8.0)
+"""Clamp of the belief objective's log-variances, shared by the KL and the reparameterised sample."""
+
+
 def gaussian_kl(mu_q: torch.Tensor, logvar_q: torch.Tensor, mu_p: torch.Tensor, logvar_p: torch.Tensor,
-                min_logvar: float = -8.0, max_logvar: float = 8.0) -> torch.Tensor:
+                min_logvar: float = LOGVAR_RANGE[0], max_logvar: float = LOGVAR_RANGE[1]) -> torch.Tensor:
     """KL(q || p) of diagonal Gaussians, summed over the last dim (nats); log-variances clamped.
 
     ``0.5 · Σ_d [s_p − s_q + (e^{s_q} + (μ_q − μ_p)²) e^{−s_p} − 1]`` with s = log σ². Shapes broadcast;

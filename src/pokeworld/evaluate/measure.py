@@ -25,8 +25,8 @@ held-out R^2 on probe-test episodes (paper §3 "Measurement", §4, App. C).
 * Belief objective (``objective='belief'``): the probed state is the causal one, the trunk state
   conditioned on the prior's mean (what the heads predict with from the past alone; ``XJEPA.trunk``).
   ``probes_belief`` adds ridge probes of the prior mean itself (causal) and of the posterior mean on
-  the probe window (a leaky diagnostic: it sees the window's future; it says whether the latent carries
-  a quantity at all, never what the model knows).
+  the probe window (which ends at the probed observation, so it sees the same history; it says whether
+  the episode latent encodes a quantity at all from that evidence).
 * Untrained bound: the same ridge probes on a randomly initialised model that shares
   only the trained model's input-normalisation statistics.
 
@@ -62,8 +62,8 @@ READOUT = {
     "probes_action_conditioned": "state conditioned on the real action after the last observation, which the "
                                  "scripted policy computed from the object state: an upper, leaky readout",
     "probes_belief": "belief objective only, ridge: 'prior_mean' reads μ_p(h_t) at the window's last observation "
-                     "(causal, neutral last action); 'posterior_mean' reads μ_q of the whole probe window, which "
-                     "sees the future: a leaky diagnostic of what the latent carries, not of what the model knows",
+                     "(causal, neutral last action); 'posterior_mean' reads μ_q of the probe window, which ends at "
+                     "that observation: what the episode latent encodes from the same history",
 }
 
 
@@ -113,7 +113,7 @@ PRESETS = {"tiny": {"max_windows": 400, "mlp": False}, "cpu": {}, "paper": {"max
 @torch.no_grad()
 def belief_states(model, lat: EpisodeLatents, w, acts: np.ndarray, which: str, batch: int = 512) -> np.ndarray:
     """Belief readout per window: ``prior`` -> μ_p at the last observation (causal, neutral last action);
-    ``posterior`` -> μ_q of the whole window (sees its future). (W, K)."""
+    ``posterior`` -> μ_q of the window, which ends at that observation (no future). (W, K)."""
     z, a = lat.gather(w), neutral_last(w.gather(acts))
     out = []
     for i in range(0, len(z), batch):
@@ -124,7 +124,7 @@ def belief_states(model, lat: EpisodeLatents, w, acts: np.ndarray, which: str, b
 
 
 def probe_belief(model, ds: Dataset, cfg: MeasureConfig, latents) -> dict:
-    """Ridge probes of the belief objective's prior mean (causal) and posterior mean (leaky diagnostic)."""
+    """Ridge probes of the belief objective's prior mean (causal) and posterior mean (same history)."""
     acts = padded_actions(ds)
     lat = dict(zip(("fit", "test"), latents))
     return {f"{which}_mean": probe_windows(ds, lambda w, part, which=which: belief_states(model, lat[part], w, acts,

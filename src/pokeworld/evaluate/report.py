@@ -383,12 +383,13 @@ def belief_table(results: dict) -> list[str]:
                     f"{pr('posterior', 'gamma', 'contact')}{g} | {pr('posterior', 'gamma', 'glide')}{g} | "
                     f"{pr('posterior', 'log_k', 'contact')} |")
     if rows:
-        lines += ["", "The episode-level latent itself (ridge R²). The prior mean is causal; the posterior mean sees the "
-                  "probe window's future and is a leaky diagnostic: it tells whether the latent carries a parameter "
-                  "at all (posterior high, prior low: the history does not pin it down; both low: prediction never "
-                  "needed it), never what the model knows.", "",
-                  "| run | γ prior contact | γ prior glide | log k prior | γ posterior contact (leaky) | "
-                  "γ posterior glide (leaky) | log k posterior (leaky) |", "|---|---|---|---|---|---|---|", *rows]
+        lines += ["", "The episode-level latent itself (ridge R²). Both read the same evidence, the probe window, which "
+                  "ends at the probed observation: the prior mean from the causal trunk state, the posterior mean "
+                  "from the window's transitions (the encoder that, in training, also sees later steps). Posterior "
+                  "high, prior low: the latent can encode the parameter from this history but the causal prior "
+                  "does not extract it; both low: the latent never encodes it, so prediction never paid for it.", "",
+                  "| run | γ prior contact | γ prior glide | log k prior | γ posterior contact | "
+                  "γ posterior glide | log k posterior |", "|---|---|---|---|---|---|---|", *rows]
     return lines + [""]
 
 

@@ -28,7 +28,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from ..errors import ConfigError
-from ..losses import gaussian_kl, gaussian_nll, glide_loss_share, glide_weights, masked_mse, sigreg
+from ..losses import LOGVAR_RANGE, gaussian_kl, gaussian_nll, glide_loss_share, glide_weights, masked_mse, sigreg
 from .encoders import FusedEncoder
 from .predictor import CausalPredictor
 
@@ -288,8 +288,10 @@ class XJEPA(nn.Module):
         return self._need_belief().prior_of(self.trunk_raw(z, actions))
 
     def posterior(self, z: torch.Tensor, actions) -> tuple[torch.Tensor, torch.Tensor]:
-        """Amortised posterior q(u | whole window): μ_q, log σ²_q (B, K). Sees the window's future, so it is
-        a training device and a leaky diagnostic, never the probed state."""
+        """Amortised posterior q(u | window): μ_q, log σ²_q (B, K) from all of the window's transitions. In training
+        the window extends past every step t but the first, so for those steps q sees their future: a training
+        device, never the probed state. On a probe window that ends at the probed observation it sees exactly
+        the history the prior sees, so there it measures what the posterior encodes from that evidence."""
         return self._need_belief().posterior(z, self.norm("action", actions))
 
     def action_window(self, actions, delta: int) -> torch.Tensor:
@@ -431,8 +433,13 @@ class XJEPA(nn.Module):
             kl = gaussian_kl(mu_q[:, None], lv_q[:, None], mu_p, lv_p)  # (B, L)
             terms["kl"], terms["kl_last"] = kl.mean(), kl[:, -1].mean()
             total = total + belief_kl_weight * terms["kl"]
-            u = mu_q + torch.exp(0.5 * lv_q.float().clamp(-8.0, 8.0)).to(mu_q.dtype) * torch.randn_like(mu_q)
+            u = mu_q + torch.exp(0.5 * lv_q.float().clamp(*LOGVAR_RANGE)).to(mu_q.dtype) * torch.randn_like(mu_q)
+            # the sysid control reads the causal state the probes read (prior mean), never the posterior sample:
+            # labels flowing into u would make the episode latent a supervised parameter code
+            h_causal = self.condition(h, mu_p)
             h = self.condition(h, u)
+        else:
+            h_causal = h
         valid = [d for d in self.horizons if d < L]
         # (B, L) per-target-frame weights; None at W = 1 keeps the unweighted losses bit-for-bit
         gw = None
@@ -510,7 +517,7 @@ class XJEPA(nn.Module):
             if "params" not in batch:
                 raise ValueError("sysid control needs batch['params'] (log_m, gamma, log_k)")
             tgt = self.norm("param", batch["params"])[:, None, :].expand(-1, L, -1)
-            terms["sysid"] = masked_mse(self.sysid_head(h), tgt)
+            terms["sysid"] = masked_mse(self.sysid_head(h_causal), tgt)
             total = total + sysid_weight * terms["sysid"]
 
         return total, {k: v.detach() for k, v in terms.items()}
