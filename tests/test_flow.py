@@ -28,6 +28,16 @@ def test_flow_estimator_recovers_a_known_translation():
     est = object_flow(net, test, arena=24, dt=1.0)[:, 1]  # pixels per step
     err = np.abs(est - shift)
     assert err.mean() < 0.4, err.mean()  # the shifts are up to 2.5 px: a blind estimator errs by ~1.25
+    # the stored sensor reloads to the same estimates
+    import tempfile
+    from pathlib import Path as _P
+
+    from pokeworld.models.flow import load_flow, save_flow
+
+    with tempfile.TemporaryDirectory() as d:
+        save_flow(net, _P(d) / "sensor.pt", {"note": "test"})
+        again = object_flow(load_flow(_P(d) / "sensor.pt"), test, arena=24, dt=1.0)[:, 1]
+    np.testing.assert_allclose(again, est, atol=1e-6)
     assert np.corrcoef(est[:, 0], shift[:, 0])[0, 1] > 0.95 and np.corrcoef(est[:, 1], shift[:, 1])[0, 1] > 0.95
     static = object_flow(net, np.stack([test[:, 0], test[:, 0]], 1), arena=24, dt=1.0)[:, 1]
     assert np.abs(static).mean() < 0.3

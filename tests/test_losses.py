@@ -122,14 +122,14 @@ def test_sigreg_distributed_matches_global_batch():
 
 
 def test_fused_ecf_matches_autograd_through_cos_and_sin():
-    from pokeworld.losses import _ECF, ep_knots
+    from pokeworld.losses import _ecf, ep_knots
 
     t, _, _ = ep_knots(17, 3.0)
     x = torch.randn(3, 20, 5, dtype=torch.float64, requires_grad=True)
     t64 = t.double()
-    assert torch.autograd.gradcheck(lambda v: _ECF.apply(v, t64), (x,))
+    assert torch.autograd.gradcheck(lambda v: _ecf(v, t64), (x,))
     xt = x.unsqueeze(-1) * t64
     ref_c, ref_s = torch.cos(xt).mean(-3), torch.sin(xt).mean(-3)
-    c, s = _ECF.apply(x, t64)
+    c, s = _ecf(x, t64)
     torch.testing.assert_close(c, ref_c)
     torch.testing.assert_close(s, ref_s)

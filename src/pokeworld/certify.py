@@ -49,6 +49,7 @@ GATES = {"log_m": 0.4, "gamma": 0.4, "log_k": 0.25}
 GATE_ESTIMATOR = "gru"  # the paper's oracle: the gate reads this estimator, not the best one
 ESTIMATORS = ("gru", "gru_geom", "linear", "mlp", "drag", "gru_pixel", "drag_pixel", "gru_notouch",
               "gru_pixel_notouch", "linear_logspeed")
+DEFAULT_ESTIMATORS = tuple(e for e in ESTIMATORS if e != "linear_logspeed")  # that one needs a flow corpus
 GEOMETRY = ("gru_geom", "gru_notouch", "gru_pixel_notouch")  # estimators fed the contact-geometry channels
 # feature columns of window_features: proprio 0-3, touch 4-10, action 11-12, object position 13-14,
 # velocity 15-16, and with geometry=True the displacement object - finger 17-18 and the overlap 19
@@ -66,7 +67,7 @@ class CertifyConfig:
     """Where to write certificates.json (default: <data>/certificates.json)."""
     targets: tuple[str, ...] = ("log_m", "gamma", "log_k")
     """Per-episode parameters to certify (names under params/ in the store)."""
-    estimators: tuple[str, ...] = ESTIMATORS[:-1]
+    estimators: tuple[str, ...] = DEFAULT_ESTIMATORS
     """Estimators to run (subset of ESTIMATORS: gru, gru_geom, linear, mlp, drag, gru_pixel, drag_pixel,
     gru_notouch, gru_pixel_notouch, linear_logspeed; the last only on stores with a log-speed channel)."""
     pixel_size: int = 0

@@ -93,9 +93,10 @@ def save_figure(fig, out: Path, stem: str, dpi: int = 150) -> list[Path]:
     import matplotlib.pyplot as plt
 
     paths = [Path(out) / f"{stem}.png", Path(out) / f"{stem}.pdf"]
-    for p in paths:
-        tmp = p.with_name(f".{p.stem}.tmp{p.suffix}")
-        fig.savefig(tmp, dpi=dpi)
-        tmp.replace(p)
-    plt.close(fig)
+    try:
+        for p in paths:
+            with atomic_path(p) as tmp:
+                fig.savefig(tmp, dpi=dpi, format=p.suffix[1:])
+    finally:
+        plt.close(fig)
     return paths

@@ -88,30 +88,10 @@ class _ECF(torch.autograd.Function):
 
     Autograd through ``cos``/``sin`` recomputes both transcendentals in the backward pass; the
     derivative of each is the other, so keeping the forward values halves that work. This is the
-    regulariser's hot spot (≈ 20 % of a ``cpu``-preset step)."""
-
-    @staticmethod
-    def forward(ctx, x, t):
-        xt = x.unsqueeze(-1) * t  # (..., N, K, knots)
-        c, s = torch.cos(xt), torch.sin(xt)
-        ctx.save_for_backward(c, s, t)
-        ctx.n = x.shape[-2]
-        return c.mean(-3), s.mean(-3)
-
-    @staticmethod
-    def backward(ctx, grad_cos, grad_sin):
-        c, s, t = ctx.saved_tensors
-        gc = (grad_cos * t / ctx.n).unsqueeze(-3)
-        gs = (grad_sin * t / ctx.n).unsqueeze(-3)
-        return (c * gs - s * gc).sum(-1), None
-
-
-class _ECFVmap(torch.autograd.Function):
-    """:class:`_ECF` in the ``setup_context`` form with a generated vmap rule, used under ``torch.vmap``
-    (stacked ensembles, :mod:`pokeworld.train_stacked`), where the combined form is refused.
-
-    That form cannot stash intermediates on ``ctx``, so the full cos/sin tensors come back as extra,
-    non-differentiable outputs to keep the fused backward; :func:`epps_pulley` drops them."""
+    regulariser's hot spot (≈ 20 % of a ``cpu``-preset step). Written in the ``setup_context`` form with
+    a generated vmap rule so the same function also runs under ``torch.vmap`` (stacked ensembles,
+    :mod:`pokeworld.train_stacked`); that form cannot stash intermediates on ``ctx``, so the cos/sin
+    tensors come back as extra, non-differentiable outputs, which :func:`_ecf` drops."""
 
     generate_vmap_rule = True
 
@@ -130,13 +110,15 @@ class _ECFVmap(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, grad_cos, grad_sin, _grad_c, _grad_s):
-        return _ECF.backward(ctx, grad_cos, grad_sin)
+        c, s, t = ctx.saved_tensors
+        gc = (grad_cos * t / ctx.n).unsqueeze(-3)
+        gs = (grad_sin * t / ctx.n).unsqueeze(-3)
+        return (c * gs - s * gc).sum(-1), None
 
 
 def _ecf(x: torch.Tensor, t: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    if torch._C._are_functorch_transforms_active():
-        return _ECFVmap.apply(x, t)[:2]
-    return _ECF.apply(x, t)
+    """Mean cos and sin of ``x ⊗ t`` over dim -3 (:class:`_ECF`), with and without ``torch.vmap``."""
+    return _ECF.apply(x, t)[:2]
 
 
 def epps_pulley(x: torch.Tensor, num_knots: int = 17, t_max: float = 3.0) -> torch.Tensor:

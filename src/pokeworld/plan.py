@@ -172,11 +172,19 @@ def control(cfg: PlanConfig, setup: dict, scorer: LatentScorer | None) -> dict:
         obj_path.append(sim.state[:, 4:6].copy())
         finger_path.append(sim.state[:, 0:2].copy())
     d = np.stack(dist, 1)
+    paths = np.stack(obj_path, 1)
+    # the median improvement is exactly 0 whenever most episodes never touch the object; the mean and the
+    # share of episodes whose object moved say whether that is what happened
+    moved = np.linalg.norm(paths - paths[:, :1], axis=-1).max(1) > 0.01
     return {"reach": float((d.min(1) < cfg.goal_radius).mean()),
-            "median_improvement": float(np.median(d[:, 0] - d[:, -1])), "distance": d,
-            "finger_final": sim.state[:, 0:2].copy(), "object_path": np.stack(obj_path, 1),
+            "median_improvement": float(np.median(d[:, 0] - d[:, -1])),
+            "mean_improvement": float(np.mean(d[:, 0] - d[:, -1])), "object_moved": float(moved.mean()), "distance": d,
+            "finger_final": sim.state[:, 0:2].copy(), "object_path": paths,
             "finger_path": np.stack(finger_path, 1)}
 
+
+METRICS = ("reach", "median_improvement", "mean_improvement", "object_moved")
+"""Per-controller planning metrics (:func:`control`); the paper reports the first two."""
 
 PAPER = PLANNING
 """Paper Table "planning": controller -> (goal-region reach, median distance improvement)."""
@@ -192,17 +200,16 @@ def plan_runs(cfg: PlanConfig, runs: dict[str, list[str]], data: str = "") -> di
     """
     setup = episode_setup(cfg)
     episodes = {"random": control(cfg, setup, None)}
-    summary = {"random": {"reach": episodes["random"]["reach"],
-                          "median_improvement": episodes["random"]["median_improvement"], "per_run": {}}}
+    summary = {"random": {k: episodes["random"][k] for k in METRICS} | {"per_run": {}}}
     for label, dirs in runs.items():
         per = {}
         for r in dirs:
             res = control(cfg, setup, LatentScorer(r, data or cfg.data))
             episodes.setdefault(label, res)
-            per[Path(r).name] = {"reach": res["reach"], "median_improvement": res["median_improvement"]}
+            per[Path(r).name] = {k: res[k] for k in METRICS}
             print(f"[plan] {label} ({Path(r).name}): reach {res['reach']:.0%}, "
                   f"median improvement {res['median_improvement']:+.3f}")
-        summary[label] = {k: float(np.mean([v[k] for v in per.values()])) for k in ("reach", "median_improvement")}
+        summary[label] = {k: float(np.mean([v[k] for v in per.values()])) for k in METRICS}
         summary[label]["per_run"] = per
     return {"summary": summary, "episodes": episodes, "setup": setup}
 
@@ -257,14 +264,24 @@ def figure(planned: dict, out: Path, goal_radius: float, left: str | None = None
     return save_figure(fig, out, "plan_episode")
 
 
+def write_outputs(planned: dict, out: Path, goal_radius: float) -> list[Path]:
+    """``distances.npz`` (object-goal distance over time per controller, atomically) and the episode figure."""
+    with atomic_path(Path(out) / "distances.npz") as tmp:
+        with open(tmp, "wb") as f:
+            np.savez_compressed(f, **{k: v["distance"] for k, v in planned["episodes"].items()})
+    return figure(planned, Path(out), goal_radius)
+
+
 def table_lines(summary: dict) -> list[str]:
     """Markdown rows: controller, reach and median improvement, ours beside the paper's."""
-    lines = ["| controller | goal-region reach (ours / paper) | median distance improvement (ours / paper) |",
-             "|---|---|---|"]
+    lines = ["| controller | goal-region reach (ours / paper) | median distance improvement (ours / paper) | "
+             "mean improvement | object moved |", "|---|---|---|---|---|"]
     for k, v in summary.items():
         p = PAPER.get(k)
+        extra = " | ".join("—" if v.get(m) is None else (f"{v[m]:+.3f}" if m == "mean_improvement" else f"{v[m]:.0%}")
+                           for m in ("mean_improvement", "object_moved"))
         lines.append(f"| {k} | {v['reach']:.0%} / {f'{p[0]:.0%}' if p else '—'} | "
-                     f"{v['median_improvement']:+.3f} / {f'{p[1]:.2f}' if p else '—'} |")
+                     f"{v['median_improvement']:+.3f} / {f'{p[1]:.2f}' if p else '—'} | {extra} |")
     return lines
 
 
@@ -277,10 +294,9 @@ def run(cfg: PlanConfig) -> Path:
     summary = planned["summary"]
     write_json(out / "plan.json", {"config": to_dict(cfg), "results": summary,
                                    "paper": {k: list(v) for k, v in PAPER.items()}})
-    np.savez_compressed(out / "distances.npz", **{k: v["distance"] for k, v in planned["episodes"].items()})
+    write_outputs(planned, out, cfg.goal_radius)
     lines = table_lines(summary)
     with atomic_path(out / "plan.md") as tmp:
         tmp.write_text("\n".join(lines) + "\n")
-    figure(planned, out, cfg.goal_radius)
     print("\n".join(lines))
     return out

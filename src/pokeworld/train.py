@@ -258,11 +258,21 @@ def sigreg_directions(cfg: TrainConfig, step: int, dev: torch.device, non_blocki
     return to_device(random_directions(cfg.latent_dim, k, sigreg_seed(cfg, step)), dev, non_blocking)
 
 
+def decay_split(named_ndims) -> tuple[list[str], list[str]]:
+    """Parameter names with weight decay (matrices and kernels) and without (biases, norms, positional
+    embeddings), from ``(name, ndim)`` pairs in order. The single rule, so stacked training maps optimizer
+    moments onto the same indices as :func:`make_optimizer`."""
+    decay, no_decay = [], []
+    for n, ndim in named_ndims:
+        (decay if ndim >= 2 and "pos" not in n else no_decay).append(n)
+    return decay, no_decay
+
+
 def make_optimizer(model: torch.nn.Module, cfg: TrainConfig, fused: bool = False) -> torch.optim.AdamW:
     """AdamW without weight decay on biases, norms and positional embeddings; ``fused`` = one kernel
     for the whole update instead of a few per parameter group."""
-    decay = [p for n, p in model.named_parameters() if p.ndim >= 2 and "pos" not in n]
-    no_decay = [p for n, p in model.named_parameters() if not (p.ndim >= 2 and "pos" not in n)]
+    named = dict(model.named_parameters())
+    decay, no_decay = ([named[n] for n in names] for names in decay_split((n, p.ndim) for n, p in named.items()))
     return torch.optim.AdamW([{"params": decay, "weight_decay": cfg.weight_decay},
                               {"params": no_decay, "weight_decay": 0.0}], lr=cfg.lr, betas=(0.9, 0.999),
                              fused=True if fused else None)

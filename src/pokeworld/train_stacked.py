@@ -266,8 +266,7 @@ class _Group:
         self.base = base.to("meta").train()  # structure only; the stacked tensors are passed in
 
         # decay / no-decay split as train.make_optimizer, judged on the per-member parameter
-        decay = [n for n in self.param_names if self.params[n].dim() - 1 >= 2 and "pos" not in n]
-        no_decay = [n for n in self.param_names if n not in decay]
+        decay, no_decay = T.decay_split((n, self.params[n].dim() - 1) for n in self.param_names)
         self.opt = torch.optim.AdamW([{"params": [self.params[n] for n in decay], "weight_decay": c0.weight_decay},
                                       {"params": [self.params[n] for n in no_decay], "weight_decay": 0.0}],
                                      lr=c0.lr, betas=(0.9, 0.999), fused=True if fast else None)
@@ -358,9 +357,8 @@ class _Group:
 
     def _member_opt_names(self, i: int) -> list[str]:
         """Member i's parameter names in ``train.make_optimizer``'s index order (decay group first)."""
-        named = list(self.members[i].named_parameters())
-        return ([n for n, p in named if p.ndim >= 2 and "pos" not in n]
-                + [n for n, p in named if not (p.ndim >= 2 and "pos" not in n)])
+        decay, no_decay = T.decay_split((n, p.ndim) for n, p in self.members[i].named_parameters())
+        return decay + no_decay
 
     def member_optimizer_state(self, i: int) -> dict[str, Any]:
         """Member i's AdamW state_dict as ``train.make_optimizer(member)`` would hold it."""

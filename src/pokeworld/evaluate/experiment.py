@@ -27,7 +27,7 @@ from typing import Any, Callable
 
 from ..config import from_preset, to_dict
 from ..errors import ConfigError
-from ..io import atomic_path, write_json
+from ..io import write_json
 
 VARIANT_ORDER = ("V", "VF", "VX_p", "VX_t", "VX", "VFX")
 
@@ -365,8 +365,9 @@ def ensure_planning(c: MapConfig) -> dict:
     from .. import plan
 
     pcfg = plan.make_config(c.preset, out=str(planning_dir(c)), seed=c.data_seed)
-    runs = {v: [str(Path(c.out) / "runs" / _spec("factorial", v, s, c.sigreg_weight).name) for s in c.seeds]
-            for v in c.planning_variants}
+    runs: dict[str, list[str]] = {}
+    for spec in exp_planning(c):
+        runs.setdefault(spec.train["variant"], []).append(str(Path(c.out) / "runs" / spec.name))
     key = {"config": to_dict(pcfg), "runs": {v: [[Path(d).name, (Path(d) / "DONE").stat().st_mtime_ns]
                                                   for d in dirs] for v, dirs in runs.items()}}
     out = planning_dir(c)
@@ -378,12 +379,7 @@ def ensure_planning(c: MapConfig) -> dict:
             return prev["result"]
     out.mkdir(parents=True, exist_ok=True)
     planned = plan.plan_runs(pcfg, runs, data=str(corpus_dir(c, "standard")))
-    import numpy as np
-
-    with atomic_path(out / "distances.npz") as tmp:
-        with open(tmp, "wb") as f:
-            np.savez_compressed(f, **{k: v["distance"] for k, v in planned["episodes"].items()})
-    figs = plan.figure(planned, out, pcfg.goal_radius)
+    figs = plan.write_outputs(planned, out, pcfg.goal_radius)
     result = {"config": to_dict(pcfg), "summary": planned["summary"], "runs": runs,
               "figure": [str(p.relative_to(Path(c.out))) for p in figs]}
     write_json(path, {"key": key, "result": result})
@@ -577,7 +573,8 @@ def run(c: MapConfig) -> Path:
               + (f", training until {c.time_budget_min - c.time_reserve_min:g} min" if deadline else ""))
         launch(c, _jobs(c, specs, threads, deadline))
     prog = write_progress(c, specs, started)
-    if prog["complete"] and prepared:
+    planning_late = "planning" in c.experiments and _past(deadline)  # planning takes minutes: never start it late
+    if prog["complete"] and prepared and not planning_late:
         results = report.collect(c, specs, certificates)
         if "planning" in c.experiments:
             results["planning"] = ensure_planning(c)
@@ -587,6 +584,9 @@ def run(c: MapConfig) -> Path:
         print("\n".join(table + report.factorial_summary(results)))
         print(f"\n[map] wrote {out / 'results.json'}, {out / 'results.md'} (every table) and the figure "
               f"{out / 'identifiability_map.png'}")
+    elif planning_late and prog["complete"] and prepared:
+        print("[map] time budget reached before planning: every run is trained and measured; run the same "
+              "command again to plan and write the report")
     else:
         print(f"[map] time budget reached: {len(prog['finished'])} runs finished, {len(prog['partial'])} partial "
               f"{prog['partial']}, {len(prog['pending'])} pending; run the same command again to resume "

@@ -90,7 +90,8 @@ class FlowNet(nn.Module):
 def warp(img: torch.Tensor, flow: torch.Tensor) -> torch.Tensor:
     """``img`` (B, 1, H, W) sampled at x + flow(x) (bilinear, zeros outside)."""
     B, _, H, W = img.shape
-    ys, xs = torch.meshgrid(torch.arange(H, dtype=img.dtype), torch.arange(W, dtype=img.dtype), indexing="ij")
+    ys, xs = torch.meshgrid(torch.arange(H, dtype=img.dtype, device=img.device),
+                            torch.arange(W, dtype=img.dtype, device=img.device), indexing="ij")
     gx = (xs[None] + flow[:, 0]) * (2.0 / (W - 1)) - 1.0
     gy = (ys[None] + flow[:, 1]) * (2.0 / (H - 1)) - 1.0
     return F.grid_sample(img, torch.stack([gx, gy], -1), mode="bilinear", padding_mode="zeros", align_corners=True)
@@ -118,7 +119,8 @@ def train_flow(frames: np.ndarray, cfg: FlowConfig, log_every: int = 0) -> FlowN
     E, T1 = frames.shape[:2]
     pairs = np.stack(np.meshgrid(np.arange(E), np.arange(T1 - 1), indexing="ij"), -1).reshape(-1, 2)
     if cfg.moving_only:
-        moved = np.array([np.any(frames[e, t] != frames[e, t + 1]) for e, t in pairs])
+        moved = np.concatenate([(f[:, 1:] != f[:, :-1]).any((2, 3)) for f in np.array_split(frames, max(1, E // 64))]
+                               ).reshape(-1)  # (E, T) in the (episode, step) order of ``pairs``
         if moved.any():
             pairs = pairs[moved]
     net = FlowNet(cfg.width)
