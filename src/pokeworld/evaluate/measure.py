@@ -182,6 +182,12 @@ def untrained_like(run_dir: Path, ds: Dataset | None = None, seed: int = 12345):
     return untrained_copy(load_model(run_dir, map_location="cpu"), seed)
 
 
+def measure_path(run_dir: str | Path, data: str = "") -> Path:
+    """Where :func:`run` writes a run's measurement: ``measure.json`` on its training corpus, else
+    ``measure-<corpus folder>.json``."""
+    return Path(run_dir) / (f"measure-{Path(data).name}.json" if data else "measure.json")
+
+
 def run(cfg: MeasureConfig) -> Path:
     """Measure ``cfg.run_dir`` and write ``measure.json`` there (skipped when up to date)."""
     from ..train import finished_run_config, load_model
@@ -189,7 +195,7 @@ def run(cfg: MeasureConfig) -> Path:
     run_dir = Path(cfg.run_dir)
     run_cfg = finished_run_config(run_dir)
     data = cfg.data or run_cfg["data"]
-    out = run_dir / ("measure.json" if not cfg.data else f"measure-{Path(cfg.data).name}.json")
+    out = measure_path(run_dir, cfg.data)
     cfg_key = to_dict(cfg)
     if cfg.context == CONTEXT:  # added later: left out at its default so earlier measurements stay up to date
         del cfg_key["context"]

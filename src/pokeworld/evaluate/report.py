@@ -19,13 +19,6 @@ LABELS = {"log_k": "log k", "log_m": "log m", "gamma": "γ", "object_pos": "obj.
           "finger_pos": "finger position", "object_rel": "object − finger"}
 
 
-def _measure_path(c, spec) -> Path:
-    run_dir = Path(c.out) / "runs" / spec.name
-    if spec.measure_corpus != spec.corpus:
-        return run_dir / f"measure-{spec.measure_corpus}.json"
-    return run_dir / "measure.json"
-
-
 def _git_commit() -> str:
     try:
         return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
@@ -35,12 +28,12 @@ def _git_commit() -> str:
 
 
 def collect(c, specs, certificates: dict) -> dict:
-    from .experiment import spec_experiments
+    from .experiment import spec_experiments, spec_measure_path
     from ..config import to_dict
 
     runs = {}
     for s in specs:
-        path = _measure_path(c, s)
+        path = spec_measure_path(c, s)
         m = json.loads(path.read_text()) if path.exists() else {}
         runs[s.name] = {"experiment": s.experiment, "corpus": s.corpus, "measure_corpus": s.measure_corpus,
                         "train": s.train, "probes": m.get("probes", {}), "prediction": m.get("prediction", {}),
