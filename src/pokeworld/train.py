@@ -504,6 +504,35 @@ class MetricsLog:
             self.writer.close()
 
 
+def check_existing(cfg: TrainConfig) -> None:
+    """Raise ConfigError if ``cfg.out`` holds a run whose config differs in anything but :data:`RESUMABLE_FIELDS`
+    (fields added since are compared at their default, retired ones at :data:`RETIRED_FIELDS`)."""
+    out = Path(cfg.out)
+    if not (out / "config.json").exists():
+        return
+    old = json.loads((out / "config.json").read_text())
+    default = to_dict(TrainConfig())
+    diff = {k: (old.get(k, default[k]), v) for k, v in to_dict(cfg).items()
+            if k not in RESUMABLE_FIELDS and old.get(k, default[k]) != v}
+    diff.update({k: (old[k], "(removed)") for k, same in RETIRED_FIELDS.items() if old.get(k, same) != same})
+    if diff:
+        raise ConfigError(f"{out} already holds a run with a different config {diff} (old, new); "
+                          "use another --out or delete the directory")
+
+
+def restart_metrics(out: Path, step: int, start_row: dict[str, Any] | None = None) -> None:
+    """Make ``metrics.jsonl`` match an uninterrupted run: on resume from ``step`` drop rows logged after the
+    checkpoint; on a fresh start (``start_row``) replace the file with that step-0 row."""
+    path = Path(out) / "metrics.jsonl"
+    if start_row is not None:
+        path.write_text(json.dumps(start_row, sort_keys=True) + "\n")
+        return
+    from .io import read_jsonl
+
+    rows = [r for r in read_jsonl(path) if r.get("step", 0) <= step]
+    path.write_text("".join(json.dumps(r, sort_keys=True) + "\n" for r in rows))
+
+
 def finished_run_config(run_dir: str | os.PathLike) -> dict[str, Any]:
     """The config.json of a finished run; ConfigError when ``run_dir`` is not a run or has not finished."""
     run_dir = Path(run_dir)
@@ -580,15 +609,7 @@ def run(cfg: TrainConfig) -> Path:
     validate(cfg)
     out = Path(cfg.out)
     cfg_dict = to_dict(cfg)
-    if (out / "config.json").exists():
-        old = json.loads((out / "config.json").read_text())
-        default = to_dict(TrainConfig())
-        diff = {k: (old.get(k, default[k]), v) for k, v in cfg_dict.items()
-                if k not in RESUMABLE_FIELDS and old.get(k, default[k]) != v}
-        diff.update({k: (old[k], "(removed)") for k, same in RETIRED_FIELDS.items() if old.get(k, same) != same})
-        if diff:
-            raise ConfigError(f"{out} already holds a run with a different config {diff} (old, new); "
-                              "use another --out or delete the directory")
+    check_existing(cfg)
     if (out / "DONE").exists():
         return out
     if cfg.deadline > 0 and wall_clock() >= cfg.deadline:  # out of time before starting: leave the run as it is
@@ -653,14 +674,10 @@ def run(cfg: TrainConfig) -> Path:
         else:
             sampler.gen.manual_seed(cfg.seed * 1000 + 1 + rank + 7919 * ck["step"])
         step = int(ck["step"])
-        if main:  # drop metrics logged after the checkpoint so the log matches an uninterrupted run
-            from .io import read_jsonl
-
-            rows = [r for r in read_jsonl(out / "metrics.jsonl") if r.get("step", 0) <= step]
-            (out / "metrics.jsonl").write_text("".join(json.dumps(r, sort_keys=True) + "\n" for r in rows))
-    elif main:  # fresh start: the step-0 row describes the corpus the loss will see (and drops stale rows)
-        start_row = {"step": 0, **sampler.glide_share(train_horizons, cfg.glide_loss_weight)}
-        (out / "metrics.jsonl").write_text(json.dumps(start_row, sort_keys=True) + "\n")
+        if main:
+            restart_metrics(out, step)
+    elif main:  # fresh start: the step-0 row describes the corpus the loss will see
+        restart_metrics(out, 0, {"step": 0, **sampler.glide_share(train_horizons, cfg.glide_loss_weight)})
 
     net: torch.nn.Module = model
     if cfg.ddp:

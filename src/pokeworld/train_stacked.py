@@ -408,21 +408,6 @@ class _Group:
 # ---------------------------------------------------------------------- training
 
 
-def _check_existing(cfg: T.TrainConfig) -> None:
-    """Raise ConfigError if ``cfg.out`` holds a run with a conflicting config (as ``train.run``)."""
-    out = Path(cfg.out)
-    if not (out / "config.json").exists():
-        return
-    old = json.loads((out / "config.json").read_text())
-    default = to_dict(T.TrainConfig())
-    diff = {k: (old.get(k, default[k]), v) for k, v in to_dict(cfg).items()
-            if k not in T.RESUMABLE_FIELDS and old.get(k, default[k]) != v}
-    diff.update({k: (old[k], "(removed)") for k, same in T.RETIRED_FIELDS.items() if old.get(k, same) != same})
-    if diff:
-        raise ConfigError(f"{out} already holds a run with a different config {diff} (old, new); "
-                          "use another --out or delete the directory")
-
-
 def _ckpt_step(cfg: T.TrainConfig) -> int:
     p = Path(cfg.out) / "ckpt.pt"
     if not p.exists():
@@ -436,7 +421,7 @@ def run(cfgs: Sequence[T.TrainConfig], *, mix_variants: bool = True, max_members
     cfgs = list(cfgs)
     plan_groups(cfgs, mix_variants, max_members)  # validates all runs (stackable, distinct outs) up front
     for c in cfgs:
-        _check_existing(c)
+        T.check_existing(c)
     todo = [i for i, c in enumerate(cfgs) if not (Path(c.out) / "DONE").exists()]
     # members resume together only from the same step: the checkpoint step joins the group key
     by_step: dict[int, list[int]] = {}
@@ -449,7 +434,7 @@ def run(cfgs: Sequence[T.TrainConfig], *, mix_variants: bool = True, max_members
 
 
 def _run_group(cfgs: list[T.TrainConfig]) -> None:
-    from .io import read_jsonl, write_json
+    from .io import write_json
 
     c0 = cfgs[0]
     if c0.deadline > 0 and T.wall_clock() >= c0.deadline:
@@ -472,15 +457,14 @@ def _run_group(cfgs: list[T.TrainConfig]) -> None:
         g.load(cks)
         T._set_rng_state(cks[0]["rng"])
         step = int(cks[0]["step"])
-        for out in outs:  # drop rows logged after the checkpoint, as train.run
-            rows = [r for r in read_jsonl(out / "metrics.jsonl") if r.get("step", 0) <= step]
-            (out / "metrics.jsonl").write_text("".join(json.dumps(r, sort_keys=True) + "\n" for r in rows))
+        for out in outs:
+            T.restart_metrics(out, step)
     else:
         # dropout masks: one generator for the group (vmap draws independent masks per member)
         torch.manual_seed(c0.seed)
         start_row = {"step": 0, **g.sampler.glide_share(train_horizons, c0.glide_loss_weight)}
         for out in outs:
-            (out / "metrics.jsonl").write_text(json.dumps(start_row, sort_keys=True) + "\n")
+            T.restart_metrics(out, 0, start_row)
 
     def save_ckpt(s: int) -> None:
         rng = T._rng_state()
