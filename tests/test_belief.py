@@ -160,3 +160,30 @@ def test_tiny_map_runs_the_belief_experiment(tmp_path):
     for label in ("VFX latent, standard windows", "VFX belief, standard windows", "VFX latent, whole episodes",
                   "VFX belief, whole episodes"):
         assert f"| {label} |" in md
+
+
+def test_belief_probes_read_a_planted_episode_latent_and_not_noise(tiny_dataset):
+    """Planted: latents carry each episode's γ; a posterior that passes them on must read γ ≈ 1, a prior that
+    outputs noise ≈ 0, through the same windows, split and ridge probes the map uses."""
+    import torch
+
+    from pokeworld.evaluate import measure
+
+    ds = tiny_dataset
+    gamma = ds.params["gamma"].astype(np.float32)
+
+    class Latents:  # stands in for EpisodeLatents: every step's latent holds the episode's γ
+        def gather(self, w):
+            return np.repeat(gamma[w.episode][:, None, None], w.length, 1).repeat(4, 2)
+
+    class Stub:
+        def posterior(self, z, a):
+            return z[:, -1, :2] + 0.01 * torch.randn(z.shape[0], 2), None
+
+        def prior(self, z, a):
+            return torch.randn(z.shape[0], z.shape[1], 2), None
+
+    cfg = measure.make_config("tiny", kinds=("all",))
+    res = measure.probe_belief(Stub(), ds, cfg, (Latents(), Latents()))
+    assert res["posterior_mean"]["ridge"]["all"]["gamma"] > 0.9
+    assert res["prior_mean"]["ridge"]["all"]["gamma"] < 0.2

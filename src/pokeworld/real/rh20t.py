@@ -519,14 +519,15 @@ def base_to_camera_rotations(calib_dir: Path, cfg_num: int) -> dict[str, np.ndar
     return {s: m @ world_from_base for s, m in mats.items()}
 
 
-def read_ft(d: Path, meta: dict, cfg: ConvertConfig) -> tuple[np.ndarray, np.ndarray, str]:
-    """Zeroed base-frame F/T records (raw ts, values) and their source: ``base`` or ``camera_via_calib``."""
+def read_ft(d: Path, meta: dict, cfg: ConvertConfig) -> tuple[np.ndarray, np.ndarray, str, int]:
+    """Zeroed base-frame F/T records (raw ts, values), their source (``base`` or ``camera_via_calib``) and the
+    number of camera-frame records left out because their serial has no calibration extrinsics."""
     tr = d / "transformed"
     base, cam = tr / "force_torque_base.npy", tr / "force_torque.npy"
     if base.exists() or not cam.exists():
         ts, v = read_records(load_pickled_dict(base, "transformed/force_torque_base.npy"), "zeroed", 6,
                              "force_torque_base.npy")
-        return ts, v, "base"
+        return ts, v, "base", 0
     if not cfg.ft_camera_fallback:
         raise SceneSkip("camera_frame_ft", "force_torque_base.npy absent, only the camera-frame force_torque.npy is "
                                            "present and ft_camera_fallback is off")
@@ -537,7 +538,7 @@ def read_ft(d: Path, meta: dict, cfg: ConvertConfig) -> tuple[np.ndarray, np.nda
     ts, v = read_records(obj, "zeroed", 6, "force_torque.npy (camera frame)", transform=to_base)
     if len(ts) == 0:
         raise SceneSkip("camera_frame_ft", f"no serial of force_torque.npy ({missing}) has calibration extrinsics")
-    return ts, v, "camera_via_calib"
+    return ts, v, "camera_via_calib", sum(len(obj[s]) for s in obj if str(s) not in to_base)
 
 
 def align_quaternions(q: np.ndarray) -> np.ndarray:
@@ -778,9 +779,11 @@ def process_scene(ref: SceneRef, cfg: ConvertConfig) -> dict[str, np.ndarray]:
     raw_tcp = read_records(load_pickled_dict(tr / "tcp_base.npy", "transformed/tcp_base.npy"), "tcp", 7,
                            "tcp_base.npy")
     tcp_ts, tcp, dropped["tcp_base"] = clean_records(*raw_tcp, "tcp", "tcp_base.npy", cfg)
-    ft_raw_ts, ft_raw, ft_source = read_ft(d, meta, cfg)
+    ft_raw_ts, ft_raw, ft_source, uncalibrated = read_ft(d, meta, cfg)
     ft_name = "force_torque_base" if ft_source == "base" else "force_torque"
     ft_ts, ft, dropped[ft_name] = clean_records(ft_raw_ts, ft_raw, "ft", f"{ft_name}.npy zeroed", cfg)
+    if uncalibrated:  # records of serials without extrinsics cannot be rotated into the base frame
+        dropped[ft_name] = {**dropped[ft_name], "no_extrinsics": uncalibrated}
     raw_gr = read_gripper(load_pickled_dict(tr / "gripper.npy", "transformed/gripper.npy"), cfg.gripper_field)
     gr_ts, grip, dropped["gripper"] = clean_records(*raw_gr, "gripper", "gripper.npy", cfg)
     dropped = {k: v for k, v in dropped.items() if v}
