@@ -15,6 +15,14 @@ def test_positional_and_preset_are_parsed():
     assert split_args(["--train-steps", "5", "OUT"], "out", ar)[1] == ["--train-steps", "5", "--out", "OUT"]
 
 
+def test_nested_tuple_flags_keep_their_values():
+    from pokeworld.sim.generate import GenerateConfig
+
+    ar = _flag_arity(GenerateConfig)
+    argv = ["--policy.mode-weights", "0.2", "0.65", "0.15", "--physics.force-max", "5", "OUT"]
+    assert split_args(argv, "out", ar)[1] == argv[:-1] + ["--out", "OUT"]
+
+
 def test_errors_are_one_line_not_tracebacks(capsys, tmp_path):
     assert main(["certify", str(tmp_path / "missing")]) == 2
     assert "does not exist" in capsys.readouterr().err

@@ -72,17 +72,25 @@ def usage() -> str:
     return "\n".join(lines)
 
 
-def _flag_arity(cls) -> dict[str, int]:
-    """Number of values each ``--flag`` of ``cls`` takes: 0 (bool), 1, or -1 (a tuple: until the next flag)."""
+def _flag_arity(cls, prefix: str = "") -> dict[str, int]:
+    """Number of values each ``--flag`` of ``cls`` takes: 0 (bool), 1, or -1 (a tuple: until the next flag).
+
+    Nested dataclass fields (``--policy.mode-weights``) are walked too, so their values are not
+    mistaken for the positional argument.
+    """
     hints = typing.get_type_hints(cls)
     out: dict[str, int] = {}
     for f in dataclasses.fields(cls):
         tp = hints.get(f.name)
+        if dataclasses.is_dataclass(tp):
+            for sub in {f.name, f.name.replace("_", "-")}:
+                out.update(_flag_arity(tp, f"{prefix}{sub}."))
+            continue
         arity = 0 if tp is bool else -1 if typing.get_origin(tp) is tuple else 1
         for name in {f.name, f.name.replace("_", "-")}:
-            out[f"--{name}"] = arity
+            out[f"--{prefix}{name}"] = arity
             if arity == 0:
-                out[f"--no-{name}"] = 0
+                out[f"--{prefix}no-{name}"] = 0
     return out
 
 
