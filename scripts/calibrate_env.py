@@ -28,17 +28,32 @@ def loss(stats: dict) -> float:
     return float(sum(np.log(max(stats[k], 1e-6) / v) ** 2 for k, v in TARGETS.items()))
 
 
+#: knobs the search may not move (``--mode-weights``) and floors it must respect (``--strike-gain-min``);
+#: the impact-rich calibration (docs/design.md) fixes the mix so that strike-retreat dominates
+FIXED: dict = {}
+STRIKE_GAIN_MIN = [0.0]
+
+
+def constrain(point: dict) -> dict:
+    po = point["policy"]
+    po.update(FIXED)
+    if "strike_gain" in po:
+        po["strike_gain"] = max(po["strike_gain"], STRIKE_GAIN_MIN[0])
+    return point
+
+
 def draw(rng: np.random.Generator) -> dict:
     w = mix_with_floor(rng.dirichlet([2.0, 2.0, 2.0]))
     lo = float(rng.uniform(0.3, 1.6))
     r0 = int(rng.integers(2, 9))
-    return {"physics": {"force_max": float(rng.uniform(6, 20)), "finger_damping": float(rng.uniform(1, 6))},
+    point = {"physics": {"force_max": float(rng.uniform(6, 20)), "finger_damping": float(rng.uniform(1, 6))},
             "policy": {"mode_weights": tuple(float(x) for x in w), "switch_prob": float(rng.uniform(0.02, 0.1)),
                        "pursuit_gain": float(rng.uniform(0.3, 1.0)), "strike_gain": float(rng.uniform(0.6, 1.0)),
                        "retreat_steps": (r0, r0 + int(rng.integers(2, 17))),
                        "ou_sigma": float(rng.uniform(0.5, 2.5)), "launch_fraction": float(rng.uniform(0.1, 0.8)),
                        "launch_speed": (lo, lo + float(rng.uniform(0.5, 3.0))),
                        "glide_fraction": float(rng.uniform(0.0, 0.3))}}
+    return constrain(point)
 
 
 #: every mode of the paper's behaviour mix keeps at least this weight (the spec says the episodes
@@ -73,7 +88,7 @@ def perturb(point: dict, rng: np.random.Generator, scale: float) -> dict:
     r0, r1 = po["retreat_steps"]
     r0 = int(np.clip(r0 + rng.integers(-1, 2), 1, 12))
     po["retreat_steps"] = (r0, int(np.clip(r1 + rng.integers(-2, 3), r0 + 1, 30)))
-    return {"physics": ph, "policy": po}
+    return constrain({"physics": ph, "policy": po})
 
 
 def evaluate(point: dict, episodes: int, seed: int) -> dict:
@@ -89,7 +104,13 @@ def main() -> None:
     ap.add_argument("--episodes", type=int, default=1200, help="episodes per evaluated corpus")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--start", default="", help="a previous output JSON: refine from its best point too")
+    ap.add_argument("--mode-weights", type=float, nargs=3, default=None,
+                    help="fix pursuit / strike-retreat / drift weights instead of searching them")
+    ap.add_argument("--strike-gain-min", type=float, default=0.0, help="floor on the strike gain")
     args = ap.parse_args()
+    if args.mode_weights:
+        FIXED["mode_weights"] = tuple(float(x) for x in np.asarray(args.mode_weights) / sum(args.mode_weights))
+    STRIKE_GAIN_MIN[0] = args.strike_gain_min
     rng = np.random.default_rng(args.seed)
     t0, rows = time.time(), []
 
@@ -104,7 +125,7 @@ def main() -> None:
     if args.start:
         prev = json.loads(open(args.start).read())["best"]["point"]
         prev["policy"].setdefault("glide_fraction", 0.0)
-        record(prev, "start")
+        record(constrain(prev), "start")
     best = min(rows[1:], key=lambda r: r["loss"])
     for i in range(args.refine):
         scale = 0.3 * (1 - i / max(args.refine, 1)) + 0.05

@@ -82,6 +82,8 @@ def test_default_corpus_stays_calibrated():
         assert within_tolerance(name, st[name], CALIBRATION_TOLERANCE.get(name, 0.15)), table
 
 
-#: statistics the spec does not let us bring within ±15 % (docs/design.md, "Calibration"); the band
-#: we reach instead, so that a regression is still caught
-CALIBRATION_TOLERANCE: dict[str, float] = {"glide_static16": 0.25, "glide_median_gamma16": 0.45}
+#: statistics the impact-rich calibration does not bring within ±15 % (docs/design.md, "Calibration": strike-retreat
+#: dominates so that the certificates reach the paper's, which shortens and thins the glides); the band we
+#: reach instead over seeds 0-3, so that a regression (e.g. the pre-calibration 0.075 glide static) is still caught
+CALIBRATION_TOLERANCE: dict[str, float] = {"glide_static16": 0.4, "glide_median_gamma16": 0.6,
+                                           "glide_loss_share": 0.55}

@@ -122,7 +122,7 @@ class SynthConfig:
     tcp_offset_m: tuple[float, float, float] = (0.35, -0.25, 0.12)
     """TCP position of the arena origin in the robot base frame [m]."""
     newtons_per_unit: float = 10.0
-    """Newtons per simulator force unit (F_max = 5.3 units)."""
+    """Newtons per simulator force unit (F_max = 5.6 units at the default calibration)."""
     lever_arm_m: float = 0.15
     """Contact point below the F/T sensor [m]: torque = (0, 0, -lever) x F."""
     ft_noise_n: float = 0.3

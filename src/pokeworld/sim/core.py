@@ -22,13 +22,13 @@ class PhysicsConfig:
     """Control step in seconds."""
     substeps: int = 20
     """Semi-implicit Euler sub-steps per control step (touch statistics are taken over these)."""
-    force_max: float = 5.3
+    force_max: float = 5.6
     """F_max: the commanded finger force is F_max * a with a in [-1, 1]^2 (simulator force units).
     Calibrated with the policy knobs to the paper's corpus statistics (docs/design.md, "Calibration")."""
     finger_mass: float = 1.0
     """Finger mass."""
-    finger_damping: float = 1.25
-    """Linear damping coefficient on the finger (terminal speed F_max/damping = 4.2 arena units/s; calibrated)."""
+    finger_damping: float = 0.85
+    """Linear damping coefficient on the finger (terminal speed F_max/damping = 6.6 arena units/s; calibrated)."""
     finger_radius: float = 0.06
     """Finger disk radius (arena units; the arena is the unit square)."""
     object_radius: float = 0.09

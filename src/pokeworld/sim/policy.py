@@ -25,15 +25,15 @@ class PolicyConfig:
     ``scripts/calibrate_env.py``), with every mode kept at a weight of at least 0.15.
     """
 
-    mode_weights: tuple[float, float, float] = (0.68, 0.17, 0.15)
+    mode_weights: tuple[float, float, float] = (0.2, 0.65, 0.15)
     """Relative probabilities of pursuit / strike-retreat / OU drift when a mode is (re)drawn."""
-    switch_prob: float = 0.026
+    switch_prob: float = 0.02
     """Per-step probability of redrawing the mode."""
-    pursuit_gain: float = 0.5
+    pursuit_gain: float = 0.89
     """Action magnitude of sustained pushes (pursuit)."""
-    strike_gain: float = 0.42
+    strike_gain: float = 1.0
     """Action magnitude while striking."""
-    retreat_steps: tuple[int, int] = (2, 9)
+    retreat_steps: tuple[int, int] = (4, 7)
     """Range of steps spent retreating after an impact (the object glides meanwhile)."""
     ou_theta: float = 1.5
     """Mean-reversion rate of the OU drift (1/s)."""
@@ -41,9 +41,9 @@ class PolicyConfig:
     """Diffusion of the OU drift."""
     action_noise: float = 0.1
     """Std of Gaussian noise added to scripted actions."""
-    launch_fraction: float = 0.67
+    launch_fraction: float = 0.29
     """Fraction of episodes whose object starts with a random velocity."""
-    launch_speed: tuple[float, float] = (3.0, 3.3)
+    launch_speed: tuple[float, float] = (2.55, 5.0)
     """Launch speed range (arena units/s)."""
     glide_fraction: float = 0.0
     """Fraction of episodes that are contact-free glides (object launched, finger avoids it)."""
