@@ -64,7 +64,8 @@ def test_top_level_help_lists_commands_and_preset_costs(capsys):
 
 def test_training_commands_help_quotes_the_preset_cost(capsys):
     for argv, cost in ((["train", "--help"], PRESET_COSTS["cpu"]),
-                       (["map", "--preset", "paper", "--help"], PRESET_COSTS["paper"])):
+                       (["map", "--preset", "paper", "--help"], PRESET_COSTS["paper"]),
+                       (["demo", "--help"], COMMANDS["demo"].cost)):
         with pytest.raises(SystemExit) as e:
             main(argv)
         assert e.value.code == 0
