@@ -33,7 +33,7 @@ from train_throughput import write_results  # noqa: E402
 from pokeworld.losses import sigreg  # noqa: E402
 from pokeworld.models import XJEPA  # noqa: E402
 from pokeworld.train import (WindowSampler, loss_kwargs, make_config, make_optimizer, model_kwargs,  # noqa: E402
-                             sigreg_directions, sigreg_seed, synthetic_dataset)
+                             sigreg_directions, synthetic_dataset, train_step)
 
 
 def setup(preset: str, channels_last: bool = False, **over):
@@ -56,12 +56,7 @@ def time_steps(preset: str, steps: int, threads: int, compile: bool = False, cha
     fn = torch.compile(model) if compile else model
 
     def step(i):
-        b = sampler.sample(cfg.batch_size)
-        loss, _ = fn(b, sigreg_seed=sigreg_seed(cfg, i), sigreg_directions=sigreg_directions(cfg, i, "cpu"), **kw)
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)
-        opt.step()
+        train_step(model, opt, cfg, sampler.sample(cfg.batch_size), i, torch.device("cpu"), kw, loss_fn=fn)
 
     for i in range(3):
         step(i)

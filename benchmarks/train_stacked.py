@@ -34,8 +34,7 @@ from train_throughput import pick_device, write_results  # noqa: E402
 from pokeworld.models import XJEPA  # noqa: E402
 from pokeworld.models.xjepa import VARIANTS  # noqa: E402
 from pokeworld.train import (PRESETS, WindowSampler, auto_threads, data_stats, loss_kwargs, make_config,  # noqa: E402
-                             make_optimizer, model_kwargs, sigreg_directions, sigreg_seed, synthetic_dataset,
-                             use_fast_path)
+                             make_optimizer, model_kwargs, synthetic_dataset, train_step, use_fast_path)
 from pokeworld.train_stacked import _Group, superset_variant  # noqa: E402
 
 
@@ -102,16 +101,8 @@ def bench_sequential(cfgs, ds, device: torch.device, steps: int) -> dict:
     def step(i):
         nonlocal acc
         for c, m, opt, kw in runs:
-            b = sampler.sample(c.batch_size)
-            dirs = sigreg_directions(c, i, device, non_blocking=fast)
-            with torch.autocast(device.type, dtype=torch.bfloat16, enabled=amp):
-                loss, _ = m(b, sigreg_seed=sigreg_seed(c, i), sigreg_directions=dirs, **kw)
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            if c.grad_clip > 0:
-                torch.nn.utils.clip_grad_norm_(m.parameters(), c.grad_clip)
-            opt.step()
-            acc = acc + loss.detach()
+            loss, _ = train_step(m, opt, c, sampler.sample(c.batch_size), i, device, kw, amp=amp, fast=fast)
+            acc = acc + loss
 
     dt = _timed(step, steps, device)
     mem = torch.cuda.max_memory_allocated() if device.type == "cuda" else None

@@ -26,7 +26,7 @@ import torch
 
 from pokeworld.models import XJEPA
 from pokeworld.train import (PRESETS, WindowSampler, auto_threads, loss_kwargs, make_config, make_optimizer,
-                             model_kwargs, sigreg_directions, sigreg_seed, synthetic_dataset)
+                             model_kwargs, synthetic_dataset, train_step)
 
 
 def matmul_peak(device: torch.device, dtype: torch.dtype, n: int = 2048, reps: int = 10) -> float:
@@ -62,16 +62,9 @@ def bench(preset: str, steps: int, device: torch.device, fast: bool = False, com
 
     def step(i, fn=loss_fn):
         nonlocal acc
-        b = sampler.sample(cfg.batch_size)
-        dirs = sigreg_directions(cfg, i, device, non_blocking=fast)
-        with torch.autocast(device.type, dtype=torch.bfloat16, enabled=amp):
-            loss, _ = fn(b, sigreg_seed=sigreg_seed(cfg, i), sigreg_directions=dirs, **kw)
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        if cfg.grad_clip > 0:
-            torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip)
-        opt.step()
-        acc = acc + loss.detach()  # as the trainer: summed on the device, read at log steps only
+        loss, _ = train_step(model, opt, cfg, sampler.sample(cfg.batch_size), i, device, kw, amp=amp, fast=fast,
+                             loss_fn=fn)
+        acc = acc + loss  # as the trainer: summed on the device, read at log steps only
 
     from torch.utils.flop_counter import FlopCounterMode
 

@@ -286,6 +286,25 @@ def loss_kwargs(cfg: TrainConfig) -> dict[str, Any]:
                 glide_loss_weight=cfg.glide_loss_weight, belief_kl_weight=cfg.belief_kl_weight)
 
 
+def train_step(model: torch.nn.Module, opt: torch.optim.Optimizer, cfg: TrainConfig, batch: dict, step: int,
+               dev: torch.device, loss_kw: dict[str, Any], amp: bool = False, fast: bool = False,
+               loss_fn=None) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    """One optimisation step: loss (bf16 autocast when ``amp``), backward, gradient clipping, AdamW.
+
+    ``loss_fn`` defaults to ``model`` (pass a compiled wrapper to time ``torch.compile``). Returns the
+    detached loss and the loss terms, with ``grad_norm`` when clipping is on; nothing is read on the host.
+    """
+    dirs = sigreg_directions(cfg, step, dev, non_blocking=fast)
+    with torch.autocast(dev.type, dtype=torch.bfloat16, enabled=amp):
+        loss, terms = (loss_fn or model)(batch, sigreg_seed=sigreg_seed(cfg, step), sigreg_directions=dirs, **loss_kw)
+    opt.zero_grad(set_to_none=True)
+    loss.backward()
+    if cfg.grad_clip > 0:
+        terms["grad_norm"] = torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip).detach()
+    opt.step()
+    return loss.detach(), terms
+
+
 # ---------------------------------------------------------------------- data in memory
 
 
@@ -339,11 +358,18 @@ class WindowSampler:
 
     def sample(self, batch_size: int) -> dict[str, torch.Tensor]:
         """A batch of windows: frames (B, L, S, S) uint8, proprio/touch/actions (B, L, ·), params (B, 3)."""
-        e = torch.multinomial(self.weights, batch_size, replacement=True, generator=self.gen)
-        s = torch.randint(0, self.num_starts, (batch_size,), generator=self.gen)
-        e, s = to_device(e, self.device, self.non_blocking), to_device(s, self.device, self.non_blocking)
-        t = s[:, None] + self.offsets[None]
-        ee = e[:, None]
+        e, s = self.draw(batch_size, self.gen)
+        return self.gather(to_device(e, self.device, self.non_blocking), to_device(s, self.device, self.non_blocking))
+
+    def draw(self, batch_size: int, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+        """Episode and start indices of ``batch_size`` windows (CPU tensors), drawn from ``gen``."""
+        e = torch.multinomial(self.weights, batch_size, replacement=True, generator=gen)
+        return e, torch.randint(0, self.num_starts, (batch_size,), generator=gen)
+
+    def gather(self, e: torch.Tensor, s: torch.Tensor) -> dict[str, torch.Tensor]:
+        """The windows at episode indices ``e`` and start steps ``s`` (any equal leading shape, on the device)."""
+        t = s[..., None] + self.offsets
+        ee = e[..., None]
         out = {"frames": self.frames[ee, t], "proprio": self.proprio[ee, t], "touch": self.touch[ee, t],
                "actions": self.actions[ee, t], "glide": self.glide[ee, t]}
         if self.params is not None:
@@ -502,6 +528,18 @@ class MetricsLog:
     def close(self) -> None:
         if self.writer is not None:
             self.writer.close()
+
+
+def write_final(out: Path, state: dict, model_kwargs: dict, cfg_dict: dict, step: int, note: str = "") -> None:
+    """Write a finished run's ``final.pt`` (weights, model kwargs, config, step) and its ``DONE`` marker."""
+    _atomic_save({"model": state, "model_kwargs": model_kwargs, "config": cfg_dict, "step": step}, out / "final.pt")
+    (out / "DONE").write_text(f"finished {step} steps{note}\n")
+
+
+def speed_row(step: int, lr: float, n_steps: int, frames_per_step: int, seconds: float) -> dict[str, float]:
+    """The timing fields of a metrics.jsonl row covering ``n_steps`` steps that took ``seconds``."""
+    return {"step": step, "lr": lr, "frames_per_s": n_steps * frames_per_step / max(seconds, 1e-9),
+            "steps_per_s": n_steps / max(seconds, 1e-9)}
 
 
 def check_existing(cfg: TrainConfig) -> None:
@@ -713,17 +751,10 @@ def run(cfg: TrainConfig) -> Path:
     model.train()
     try:
         while step < end:
-            batch = sampler.sample(cfg.batch_size)
-            dirs = sigreg_directions(cfg, step, dev, non_blocking=fast)
-            with torch.autocast(dev.type, dtype=torch.bfloat16, enabled=use_amp):
-                loss, terms = loss_fn(batch, sigreg_seed=sigreg_seed(cfg, step), sigreg_directions=dirs, **loss_kw)
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            if cfg.grad_clip > 0:
-                terms["grad_norm"] = torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.grad_clip).detach()
-            opt.step()
+            loss, terms = train_step(model, opt, cfg, sampler.sample(cfg.batch_size), step, dev, loss_kw,
+                                     amp=use_amp, fast=fast, loss_fn=loss_fn)
             sched.step()
-            terms["loss"] = loss.detach()
+            terms["loss"] = loss
             first_bad = torch.where((first_bad < 0) & ~torch.isfinite(terms["loss"]), step, first_bad)
             step += 1
             for k, v in terms.items():
@@ -740,9 +771,7 @@ def run(cfg: TrainConfig) -> Path:
                 if dev.type == "cuda":
                     torch.cuda.synchronize(dev)
                 dt = time.perf_counter() - t0
-                row = {"step": step, "lr": sched.get_last_lr()[0],
-                       "frames_per_s": n_acc * cfg.batch_size * cfg.window * world / max(dt, 1e-9),
-                       "steps_per_s": n_acc / max(dt, 1e-9)}
+                row = speed_row(step, sched.get_last_lr()[0], n_acc, cfg.batch_size * cfg.window * world, dt)
                 row.update({k: float(v) / n_acc for k, v in acc.items()})
                 if main:
                     log.write(row)
@@ -759,9 +788,7 @@ def run(cfg: TrainConfig) -> Path:
         if log is not None:
             log.close()
     if step >= cfg.steps and main:
-        _atomic_save({"model": model.state_dict(), "model_kwargs": mk, "config": cfg_dict, "step": step},
-                     out / "final.pt")
-        (out / "DONE").write_text(f"finished {step} steps\n")
+        write_final(out, model.state_dict(), mk, cfg_dict, step)
     if cfg.ddp:
         import torch.distributed as dist
 

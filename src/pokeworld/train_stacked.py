@@ -319,20 +319,10 @@ class _Group:
     # ------------------------------------------------------------------ per step
     def sample(self, batch_size: int) -> dict[str, torch.Tensor]:
         """(M, B, ...) windows; member i's draws equal ``WindowSampler.sample`` with its own generator."""
-        s = self.sampler
-        es, ss = [], []
-        for g in self.gens:  # same draw order as WindowSampler.sample
-            es.append(torch.multinomial(s.weights, batch_size, replacement=True, generator=g))
-            ss.append(torch.randint(0, s.num_starts, (batch_size,), generator=g))
-        e = T.to_device(torch.stack(es), self.dev, self.fast)
-        st = T.to_device(torch.stack(ss), self.dev, self.fast)
-        t = st[..., None] + s.offsets
-        ee = e[..., None]
-        out = {"frames": s.frames[ee, t], "proprio": s.proprio[ee, t], "touch": s.touch[ee, t],
-               "actions": s.actions[ee, t], "glide": s.glide[ee, t]}
-        if s.params is not None:
-            out["params"] = s.params[e]
-        return out
+        draws = [self.sampler.draw(batch_size, g) for g in self.gens]
+        e = T.to_device(torch.stack([d[0] for d in draws]), self.dev, self.fast)
+        st = T.to_device(torch.stack([d[1] for d in draws]), self.dev, self.fast)
+        return self.sampler.gather(e, st)
 
     def directions(self, step: int) -> torch.Tensor:
         dirs = torch.stack([T.sigreg_directions(c, step, torch.device("cpu")) for c in self.cfgs])
@@ -511,9 +501,8 @@ def _run_group(cfgs: list[T.TrainConfig]) -> None:
                 dt = time.perf_counter() - t0
                 vals = {k: (v / n_acc).cpu() for k, v in acc.items()}
                 for i, log in enumerate(logs):
-                    row = {"step": step, "lr": g.sched.get_last_lr()[0],
-                           "frames_per_s": n_acc * c0.batch_size * c0.window / max(dt, 1e-9),
-                           "steps_per_s": n_acc / max(dt, 1e-9), "stacked_members": M}
+                    row = T.speed_row(step, g.sched.get_last_lr()[0], n_acc, c0.batch_size * c0.window, dt)
+                    row["stacked_members"] = M
                     row.update({k: float(v[i]) for k, v in vals.items()
                                 if k not in ("proprio", "touch") or k in g.own_terms[i]})
                     log.write(row)
@@ -531,9 +520,7 @@ def _run_group(cfgs: list[T.TrainConfig]) -> None:
             log.close()
     if step >= c0.steps:
         for i, (c, out) in enumerate(zip(cfgs, outs)):
-            T._atomic_save({"model": g.member_state(i), "model_kwargs": g.mks[i], "config": to_dict(c), "step": step},
-                           out / "final.pt")
-            (out / "DONE").write_text(f"finished {step} steps (stacked ×{M})\n")
+            T.write_final(out, g.member_state(i), g.mks[i], to_dict(c), step, note=f" (stacked ×{M})")
 
 
 __all__ = ["StackedConfig", "make_config", "train_configs", "run_config", "run", "plan_groups", "group_key",
