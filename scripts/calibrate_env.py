@@ -19,7 +19,7 @@ import numpy as np
 
 from pokeworld.io import write_json
 from pokeworld.sim.generate import make_config, simulate
-from pokeworld.sim.stats import PAPER_STATS, corpus_stats, paper_range
+from pokeworld.sim.stats import PAPER_STATS, paper_range
 
 TARGETS = {k: float(np.mean(paper_range(k))) for k in PAPER_STATS}
 
@@ -28,17 +28,16 @@ def loss(stats: dict) -> float:
     return float(sum(np.log(max(stats[k], 1e-6) / v) ** 2 for k, v in TARGETS.items()))
 
 
-#: knobs the search may not move (``--mode-weights``) and floors it must respect (``--strike-gain-min``);
-#: the impact-rich calibration (docs/design.md) fixes the mix so that strike-retreat dominates
-FIXED: dict = {}
-STRIKE_GAIN_MIN = [0.0]
+def constrain(point: dict, mode_weights: tuple[float, float, float] | None, strike_gain_min: float) -> dict:
+    """Hold the mode mix at ``mode_weights`` (when given) and the strike gain at or above ``strike_gain_min``.
 
-
-def constrain(point: dict) -> dict:
+    The impact-rich calibration (docs/design.md) fixes the mix so that strike-retreat dominates.
+    """
     po = point["policy"]
-    po.update(FIXED)
+    if mode_weights is not None:
+        po["mode_weights"] = tuple(float(x) for x in np.asarray(mode_weights) / sum(mode_weights))
     if "strike_gain" in po:
-        po["strike_gain"] = max(po["strike_gain"], STRIKE_GAIN_MIN[0])
+        po["strike_gain"] = max(po["strike_gain"], strike_gain_min)
     return point
 
 
@@ -53,7 +52,7 @@ def draw(rng: np.random.Generator) -> dict:
                        "ou_sigma": float(rng.uniform(0.5, 2.5)), "launch_fraction": float(rng.uniform(0.1, 0.8)),
                        "launch_speed": (lo, lo + float(rng.uniform(0.5, 3.0))),
                        "glide_fraction": float(rng.uniform(0.0, 0.3))}}
-    return constrain(point)
+    return point
 
 
 #: every mode of the paper's behaviour mix keeps at least this weight (the spec says the episodes
@@ -88,12 +87,17 @@ def perturb(point: dict, rng: np.random.Generator, scale: float) -> dict:
     r0, r1 = po["retreat_steps"]
     r0 = int(np.clip(r0 + rng.integers(-1, 2), 1, 12))
     po["retreat_steps"] = (r0, int(np.clip(r1 + rng.integers(-2, 3), r0 + 1, 30)))
-    return constrain({"physics": ph, "policy": po})
+    return {"physics": ph, "policy": po}
 
 
 def evaluate(point: dict, episodes: int, seed: int) -> dict:
-    cfg = make_config("cpu", num_episodes=episodes, seed=seed, **point)
-    return corpus_stats(simulate(cfg, progress=False, render=False))
+    return evaluate_corpus(point, episodes, seed)[1]
+
+
+def evaluate_corpus(point: dict, episodes: int, seed: int):
+    """A render-free corpus with ``point``'s overrides and its statistics (the statistics need no frames)."""
+    ds = simulate(make_config("cpu", num_episodes=episodes, seed=seed, **point), progress=False, render=False)
+    return ds, ds.manifest["stats"]
 
 
 def main() -> None:
@@ -108,13 +112,12 @@ def main() -> None:
                     help="fix pursuit / strike-retreat / drift weights instead of searching them")
     ap.add_argument("--strike-gain-min", type=float, default=0.0, help="floor on the strike gain")
     args = ap.parse_args()
-    if args.mode_weights:
-        FIXED["mode_weights"] = tuple(float(x) for x in np.asarray(args.mode_weights) / sum(args.mode_weights))
-    STRIKE_GAIN_MIN[0] = args.strike_gain_min
     rng = np.random.default_rng(args.seed)
     t0, rows = time.time(), []
 
     def record(point: dict, phase: str) -> float:
+        if phase != "defaults":
+            point = constrain(point, args.mode_weights, args.strike_gain_min)
         st = evaluate(point, args.episodes, args.seed)
         rows.append({"phase": phase, "point": point, "stats": st, "loss": loss(st)})
         return rows[-1]["loss"]
@@ -125,7 +128,7 @@ def main() -> None:
     if args.start:
         prev = json.loads(open(args.start).read())["best"]["point"]
         prev["policy"].setdefault("glide_fraction", 0.0)
-        record(constrain(prev), "start")
+        record(prev, "start")
     best = min(rows[1:], key=lambda r: r["loss"])
     for i in range(args.refine):
         scale = 0.3 * (1 - i / max(args.refine, 1)) + 0.05

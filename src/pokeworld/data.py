@@ -133,11 +133,10 @@ def save(ds: Dataset, out_dir: str | os.PathLike, manifest: dict[str, Any] | Non
         tmp.mkdir(parents=True)
         with h5py.File(tmp / "data.h5", "w", track_order=True) as f:
             for name, a in arrays.items():
-                chunks = (1,) + a.shape[1:] if a.ndim >= 2 else None
-                # deflate, not LZF: h5py's LZF leaves its hash table uninitialised, so the same array can
-                # compress to different bytes from run to run and "same seed, same bytes" would not hold
-                f.create_dataset(name, data=a, chunks=chunks, compression="gzip" if a.ndim >= 2 else None,
-                                 compression_opts=1 if a.ndim >= 2 else None, track_times=False)
+                # one chunk per episode, deflate level 1; not LZF: h5py's LZF leaves its hash table
+                # uninitialised, so the same array can compress to different bytes from run to run
+                per_episode = {"chunks": (1,) + a.shape[1:], "compression": "gzip", "compression_opts": 1}
+                f.create_dataset(name, data=a, track_times=False, **(per_episode if a.ndim >= 2 else {}))
         write_json(tmp / "manifest.json", man)
     ds.manifest = man
     return out_dir
