@@ -95,13 +95,18 @@ class LatentScorer:
         fit = ds.episodes("probe_fit")
         lat = EpisodeLatents(self.model, ds, fit, 64)
         self.decoder = _position_decoder(ds, lat, fit, np.random.default_rng(0))
+        self._encoded: tuple[dict, torch.Tensor] | None = None  # (history, its latents): one encode per replan
 
     @torch.no_grad()
     def score(self, hist: dict, cand: np.ndarray, goal: np.ndarray) -> np.ndarray:
         """hist: frames (E, C, H, W), proprio, touch (E, C, .), actions (E, C-1, 2); cand (E, P, 16, 2) -> (E, P)."""
         E, P = cand.shape[:2]
         m = self.model
-        z = m.encode(hist["frames"], hist["proprio"], hist["touch"])  # (E, C, D)
+        # the history is the same for every CEM iteration of a replan (control() builds it once), so its
+        # frames are encoded once, not once per iteration
+        if self._encoded is None or self._encoded[0] is not hist:
+            self._encoded = (hist, m.encode(hist["frames"], hist["proprio"], hist["touch"]))  # (E, C, D)
+        z = self._encoded[1]
         C = z.shape[1]
         zc = z[:, None].expand(E, P, *z.shape[1:]).reshape(E * P, C, -1)
         past = np.repeat(hist["actions"][:, None], P, 1).reshape(E * P, C - 1, 2)

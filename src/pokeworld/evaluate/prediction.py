@@ -33,7 +33,8 @@ def _position_decoder(ds: Dataset, lat_fit: EpisodeLatents, fit_eps: np.ndarray,
 @torch.no_grad()
 def prediction_quality(model, ds: Dataset, lat_fit: EpisodeLatents, lat_test: EpisodeLatents, seed: int,
                        position: str = "object_pos", test_split: str = "probe_test", context: int = CONTEXT,
-                       horizon: int = HORIZON, stride: int = 4, glide: bool = True) -> dict:
+                       horizon: int = HORIZON, stride: int = 4, glide: bool = True,
+                       decoder: RidgeCV | None = None) -> dict:
     """Decoded ``horizon``-step errors (label units) of direct, autoregressive and static predictions.
 
     Every prediction, the static baseline included, goes through the same position decoder (fit on
@@ -42,13 +43,14 @@ def prediction_quality(model, ds: Dataset, lat_fit: EpisodeLatents, lat_test: Ep
     can beat on average). ``static16_true`` / ``static8_true`` are the undecoded static errors in true
     position space, for reference only. Keys name the horizon (``direct16``, ``rollout8``, ... for the
     default 16 and its half). ``lat_test`` must hold the ``test_split`` episodes. ``glide`` adds the
-    simulator's functional glide test.
+    simulator's functional glide test. ``decoder``: that position decoder when the caller already fit it
+    (``_position_decoder(ds, lat_fit, probe-fit episodes, default_rng(seed), position)``, the same fit),
+    so evaluating several test splits fits it once.
     """
     if model.objective == "recon":
         return {"note": "reconstruction objective: latent heads receive no gradient"}
-    rng = np.random.default_rng(seed)
     fit_eps, test_eps = ds.episodes("probe_fit"), ds.episodes(test_split)
-    dec = _position_decoder(ds, lat_fit, fit_eps, rng, position)
+    dec = decoder or _position_decoder(ds, lat_fit, fit_eps, np.random.default_rng(seed), position)
     H, half = horizon, horizon // 2
     w = make_windows(ds, test_eps, context + H, stride)
     acts = w.gather(padded_actions(ds))

@@ -33,7 +33,7 @@ import torch
 from ..config import from_preset, to_dict
 from ..data import Dataset, load, read_manifest
 from ..errors import ConfigError, DataError
-from ..evaluate.prediction import prediction_quality
+from ..evaluate.prediction import _position_decoder, prediction_quality
 from ..evaluate.probes import fit_predict
 from ..evaluate.state import EpisodeLatents, padded_actions, window_states
 from ..io import write_json
@@ -218,11 +218,14 @@ def evaluate_model(model, ds: Dataset, cfg: RealEvalConfig) -> dict:
 
     # decoded 16-step prediction of the end-effector position (cm)
     out["prediction"] = {}
+    # one TCP-position decoder serves both test splits (prediction_quality would refit the same one per split)
+    dec = None if model.objective == "recon" else _position_decoder(ds, lat["fit"], eps["fit"],
+                                                                    np.random.default_rng(cfg.seed), "tcp_pos")
     for k, split in TESTS.items():
         try:
             p = prediction_quality(model, ds, lat["fit"], lat[k], cfg.seed, position="tcp_pos", test_split=split,
                                    context=cfg.context, horizon=cfg.horizon, stride=cfg.prediction_stride,
-                                   glide=False)
+                                   glide=False, decoder=dec)
         except DataError as e:  # episodes shorter than context + horizon
             p = {"note": str(e)}
         out["prediction"][k] = {key: (100.0 * v if isinstance(v, float) else v) for key, v in p.items()}
