@@ -227,6 +227,24 @@ def glide_weights(glide: torch.Tensor, weight: float) -> torch.Tensor:
     return 1.0 + (float(weight) - 1.0) * glide.float()
 
 
+def motion_weights(frames: torch.Tensor, alpha: float) -> torch.Tensor:
+    """Per-frame weights of magnitude-weighted motion-forecast targets: ``1 + α · m_t / mean(m)``.
+
+    Args:
+        frames: (B, L, S, S) float frames as the encoder sees them (downsampled, in [0, 1]).
+        alpha: α ≥ 0; 0 gives all-ones weights.
+    Returns:
+        (B, L) float weights, no gradient. m_t is the mean absolute temporal difference of frame t (0 at the
+        first frame of a window, which has no previous frame); mean(m) is over the batch's frames 1…L−1, so a
+        frame with the batch's mean motion weighs 1 + α and a still frame 1.
+    """
+    with torch.no_grad():
+        f = frames.float()
+        m = (f[:, 1:] - f[:, :-1]).abs().flatten(2).mean(-1)  # (B, L-1)
+        m = torch.cat([torch.zeros_like(m[:, :1]), m], 1)
+        return 1.0 + float(alpha) * m / m[:, 1:].mean().clamp_min(1e-8)
+
+
 def glide_loss_share(glide: torch.Tensor, weight: float, horizons) -> torch.Tensor:
     """Share of the prediction-loss weight mass on glide target frames, Σ w·glide / Σ w.
 
@@ -259,4 +277,4 @@ def expected_null_ep(num_knots: int = 17, t_max: float = 3.0) -> float:
 
 
 __all__ = ["sigreg", "epps_pulley", "random_directions", "ep_knots", "masked_mse", "gaussian_nll", "gaussian_kl",
-           "glide_weights", "glide_loss_share", "expected_null_ep"]
+           "glide_weights", "motion_weights", "glide_loss_share", "expected_null_ep"]

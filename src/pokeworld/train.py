@@ -126,6 +126,12 @@ class TrainConfig:
     of the loss from s to W·s / (W·s + 1 − s) without changing the data (paper App. C dose–response 1:
     s ≈ 0.32 -> 0.65 / 0.88 / 0.97 at W = 4 / 16 / 64). Glide frame: no finger contact, object speed >
     0.02 and no wall contact (simulator labels; ``windows.glide_frames``), else touch contact flag off."""
+    motion_channel: bool = True
+    """Feed the encoder the temporal-difference channel x_t − x_{t−1} beside the frame (paper App. B); off =
+    that channel is zero (the γ ledger's "motion channel off", same architecture)."""
+    motion_loss_weight: float = 0.0
+    """α of magnitude-weighted motion-forecast targets (the γ ledger): every latent Δ-head term weights its
+    target frame by 1 + α·m/mean(m), m = the frame's mean absolute temporal difference; 0 = off."""
     lr: float = 3e-4
     """Peak AdamW learning rate."""
     warmup: int = 500
@@ -219,7 +225,10 @@ def validate(cfg: TrainConfig) -> None:
     for name in ("steps", "batch_size", "log_every", "ckpt_every"):
         if getattr(cfg, name) < 1:
             raise ConfigError(f"{name} must be ≥ 1, got {getattr(cfg, name)}")
-    if min(cfg.glide_loss_weight, cfg.sysid_weight, cfg.sigreg_weight, cfg.belief_kl_weight) < 0:
+    if cfg.motion_loss_weight > 0 and cfg.objective == "recon":
+        raise ConfigError("motion_loss_weight weights latent targets; objective='recon' has none")
+    if min(cfg.glide_loss_weight, cfg.sysid_weight, cfg.sigreg_weight, cfg.belief_kl_weight,
+           cfg.motion_loss_weight) < 0:
         raise ConfigError("weights must be non-negative")
     if not math.isfinite(cfg.glide_loss_weight):
         raise ConfigError(f"glide_loss_weight must be finite, got {cfg.glide_loss_weight}")
@@ -283,7 +292,8 @@ def loss_kwargs(cfg: TrainConfig) -> dict[str, Any]:
     return dict(sigreg_weight=cfg.sigreg_weight, sigreg_dirs=cfg.sigreg_dirs, sigreg_knots=cfg.sigreg_knots,
                 token_rows=cfg.token_rows, token_dirs=cfg.token_dirs, touch_contact_weight=cfg.touch_contact_weight,
                 proprio_weight=cfg.proprio_weight, touch_weight=cfg.touch_weight, sysid_weight=cfg.sysid_weight,
-                glide_loss_weight=cfg.glide_loss_weight, belief_kl_weight=cfg.belief_kl_weight)
+                glide_loss_weight=cfg.glide_loss_weight, belief_kl_weight=cfg.belief_kl_weight,
+                motion_loss_weight=cfg.motion_loss_weight)
 
 
 def train_step(model: torch.nn.Module, opt: torch.optim.Optimizer, cfg: TrainConfig, batch: dict, step: int,
@@ -472,7 +482,8 @@ def model_kwargs(cfg: TrainConfig, dims: tuple[int, int, int]) -> dict[str, Any]
                 depth=cfg.depth, heads=cfg.heads, dropout=cfg.dropout,
                 horizons=(1,) if cfg.tokens else tuple(cfg.horizons), objective=cfg.objective, tokens=cfg.tokens,
                 sysid=cfg.sysid_weight > 0, max_len=max(128, cfg.window), vec_dim=cfg.vec_dim,
-                contact_channel=cfg.contact_channel, pool=cfg.pool, belief_dim=cfg.belief_dim)
+                contact_channel=cfg.contact_channel, pool=cfg.pool, belief_dim=cfg.belief_dim,
+                motion_channel=cfg.motion_channel)
 
 
 def lr_lambda(step: int, warmup: int, total: int) -> float:

@@ -284,11 +284,46 @@ def exp_attributes(c: MapConfig) -> list[RunSpec]:
             for corp in ("bias0.5", "bias1.5", "bias2.5", "gain")]
 
 
+#: γ ledger rows: mechanism -> the run that deploys it (train overrides on VFX beside the horizons and corpus);
+#: every run except the two ledger-only ones is shared with the experiment named in its spec.
+LEDGER_MOTION_ALPHA = 4.0
+"""α of the ledger's magnitude-weighted motion-forecast run: a frame with the batch's mean motion weighs 5, a still one 1."""
+
+
+def exp_ledger(c: MapConfig) -> list[RunSpec]:
+    """The γ intervention ledger (App. C): every prediction-side mechanism against drag, one VFX run each —
+    single- vs multi-horizon heads, the temporal-difference input channel off, spatial tokens, magnitude-weighted
+    motion-forecast targets, the frozen flow sensor's input channel, and a glide-enriched loss (glide weight 16).
+    Runs shared with lazy / factorial / controls / coordinate / dose_glide keep those experiments' names."""
+    s, lam = c.seeds[0], c.sigreg_weight
+    return [_spec("lazy", "VFX", s, lam, horizons=(1,)), _spec("factorial", "VFX", s, lam),
+            _spec("ledger", "VFX", s, lam, motion_channel=False), _spec("controls", "VFX", s, lam, tokens=True),
+            _spec("ledger", "VFX", s, lam, motion_loss_weight=LEDGER_MOTION_ALPHA),
+            _spec("coordinate", "VFX", s, lam, corpus="flow", measure_corpus="flow"),
+            _spec("dose_glide", "VFX", s, lam, glide_loss_weight=16.0)]
+
+
+def ledger_mechanism(run: dict) -> str:
+    """Ledger row label of a run (the mechanism it deploys), from its corpus and train overrides."""
+    t = run["train"]
+    if run.get("corpus") == "flow":
+        return "frozen flow velocity sensor"
+    if t.get("tokens"):
+        return "spatial tokens"
+    if t.get("motion_loss_weight", 0.0) > 0:
+        return "magnitude-weighted motion targets"
+    if t.get("motion_channel", True) is False:
+        return "no motion input channel"
+    if t.get("glide_loss_weight", 1.0) != 1.0:
+        return "glide-enriched loss"
+    return "single-horizon head" if tuple(t.get("horizons", (1, 4, 16))) == (1,) else "multi-horizon heads"
+
+
 EXPERIMENTS: dict[str, Callable[[MapConfig], list[RunSpec]]] = {
     "factorial": exp_factorial, "lazy": exp_lazy, "lambda": exp_lambda, "coverage": exp_coverage,
     "frame_averaged": exp_frame_averaged, "controls": exp_controls, "dose_touch": exp_dose_touch,
     "dose_glide": exp_dose_glide, "attributes": exp_attributes, "belief": exp_belief, "planning": exp_planning,
-    "coordinate": exp_coordinate,
+    "coordinate": exp_coordinate, "ledger": exp_ledger,
 }
 CORPUS_TARGETS = {"bias0.5": ("bias_x", "bias_y"), "bias1.5": ("bias_x", "bias_y"), "bias2.5": ("bias_x", "bias_y"),
                   "gain": ("gain",)}

@@ -28,7 +28,8 @@ import torch.nn.functional as F
 from torch import nn
 
 from ..errors import ConfigError
-from ..losses import LOGVAR_RANGE, gaussian_kl, gaussian_nll, glide_loss_share, glide_weights, masked_mse, sigreg
+from ..losses import (LOGVAR_RANGE, gaussian_kl, gaussian_nll, glide_loss_share, glide_weights, masked_mse,
+                      motion_weights, sigreg)
 from .encoders import FusedEncoder
 from .predictor import CausalPredictor
 
@@ -139,7 +140,7 @@ class XJEPA(nn.Module):
                  width: int = 192, depth: int = 4, heads: int = 8, dropout: float = 0.1,
                  horizons: tuple[int, ...] = (1, 4, 16), objective: str = "latent", tokens: bool = False,
                  sysid: bool = False, max_len: int = 128, vec_dim: int = 64, contact_channel: int = 6,
-                 recon_positions: int = 8, pool: bool = False, belief_dim: int = 8):
+                 recon_positions: int = 8, pool: bool = False, belief_dim: int = 8, motion_channel: bool = True):
         super().__init__()
         check_variant(variant)
         if objective not in OBJECTIVES:
@@ -156,7 +157,8 @@ class XJEPA(nn.Module):
             image_size=image_size, channels=tuple(channels), latent_dim=latent_dim, width=width, depth=depth,
             heads=heads, dropout=dropout, horizons=horizons, objective=objective, tokens=tokens, sysid=sysid,
             max_len=max_len, vec_dim=vec_dim, contact_channel=contact_channel, recon_positions=recon_positions,
-            pool=pool, belief_dim=belief_dim)
+            pool=pool, belief_dim=belief_dim, motion_channel=motion_channel)
+        self.motion_channel = motion_channel
         self.variant, self.horizons, self.latent_dim, self.width = variant, horizons, latent_dim, width
         self.inputs, self.targets = VARIANTS[variant]
         self.objective, self.tokens, self.image_size = objective, tokens, image_size
@@ -220,10 +222,13 @@ class XJEPA(nn.Module):
         """(B, L, H, W) uint8 or float in [0,1] -> (B, L, 2, S, S) float: frame and temporal difference.
 
         The difference channel is ``x_t − x_{t−1}`` inside the given sequence and zero at its first frame
-        (matching t = 0 of an episode, which has no previous frame)."""
+        (matching t = 0 of an episode, which has no previous frame). With ``motion_channel=False`` it is
+        zero everywhere (the γ ledger's "motion channel off"; same architecture, no motion input)."""
         f = area_downsample(self._t(frames), self.image_size)
         f = f.float() / 255.0 if f.dtype == torch.uint8 else f.float()
         diff = torch.cat([torch.zeros_like(f[:, :1]), f[:, 1:] - f[:, :-1]], dim=1)
+        if not self.motion_channel:
+            diff = torch.zeros_like(diff)
         return torch.stack([f, diff], dim=2)
 
     # ------------------------------------------------------------------ public API
@@ -399,7 +404,7 @@ class XJEPA(nn.Module):
              sigreg_seed: int = 0, sigreg_knots: int = 17, token_rows: int = 4096, token_dirs: int = 256,
              touch_contact_weight: float = 4.0, proprio_weight: float = 1.0, touch_weight: float = 1.0,
              sysid_weight: float = 0.5, glide_loss_weight: float = 1.0, belief_kl_weight: float = 0.01,
-             sigreg_directions: torch.Tensor | None = None) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+             motion_loss_weight: float = 0.0, sigreg_directions: torch.Tensor | None = None) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """Training loss on a batch of windows.
 
         Args:
@@ -410,6 +415,10 @@ class XJEPA(nn.Module):
                 not sysid) whose target frame t+Δ is a glide frame, 1 otherwise; each term stays a weighted
                 mean. Needs ``batch["glide"]``; with it the term ``glide_loss_share`` (Σ w·glide / Σ w over
                 target frames) is reported.
+            motion_loss_weight: α of the magnitude-weighted motion-forecast targets (the γ ledger): each latent
+                Δ-head term (latent/gnll/belief objectives, the token term) weights its target frame t+Δ by
+                ``1 + α · m / mean(m)``, m = the frame's mean absolute temporal difference (labels-free),
+                composed with the glide weights; 0 = off. Not applied to the proprio/touch heads.
             sigreg_directions: optional (latent_dim, K) SIGReg directions replacing the ones drawn from
                 ``sigreg_seed`` (K = ``sigreg_dirs``, or ``token_dirs`` in token mode); the trainer draws the
                 same ones on the host and uploads them without a sync.
@@ -455,9 +464,20 @@ class XJEPA(nn.Module):
                 return None
             return gw[:, d:] if pos is None else gw[:, pos + d]
 
+        lw = gw  # latent-target weights: the glide weights, times the motion-magnitude weights when on
+        if motion_loss_weight > 0:
+            if self.objective == "recon":
+                raise ValueError("motion_loss_weight weights latent targets; the recon objective has none")
+            f = area_downsample(self._t(frames), self.image_size)
+            mw = motion_weights(f.float() / 255.0 if f.dtype == torch.uint8 else f.float(), motion_loss_weight)
+            lw = mw if gw is None else gw * mw
+
+        def at_latent(d: int):
+            return None if lw is None else lw[:, d:]
+
         if self.tokens:  # dense, spatially aligned Δ=1 token prediction
             pred = self._head_out(hs, actions, 1, self.latent_heads["1"])
-            w1 = at(1)
+            w1 = at_latent(1)
             terms["pred_1"] = masked_mse(pred[:, :-1], z[:, 1:], None if w1 is None else w1[..., None].expand(z[:, 1:].shape[:-1]))
             total = total + terms["pred_1"]
             flat = z.reshape(-1, z.shape[-1])
@@ -468,9 +488,9 @@ class XJEPA(nn.Module):
             for d in valid:
                 mean, logvar = self.predict(h, actions, d, return_logvar=True)
                 if self.objective == "gnll":
-                    l_d = gaussian_nll(mean[:, :L - d], logvar[:, :L - d], z[:, d:], at(d))
+                    l_d = gaussian_nll(mean[:, :L - d], logvar[:, :L - d], z[:, d:], at_latent(d))
                 else:
-                    l_d = masked_mse(mean[:, :L - d], z[:, d:], at(d))
+                    l_d = masked_mse(mean[:, :L - d], z[:, d:], at_latent(d))
                 terms[f"pred_{d}"] = l_d
                 losses.append(l_d)
             total = total + torch.stack(losses).mean()
