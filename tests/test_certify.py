@@ -194,3 +194,17 @@ def test_load_gate_regates_a_file_written_by_an_older_gate(tmp_path):
     assert g["gamma"]["passed"] and not g["gamma"]["paper_rule_passed"] and g["log_k"]["passed"]
     with pytest.raises(DataError, match="no certificates"):
         load_gate(tmp_path / "missing.json")
+
+
+@pytest.mark.parametrize("n,d", [(400, 30), (50, 120)])
+def test_ridge_path_equals_sklearn_ridge_for_every_alpha(rng, n, d):
+    from sklearn.linear_model import Ridge
+
+    from pokeworld.regressors import ALPHAS, ridge_path
+
+    X = rng.normal(size=(n, d)) + 3.0
+    X[:, 1] = 2 * X[:, 0] + 1e-9 * rng.normal(size=n)  # collinear columns, as raw windows have
+    Y = X[:, :2] @ rng.normal(size=(2, 3)) + rng.normal(size=(n, 3))
+    X_eval = rng.normal(size=(20, d))
+    for a, pred in zip(ALPHAS, ridge_path(X, Y, X_eval, ALPHAS)):
+        np.testing.assert_allclose(pred, Ridge(alpha=a).fit(X, Y).predict(X_eval), rtol=1e-7, atol=1e-9)
