@@ -226,3 +226,28 @@ def test_report_regates_certificates_stored_under_the_best_estimator_rule():
     old["gate"] = {"gamma": {"threshold": 0.4, "certificate": 0.71, "passed": True}}  # written by an older gate
     g = gate_of(old)
     assert g["gamma"]["passed"] and not g["gamma"]["paper_rule_passed"] and g["gamma"]["estimator"] == "drag"
+
+
+def test_token_models_are_probed_through_their_token_trunk(tiny_dataset):
+    """The predictor of a token model attends over the S tokens of each step: the probed state must come from
+    every token (what training fed it), not from their mean, and the latent decoders read the mean."""
+    from pokeworld.evaluate.state import EpisodeLatents, padded_actions, window_states
+
+    ds = tiny_dataset
+    torch.manual_seed(0)
+    m = XJEPA(**{**TINY_MODEL, "image_size": 32, "horizons": (1,), "tokens": True}).eval()
+    eps = ds.episodes("probe_fit")[:6]
+    lat = EpisodeLatents(m, ds, eps, 4)
+    assert lat.trunk_input.shape[2] == m.num_tokens == 4 and lat.z.shape == (6, ds.frames.shape[1], 8)
+    w = make_windows(ds, eps, 16, 8)
+    states = window_states(m, ds, lat, w, padded_actions(ds))
+    with torch.no_grad():
+        z = m.encode(ds.frames[w.episode[0]][None, w.start[0]:w.start[0] + 16],
+                     ds.proprio[w.episode[0]][None, w.start[0]:w.start[0] + 16],
+                     ds.touch[w.episode[0]][None, w.start[0]:w.start[0] + 16])
+        a = padded_actions(ds)[w.episode[0]][None, w.start[0]:w.start[0] + 16].copy()
+        a[:, -1] = 0
+        expected = m.trunk(z, a)[0, -1].numpy()
+    assert states.shape == (len(w), 16)
+    np.testing.assert_allclose(states[0], expected, rtol=1e-4, atol=1e-5)
+    np.testing.assert_allclose(lat.gather(w)[0], z.mean(2)[0].numpy(), rtol=1e-5, atol=1e-6)

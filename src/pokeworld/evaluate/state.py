@@ -15,14 +15,15 @@ from ..data import Dataset
 
 
 @torch.no_grad()
-def encode_episodes(model, ds: Dataset, episodes: np.ndarray, batch: int = 64) -> np.ndarray:
-    """Encoder latents for whole episodes: (E', T+1, D) float32 (token models: mean over tokens)."""
+def encode_episodes(model, ds: Dataset, episodes: np.ndarray, batch: int = 64, keep_tokens: bool = False) -> np.ndarray:
+    """Encoder latents for whole episodes: (E', T+1, D) float32; token models give the mean over tokens, or
+    with ``keep_tokens`` every token, (E', T+1, S, D)."""
     out = []
     model.eval()
     for i in range(0, len(episodes), batch):
         e = episodes[i:i + batch]
         z = model.encode(ds.frames[e], ds.proprio[e], ds.touch[e])
-        if z.dim() == 4:
+        if z.dim() == 4 and not keep_tokens:
             z = z.mean(2)
         out.append(z.float().cpu().numpy())
     return np.concatenate(out)
@@ -44,16 +45,24 @@ def padded_actions(ds: Dataset) -> np.ndarray:
 
 
 class EpisodeLatents:
-    """Encoder latents of a set of episodes, indexable by global episode id."""
+    """Encoder latents of a set of episodes, indexable by global episode id.
+
+    ``z`` (E', T+1, D) is what decoders and probes of the latent read (token models: mean over tokens);
+    ``trunk_input`` is what the predictor reads — ``z`` itself, or every token for a token model, whose
+    predictor attends over the S tokens of each step."""
 
     def __init__(self, model, ds: Dataset, episodes: np.ndarray, batch: int):
         self.index = {int(e): i for i, e in enumerate(episodes)}
-        self.z = encode_episodes(model, ds, episodes, batch)
+        tokens = bool(getattr(model, "tokens", False))
+        full = encode_episodes(model, ds, episodes, batch, keep_tokens=tokens)
+        self.z = full.mean(2) if tokens else full
+        self.trunk_input = full
 
-    def gather(self, w) -> np.ndarray:
+    def gather(self, w, trunk: bool = False) -> np.ndarray:
+        """Latents of every window (W, L, D); ``trunk=True``: the predictor's input (token models (W, L, S, D))."""
         rows = np.array([self.index[int(e)] for e in w.episode])
         t = w.start[:, None] + np.arange(w.length)[None, :]
-        return self.z[rows[:, None], t]
+        return (self.trunk_input if trunk else self.z)[rows[:, None], t]
 
 
 def window_states(model, ds: Dataset, lat: EpisodeLatents, w, acts: np.ndarray,
@@ -68,7 +77,7 @@ def window_states(model, ds: Dataset, lat: EpisodeLatents, w, acts: np.ndarray,
     a = w.gather(acts)
     if neutral_last_action:
         a = neutral_last(a)
-    return _trunk_at(model, lat.gather(w), a, w.length - 1)
+    return _trunk_at(model, lat.gather(w, trunk=True), a, w.length - 1)
 
 
 def neutral_last(a_win: np.ndarray) -> np.ndarray:
