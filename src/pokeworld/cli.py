@@ -42,7 +42,7 @@ COMMANDS: dict[str, Command] = {
     "map": Command("pokeworld.evaluate.experiment", "MapConfig", "the identifiability map end to end", "out"),
     "demo": Command("pokeworld.evaluate.experiment", "MapConfig", "small map on CPU in minutes", "out",
                     make="make_demo_config",
-                    cost="≈ 8 min on 2 CPU cores: 1,200 episodes, four 500-step models, demo certificates"),
+                    cost="≈ 9 min on 2 CPU cores: 2,400 episodes, four 500-step models, demo certificates"),
     "pairs": Command("pokeworld.sim.pairs", "PairsConfig", "matched-pairs figure", "out"),
     "plan": Command("pokeworld.plan", "PlanConfig", "CEM push-to-goal with trained runs", "out"),
     "rh20t-convert": Command("pokeworld.real.rh20t", "ConvertConfig", "convert RH20T scenes to a store", "root"),

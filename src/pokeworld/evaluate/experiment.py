@@ -142,11 +142,11 @@ PRESETS: dict[str, dict] = {
     "paper": {"preset": "paper"},
 }
 
-DEMO = {  # the newcomer's first run: four variants, one seed; 8 min 14 s measured on 2 idle cores (README)
+DEMO = {  # the newcomer's first run: four variants, one seed; 8 min 55 s measured on 2 idle cores (README)
     "experiments": ("factorial",), "variants": ("V", "VF", "VX_t", "VFX"), "seeds": (0,),
-    # half the cpu map's corpus: its probe-fit split (240 episodes) under-reads a weak signal (VFX log k 0.06 vs
-    # 0.10 for one checkpoint probed on 480), but a 2,400-episode demo took 19.5 minutes (VFX - VF +0.11, docs/model.md)
-    "num_episodes": 1200, "train_steps": 500, "mlp_probes": False, "untrained": False,
+    # the cpu map's corpus: a 1,200-episode one halves the probe-fit split, and a ridge readout fit on 240 episodes
+    # under-reads a weak signal (VFX log k 0.06 vs 0.10 for one checkpoint, docs/model.md "Learning speed")
+    "num_episodes": 2400, "train_steps": 500, "mlp_probes": False, "untrained": False,
     # certificates for the demo only: the paper's GRU oracle, the geometry GRU that certifies log k, the
     # linear floor and the drag estimator, on contact windows, with a smaller fit set and fewer epochs
     "certify_estimators": ("gru", "gru_geom", "linear", "drag"), "certify_kinds": ("contact",),
