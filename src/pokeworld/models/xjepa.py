@@ -242,7 +242,10 @@ class XJEPA(nn.Module):
         Returns:
             z: (B, L, latent_dim); in token mode (B, L, S, latent_dim).
         """
-        x = self.prep_frames(frames)
+        return self._encode_prepped(self.prep_frames(frames), proprio, touch)
+
+    def _encode_prepped(self, x: torch.Tensor, proprio, touch) -> torch.Tensor:
+        """:meth:`encode` from frames already through :meth:`prep_frames` ((B, L, 2, S, S))."""
         b, L = x.shape[:2]
         p = self.norm("proprio", proprio).reshape(b * L, -1) if "proprio" in self.inputs else None
         t = self.norm("touch", touch).reshape(b * L, -1) if "touch" in self.inputs else None
@@ -429,7 +432,8 @@ class XJEPA(nn.Module):
         """
         frames, proprio, touch, actions = batch["frames"], batch["proprio"], batch["touch"], batch["actions"]
         L = frames.shape[1]
-        z = self.encode(frames, proprio, touch)
+        x = self.prep_frames(frames)  # (B, L, 2, S, S): shared by the encoder and the motion weights
+        z = self._encode_prepped(x, proprio, touch)
         hs = self.trunk_tokens(z, actions)  # (B, L, S, W)
         h = hs.mean(2)
         terms: dict[str, torch.Tensor] = {}
@@ -468,8 +472,7 @@ class XJEPA(nn.Module):
         if motion_loss_weight > 0:
             if self.objective == "recon":
                 raise ValueError("motion_loss_weight weights latent targets; the recon objective has none")
-            f = area_downsample(self._t(frames), self.image_size)
-            mw = motion_weights(f.float() / 255.0 if f.dtype == torch.uint8 else f.float(), motion_loss_weight)
+            mw = motion_weights(x[:, :, 0], motion_loss_weight)  # the frame channel, as the encoder sees it
             lw = mw if gw is None else gw * mw
 
         def at_latent(d: int):
