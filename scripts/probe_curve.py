@@ -4,8 +4,12 @@ Trains one model with checkpoints every ``--every`` steps (the cosine schedule s
 curve is that of the full run) and, after each segment, fits the leak-free ridge probes of the map on
 contact windows (``measure.probe_model``, same windows and split as ``pokeworld probe``). Appends one
 JSON line per checkpoint to ``<out>/curve.jsonl``; re-running resumes the training and skips probed steps.
+``--probe-data DIR`` fits and tests the probes on another corpus's probe splits instead (rows go to
+``curve-probe-<DIR name>.jsonl``): re-run on a finished run it probes the final checkpoint only, which is how
+docs/model.md separates probe-set size from training-corpus size.
 
     python scripts/probe_curve.py DATA OUT --every 250 -- variant=VFX steps=1000 lr=2e-3
+    python scripts/probe_curve.py DATA OUT --every 250 --probe-data OTHER -- variant=VFX steps=1000 lr=2e-3
 """
 
 from __future__ import annotations
@@ -32,6 +36,10 @@ def parse_value(text: str):
         return text
 
 
+def checkpoint_step(run_dir: Path) -> int:
+    return int(torch.load(run_dir / "ckpt.pt", map_location="cpu", weights_only=False)["step"])
+
+
 def probe_at(run_dir: Path, ds, mcfg) -> dict:
     model = train.load_model(run_dir, final=False)
     res, _ = measure.probe_model(model, ds, mcfg, mlp=False, kinds=("contact",))
@@ -46,6 +54,7 @@ def main() -> None:
     ap.add_argument("--every", type=int, default=250)
     ap.add_argument("--preset", default="cpu")
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--probe-data", default="", help="probe on this corpus's probe splits (default: DATA)")
     ap.add_argument("overrides", nargs="*", help="TrainConfig field=value")
     args = ap.parse_intermixed_args()
     torch.set_num_threads(args.threads)
@@ -54,9 +63,9 @@ def main() -> None:
     out = Path(args.out)
     cfg = train.make_config(args.preset, data=args.data, out=str(out), progress=False, tensorboard=False,
                             threads=args.threads, ckpt_every=args.every, **over)
-    ds = load(args.data)
+    ds = load(args.probe_data or args.data)
     mcfg = measure.make_config(args.preset, run_dir=str(out), mlp=False, untrained=False)
-    curve = out / "curve.jsonl"
+    curve = out / (f"curve-probe-{Path(args.probe_data).name}.jsonl" if args.probe_data else "curve.jsonl")
     done = set()
     if curve.exists():
         done = {json.loads(line)["step"] for line in curve.read_text().splitlines()}
@@ -65,6 +74,8 @@ def main() -> None:
         train.run(train.make_config(args.preset, **{**train.to_dict(cfg), "stop_at": stop}))
         dt = time.time() - t0
         if stop in done:
+            continue
+        if checkpoint_step(out) != stop:  # a finished run keeps only its last checkpoint
             continue
         row = {"step": stop, "train_s": round(dt, 1), **probe_at(out, ds, mcfg)}
         with curve.open("a") as f:
