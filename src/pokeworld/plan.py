@@ -83,7 +83,7 @@ class LatentScorer:
     """Scores action programs with one model's direct heads and its position decoder."""
 
     def __init__(self, run_dir: str, data: str):
-        from .evaluate.measure import EpisodeLatents, _position_decoder
+        from .evaluate.measure import EpisodeLatents, position_decoder
         from .train import load_model
 
         self.model = load_model(run_dir, map_location="cpu")
@@ -94,7 +94,7 @@ class LatentScorer:
         ds = load(data)
         fit = ds.episodes("probe_fit")
         lat = EpisodeLatents(self.model, ds, fit, 64)
-        self.decoder = _position_decoder(ds, lat, fit, np.random.default_rng(0))
+        self.decoder = position_decoder(ds, lat, fit, np.random.default_rng(0))
         self._encoded: tuple[dict, torch.Tensor] | None = None  # (history, its latents): one encode per replan
 
     @torch.no_grad()

@@ -49,7 +49,7 @@ from ..config import from_preset, to_dict
 from ..data import Dataset, load, read_manifest
 from ..errors import ConfigError
 from ..io import write_json
-from .prediction import (CONTEXT, HORIZON, _position_decoder, glide_comparison, glide_reference,  # noqa: F401
+from .prediction import (CONTEXT, HORIZON, position_decoder, glide_comparison, glide_reference,  # noqa: F401
                          glide_test, prediction_quality)
 from .probes import (KINDS, PARAM_TARGETS, STATE_TARGETS, fit_predict, fit_probes, probe_latents,  # noqa: F401
                      probe_model, probe_targets, probe_windows)
@@ -232,4 +232,4 @@ __all__ = ["MeasureConfig", "PRESETS", "READOUT", "make_config", "measure", "run
            "untrained_like", "CONTEXT", "HORIZON", "KINDS", "PARAM_TARGETS", "STATE_TARGETS", "EpisodeLatents",
            "encode_episodes", "fit_predict", "fit_probes", "glide_comparison", "glide_reference", "glide_test",
            "neutral_last", "padded_actions", "prediction_quality", "probe_latents", "probe_model", "probe_targets",
-           "probe_windows", "window_states", "_position_decoder", "_trunk_at"]
+           "probe_windows", "window_states", "position_decoder", "_trunk_at"]

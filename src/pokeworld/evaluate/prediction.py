@@ -19,7 +19,7 @@ from .state import EpisodeLatents, padded_actions
 CONTEXT, HORIZON = 8, 16
 
 
-def _position_decoder(ds: Dataset, lat_fit: EpisodeLatents, fit_eps: np.ndarray, rng,
+def position_decoder(ds: Dataset, lat_fit: EpisodeLatents, fit_eps: np.ndarray, rng,
                       label: str = "object_pos") -> RidgeCV:
     """Ridge decoder from encoder latents of the probe-fit episodes to ``labels/<label>`` (every frame,
     at most 20,000 subsampled)."""
@@ -44,13 +44,13 @@ def prediction_quality(model, ds: Dataset, lat_fit: EpisodeLatents, lat_test: Ep
     position space, for reference only. Keys name the horizon (``direct16``, ``rollout8``, ... for the
     default 16 and its half). ``lat_test`` must hold the ``test_split`` episodes. ``glide`` adds the
     simulator's functional glide test. ``decoder``: that position decoder when the caller already fit it
-    (``_position_decoder(ds, lat_fit, probe-fit episodes, default_rng(seed), position)``, the same fit),
+    (``position_decoder(ds, lat_fit, probe-fit episodes, default_rng(seed), position)``, the same fit),
     so evaluating several test splits fits it once.
     """
     if model.objective == "recon":
         return {"note": "reconstruction objective: latent heads receive no gradient"}
     fit_eps, test_eps = ds.episodes("probe_fit"), ds.episodes(test_split)
-    dec = decoder or _position_decoder(ds, lat_fit, fit_eps, np.random.default_rng(seed), position)
+    dec = decoder or position_decoder(ds, lat_fit, fit_eps, np.random.default_rng(seed), position)
     H, half = horizon, horizon // 2
     w = make_windows(ds, test_eps, context + H, stride)
     acts = w.gather(padded_actions(ds))

@@ -33,7 +33,7 @@ import torch
 from ..config import from_preset, to_dict
 from ..data import Dataset, load, read_manifest
 from ..errors import ConfigError, DataError
-from ..evaluate.prediction import _position_decoder, prediction_quality
+from ..evaluate.prediction import position_decoder, prediction_quality
 from ..evaluate.probes import fit_predict
 from ..evaluate.state import EpisodeLatents, padded_actions, window_states
 from ..io import write_json
@@ -219,7 +219,7 @@ def evaluate_model(model, ds: Dataset, cfg: RealEvalConfig) -> dict:
     # decoded 16-step prediction of the end-effector position (cm)
     out["prediction"] = {}
     # one TCP-position decoder serves both test splits (prediction_quality would refit the same one per split)
-    dec = None if model.objective == "recon" else _position_decoder(ds, lat["fit"], eps["fit"],
+    dec = None if model.objective == "recon" else position_decoder(ds, lat["fit"], eps["fit"],
                                                                     np.random.default_rng(cfg.seed), "tcp_pos")
     for k, split in TESTS.items():
         try:
