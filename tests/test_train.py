@@ -76,6 +76,31 @@ def test_finished_run_returns_and_conflicts_raise(data_dir, tmp_path):
         run(make_config("tiny", data=data_dir, out=str(tmp_path / "r"), steps=3, sigreg_weight=0.1))
 
 
+def test_a_run_being_trained_elsewhere_is_refused_and_freed_after(data_dir, tmp_path):
+    """Two writers on one run directory (an orphaned map worker and a resumed map) would interleave checkpoints."""
+    import subprocess
+    import sys
+
+    from pokeworld.io import run_lock
+
+    cfg = make_config("tiny", data=data_dir, out=str(tmp_path / "r"), steps=2)
+    # another process holds the run directory's lock while we try to train it
+    holder = subprocess.Popen([sys.executable, "-c", "import sys, time; from pokeworld.io import run_lock\n"
+                               "with run_lock(sys.argv[1]):\n print('held', flush=True); time.sleep(60)",
+                               cfg.out], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        with pytest.raises(ConfigError, match=f"being trained by pid {holder.pid}"):
+            run(cfg)
+        assert not (tmp_path / "r" / "ckpt.pt").exists()
+    finally:
+        holder.kill()
+        holder.wait()
+    assert (run(cfg) / "DONE").exists()  # the lock died with its holder: no stale lock
+    with run_lock(cfg.out):
+        pass
+
+
 def test_nan_loss_stops_with_clear_error(data_dir, tmp_path, monkeypatch):
     from pokeworld.models import XJEPA
 

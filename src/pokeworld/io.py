@@ -88,6 +88,44 @@ def make_tmpdir(prefix: str = "pokeworld-") -> Path:
     return Path(tempfile.mkdtemp(prefix=prefix))
 
 
+@contextlib.contextmanager
+def run_lock(run_dir: str | os.PathLike, enabled: bool = True) -> Iterator[None]:
+    """Hold an exclusive lock on ``run_dir`` (``run_dir/.lock``, created with the directory) while training it.
+
+    A second writer — e.g. a worker of an interrupted ``pokeworld map`` that outlived its parent, and the
+    resumed map — gets a clear error instead of interleaving checkpoints and metrics in one run directory.
+    The lock is the kernel's (``flock``): it goes away with the process that held it, so a crash never
+    leaves a stale lock. No-op where ``fcntl`` is unavailable or ``enabled`` is False (non-zero DDP ranks).
+    """
+    try:
+        import fcntl
+    except ImportError:  # not POSIX
+        enabled = False
+    if not enabled:
+        yield
+        return
+    from .errors import ConfigError
+
+    path = Path(run_dir)
+    path.mkdir(parents=True, exist_ok=True)
+    fh = open(path / ".lock", "a+")
+    try:
+        try:
+            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            fh.seek(0)
+            holder = fh.read().strip() or "another process"
+            raise ConfigError(f"{path} is being trained by {holder}; wait for it or stop it before resuming "
+                              "(two writers would interleave its checkpoints)") from None
+        fh.seek(0)
+        fh.truncate()
+        fh.write(f"pid {os.getpid()}\n")
+        fh.flush()
+        yield
+    finally:
+        fh.close()
+
+
 def save_figure(fig, out: Path, stem: str, dpi: int = 150) -> list[Path]:
     """Write ``fig`` as ``out/stem.png`` and ``.pdf``, each atomically (temporary name, then rename); closes it."""
     import matplotlib.pyplot as plt

@@ -663,6 +663,14 @@ def run(cfg: TrainConfig) -> Path:
         return out
     if cfg.deadline > 0 and wall_clock() >= cfg.deadline:  # out of time before starting: leave the run as it is
         return out
+    from .io import run_lock
+
+    with run_lock(out, enabled=int(os.environ.get("RANK", "0")) == 0):  # ranks > 0 never write the run dir
+        return _train(cfg, out, cfg_dict)
+
+
+def _train(cfg: TrainConfig, out: Path, cfg_dict: dict) -> Path:
+    """The body of :func:`run`, under the run directory's lock."""
     rank, world, local_rank = 0, 1, 0
     if cfg.ddp:
         import torch.distributed as dist

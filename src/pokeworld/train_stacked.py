@@ -40,6 +40,7 @@ integer seed, which vmap cannot batch), ``compile`` and ``channels_last``.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import random
 import time
@@ -424,11 +425,22 @@ def run(cfgs: Sequence[T.TrainConfig], *, mix_variants: bool = True, max_members
 
 
 def _run_group(cfgs: list[T.TrainConfig]) -> None:
-    from .io import write_json
+    from .io import run_lock
 
     c0 = cfgs[0]
     if c0.deadline > 0 and T.wall_clock() >= c0.deadline:
         return
+    with contextlib.ExitStack() as locks:  # every member's run directory, as train.run locks its own
+        for c in cfgs:
+            locks.enter_context(run_lock(c.out))
+        _train_group(cfgs)
+
+
+def _train_group(cfgs: list[T.TrainConfig]) -> None:
+    """The body of :func:`_run_group`, under the members' run-directory locks."""
+    from .io import write_json
+
+    c0 = cfgs[0]
     dev = T._device(c0)
     if dev.type == "cpu":
         torch.set_num_threads(c0.threads or T.auto_threads())
