@@ -160,7 +160,7 @@ def test_dose_glide_sweeps_the_loss_weight_and_labels_the_realised_share(tmp_pat
     from pokeworld.evaluate.experiment import make_config as map_config
 
     specs = exp_dose_glide(map_config("tiny", out=str(tmp_path)))
-    assert [s.train["glide_loss_weight"] for s in specs] == [1.0, 4.0, 16.0, 64.0]
+    assert [s.train.get("glide_loss_weight", 1.0) for s in specs] == [1.0, 4.0, 16.0, 64.0]
     run_dir = tmp_path / "runs" / specs[1].name
     run_dir.mkdir(parents=True)
     rows = [{"step": 0, "glide_frame_share": 0.32}, {"step": 2, "glide_loss_share": 0.6},

@@ -61,6 +61,31 @@ CONTROLS = {  # Table "controls" (ridge)
     "VFX-recon": {"log_m": 0.19, "gamma": 0.03, "log_k": 0.61, "object_pos": 0.95, "object_vel": 0.64},
 }
 
+DOSE_GLIDE = {  # App. C Table "dose1": glide loss weight -> glide loss share and readouts (γ on glide windows)
+    1.0: {"share": 0.32, "gamma_glide": 0.08, "glide_model": 0.098, "log_k": 0.42, "object_vel": 0.85},
+    4.0: {"share": 0.65, "gamma_glide": 0.15, "glide_model": 0.108, "log_k": 0.34, "object_vel": 0.79},
+    16.0: {"share": 0.88, "gamma_glide": 0.21, "glide_model": 0.116, "log_k": 0.20, "object_vel": 0.70},
+    64.0: {"share": 0.97, "gamma_glide": 0.27, "glide_model": 0.136, "log_k": 0.10, "object_vel": 0.65},
+}
+DOSE_GLIDE_MEDIAN_GAMMA = 0.054  # Table "dose1": the functional glide test's median-γ reference
+
+DOSE_TOUCH = {  # App. C Table "dose2": contact-frame touch-loss weight -> ridge readouts (4 is the default)
+    4.0: {"log_k": 0.50, "log_m": 0.29, "gamma": 0.12},
+    1.0: {"log_k": 0.37, "log_m": 0.28, "gamma": 0.14},
+    0.25: {"log_k": 0.12, "log_m": 0.26, "gamma": 0.13},
+    0.0: {"log_k": -0.005, "log_m": 0.21, "gamma": 0.14},
+}
+
+ATTRIBUTES = {  # App. C Table "matrixfull": cell -> linear cert., recurrent cert., model readout, model / recurrent
+    # ("≈0" cells are stored as 0.0; a range is stored as a (low, high) pair)
+    "stiffness": {"linear": 0.0, "recurrent": 0.87, "model": (0.50, 0.62), "ratio": (0.6, 0.7)},
+    "bias0.5": {"linear": 0.13, "recurrent": 0.92, "model": 0.13, "ratio": 0.14},
+    "bias1.5": {"linear": 0.51, "recurrent": 0.96, "model": 0.39, "ratio": 0.41},
+    "bias2.5": {"linear": 0.65, "recurrent": 0.96, "model": 0.65, "ratio": 0.68},
+    "drag": {"linear": 0.0, "recurrent": 0.89, "model": 0.13, "ratio": 0.15},
+    "gain": {"linear": -0.01, "recurrent": 0.69, "model": -0.01, "ratio": 0.0},
+}
+
 FRAME_AVERAGED = {"certificate_log_k_substep": 0.87}  # §4.4: frame-averaged touch makes k unrecoverable
 
 CORPUS_STATS = {  # observables of the paper's default corpus (the calibration targets; pokeworld.sim.stats)

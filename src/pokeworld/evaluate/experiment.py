@@ -188,6 +188,12 @@ def _h(horizons) -> str:
 
 def _spec(exp, variant, seed, lam, horizons=(1, 4, 16), corpus="standard", measure_corpus="standard",
           measure: dict | None = None, **extra):
+    # an override equal to the training default is the default run itself: it keeps the plain name, so a
+    # dose level that equals the operating point (touch contact weight 4, glide weight 1) shares the factorial's run
+    from ..train import TrainConfig
+
+    defaults = {f.name: f.default for f in dataclasses.fields(TrainConfig)}
+    extra = {k: v for k, v in extra.items() if not (k in defaults and defaults[k] == v)}
     tag = "".join(f"-{k}{v}" for k, v in sorted(extra.items()))
     name = f"{variant}-{_h(horizons)}-lam{lam:g}-{corpus}{tag}-s{seed}"
     train = dict(variant=variant, horizons=tuple(horizons), sigreg_weight=lam, seed=seed, **extra)
@@ -255,17 +261,23 @@ def exp_dose_glide(c: MapConfig) -> list[RunSpec]:
     return [_spec("dose_glide", "VFX", c.seeds[0], c.sigreg_weight, glide_loss_weight=w) for w in (1.0, 4.0, 16.0, 64.0)]
 
 
-def dose_glide_label(results: dict, run: dict) -> str:
-    """Row label of a dose-glide run: its glide loss weight and the glide loss share its training realised
-    (mean of the per-step ``glide_loss_share`` in the run's metrics.jsonl; "—" when the run is not on disk)."""
-    w = run["train"].get("glide_loss_weight", 1.0)
+def realised_glide_share(results: dict, run: dict) -> float | None:
+    """Glide loss share a run's training realised: the mean of the per-step ``glide_loss_share`` in its
+    metrics.jsonl (None when the run is not on disk)."""
     name = next((n for n, r in results["runs"].items() if r is run), None)
     path = Path(results.get("map_config", {}).get("out", "")) / "runs" / str(name) / "metrics.jsonl"
     shares = []
     if name is not None and path.exists():
         shares = [r["glide_loss_share"] for r in map(json.loads, path.read_text().splitlines()) if "glide_loss_share" in r]
-    share = f"{100 * sum(shares) / len(shares):.0f}%" if shares else "—"
-    return f"glide loss weight {w:g} (glide loss share {share})"
+    return sum(shares) / len(shares) if shares else None
+
+
+def dose_glide_label(results: dict, run: dict) -> str:
+    """Row label of a dose-glide run: its glide loss weight and the glide loss share its training realised
+    ("—" when the run is not on disk)."""
+    w = run["train"].get("glide_loss_weight", 1.0)
+    share = realised_glide_share(results, run)
+    return f"glide loss weight {w:g} (glide loss share {'—' if share is None else f'{100 * share:.0f}%'})"
 
 
 def exp_planning(c: MapConfig) -> list[RunSpec]:
