@@ -77,3 +77,17 @@ def test_attribute_matrix_scores_readout_over_the_recurrent_certificate(tmp_path
     assert "| slow × ratio, ungated | actuation gain g | -0.02 / -0.01 | +0.60 (gru) / +0.69 | -0.01 / -0.01 |" in t
     assert "physics-informed certificate: +0.80" in t
     assert set(P.ATTRIBUTES) == {key for key, *_ in report.ATTRIBUTE_CELLS}
+
+
+def test_controls_table_shows_the_mlp_probe_in_parentheses(tmp_path):
+    from pokeworld.evaluate.experiment import exp_controls
+
+    specs = exp_controls(map_config("tiny", out=str(tmp_path), experiments=("controls",)))
+    runs = {s.name: {"train": s.train, "corpus": s.corpus, "prediction": {},
+                     "probes": {"ridge": {"contact": {"log_k": 0.3}},
+                                **({"mlp": {"contact": {"log_k": 0.4}}} if i == 0 else {})}}
+            for i, s in enumerate(specs)}
+    results = {"runs": runs, "experiments": {"controls": [s.name for s in specs]}, "certificates": {}}
+    t = "\n".join(report.simple_table(results, "controls", "Controls", report._control_key, P.CONTROLS))
+    assert "| VFX+sysid | +0.30 (+0.40) / +0.91 |" in t  # sysid run: ridge (MLP) / paper
+    assert "| VFX-gnll | +0.30 / +0.49 |" in t  # no MLP fit: ridge alone

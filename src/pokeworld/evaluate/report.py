@@ -240,13 +240,15 @@ def simple_table(results: dict, exp: str, title: str, key_fn, paper: dict | None
         key = key_fn(r)
         p = (paper or {}).get(key, {})
         g = r["prediction"].get("glide_test", {})
-        cells = [fmt(probe(r, q)) + dagger(run_gate_failed(results, r, q)) + (f" / {fmt(p[q])}" if q in p else "")
-                 for q in qs]
+        mlp = {q: probe(r, q, family="mlp") for q in qs}
+        cells = [fmt(probe(r, q)) + (f" ({fmt(mlp[q])})" if mlp[q] is not None else "")
+                 + dagger(run_gate_failed(results, r, q)) + (f" / {fmt(p[q])}" if q in p else "") for q in qs]
         gt = (f"{fmt(g.get('model'), 3)} / {fmt(g.get('median_gamma'), 3)} / {fmt(g.get('static'), 3)} / "
               f"{fmt(g.get('decoder_floor'), 3)}" + dagger(run_gate_failed(results, r, "gamma"))) if g else "—"
         lines.append(f"| {key} | " + " | ".join(cells) + f" | {gt} |")
     if paper:
-        lines.append("\nCells read ours / paper where the paper reports the value.")
+        lines.append("\nCells read ours / paper where the paper reports the value (ridge; the MLP probe in "
+                     "parentheses where it was fit).")
     if any(r_has_glide(results["runs"][n]) for n in results["experiments"][exp]):
         lines.append("\nGlide test: every candidate carries the position decoder's residual on the true future "
                      "frame, so the model is compared with the references in one space; it uses γ only if it beats "
