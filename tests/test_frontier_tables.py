@@ -91,3 +91,20 @@ def test_controls_table_shows_the_mlp_probe_in_parentheses(tmp_path):
     t = "\n".join(report.simple_table(results, "controls", "Controls", report._control_key, P.CONTROLS))
     assert "| VFX+sysid | +0.30 (+0.40) / +0.91 |" in t  # sysid run: ridge (MLP) / paper
     assert "| VFX-gnll | +0.30 / +0.49 |" in t  # no MLP fit: ridge alone
+
+
+def test_token_factorial_shares_the_controls_token_run_and_reads_beside_the_global_factorial(tmp_path):
+    from pokeworld.evaluate.experiment import exp_controls, exp_tokens
+
+    c = map_config("tiny", out=str(tmp_path), experiments=("factorial", "controls", "tokens"), variants=("VF", "VFX"))
+    tok = exp_tokens(c)
+    assert [s.train["variant"] for s in tok] == ["VF", "VFX"] and all(s.train["tokens"] for s in tok)
+    assert tok[1].name in {s.name for s in exp_controls(c)}  # trained once
+    assert len({s.name for s in all_specs(c)}) == 2 + 5 + 1  # factorial, controls, the VF token run
+    runs = {s.name: _run(s, {"contact": {"log_k": 0.1 * i, "object_pos": 0.9}}) for i, s in enumerate(tok, 5)}
+    runs.update({s.name: _run(s, {"contact": {"log_k": 0.2}}) for s in exp_factorial(c)})
+    results = {"runs": runs, "certificates": {},
+               "experiments": {"tokens": [s.name for s in tok], "factorial": [s.name for s in exp_factorial(c)]}}
+    t = "\n".join(report.token_factorial_table(results))
+    assert "| VFX | +0.60 / +0.62 | +0.20 | — | +0.90 / +0.98 | — |" in t
+    assert "| VF | +0.50 / — | +0.20 |" in t

@@ -25,6 +25,8 @@ FACTORIAL = {  # Table "targets" (mean of the two seeds) and single-horizon posi
     "VFX": {"log_k": 0.495, "log_m": 0.30, "object_pos_h1": 0.98},
 }
 
+TOKENS = {"VFX": {"log_k": 0.62, "object_pos": 0.98}}  # §4.1 / App. C: the token variant (ordering unchanged)
+
 FACTORIAL_MLP = {  # Table "mlp"
     "V": {"log_m": 0.00, "gamma": 0.00, "log_k": -0.01},
     "VX_p": {"log_m": -0.01, "gamma": -0.01, "log_k": 0.00},

@@ -239,6 +239,13 @@ LONG_WINDOW = 65
 LONG_MEASURE = {"window": 48, "stride": 64, "context": 48}
 
 
+def exp_tokens(c: MapConfig) -> list[RunSpec]:
+    """The factorial ordering under a spatial-token encoder (paper §4.1 / App. C: "unchanged under a token-based
+    encoder", VFX stiffness 0.62): every factorial variant with ``tokens=True``, first seed (VFX is the controls'
+    token run)."""
+    return [_spec("tokens", v, c.seeds[0], c.sigreg_weight, tokens=True) for v in c.variants]
+
+
 def exp_belief(c: MapConfig) -> list[RunSpec]:
     """Objective × history length on the VFX trunk: latent (the factorial's VFX run) and belief objectives,
     each on the standard windows and on whole episodes (docs/model.md "belief")."""
@@ -337,7 +344,7 @@ EXPERIMENTS: dict[str, Callable[[MapConfig], list[RunSpec]]] = {
     "factorial": exp_factorial, "lazy": exp_lazy, "lambda": exp_lambda, "coverage": exp_coverage,
     "frame_averaged": exp_frame_averaged, "controls": exp_controls, "dose_touch": exp_dose_touch,
     "dose_glide": exp_dose_glide, "attributes": exp_attributes, "belief": exp_belief, "planning": exp_planning,
-    "coordinate": exp_coordinate, "ledger": exp_ledger,
+    "coordinate": exp_coordinate, "ledger": exp_ledger, "tokens": exp_tokens,
 }
 CORPUS_TARGETS = {"bias0.5": ("bias_x", "bias_y"), "bias1.5": ("bias_x", "bias_y"), "bias2.5": ("bias_x", "bias_y"),
                   "gain": ("gain",)}
