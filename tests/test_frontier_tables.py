@@ -100,7 +100,7 @@ def test_token_factorial_shares_the_controls_token_run_and_reads_beside_the_glob
     tok = exp_tokens(c)
     assert [s.train["variant"] for s in tok] == ["VF", "VFX"] and all(s.train["tokens"] for s in tok)
     assert tok[1].name in {s.name for s in exp_controls(c)}  # trained once
-    assert len({s.name for s in all_specs(c)}) == 2 + 5 + 1  # factorial, controls, the VF token run
+    assert len({s.name for s in all_specs(c)}) == 2 + 6 + 1  # factorial, controls, the VF token run
     runs = {s.name: _run(s, {"contact": {"log_k": 0.1 * i, "object_pos": 0.9}}) for i, s in enumerate(tok, 5)}
     runs.update({s.name: _run(s, {"contact": {"log_k": 0.2}}) for s in exp_factorial(c)})
     results = {"runs": runs, "certificates": {},

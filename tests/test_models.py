@@ -142,3 +142,30 @@ def test_pooled_encoder_builds_and_is_smaller():
     assert pooled.encode(frames).shape == flat.encode(frames).shape == (2, 3, 16)
     assert pooled.encoder.proj.in_features == 8 and flat.encoder.proj.in_features == 8 * 4
     assert pooled.config["pool"] is True
+
+
+def test_gnll_on_every_head_scores_proprio_and_touch_by_their_own_nll():
+    from pokeworld.losses import gaussian_nll
+
+    b = batch()
+    lat, every = make("VFX", objective="gnll"), make("VFX", objective="gnll", gnll_heads="all")
+    d = 4
+    assert lat.modal_heads["touch"][str(d)].net[-1].out_features == 7
+    assert every.modal_heads["touch"][str(d)].net[-1].out_features == 14  # mean and log-variance
+    h = every.trunk(every.encode(b["frames"], b["proprio"], b["touch"]), b["actions"])
+    assert every.forecast(h, b["actions"], d, "touch").shape == (B, L, 7)  # the mean only
+    with torch.no_grad():
+        _, terms = every.loss(b, sigreg_dirs=8, touch_contact_weight=1.0)
+        # the touch term by hand: mean NLL over the horizons of the normalised target
+        tgt = every.norm("touch", b["touch"])
+        by_hand = torch.stack([gaussian_nll(*every._head_out(h, b["actions"], k, every.modal_heads["touch"][str(k)])
+                                            [:, :L - k].chunk(2, -1), tgt[:, k:]) for k in every.horizons]).mean()
+        _, terms_lat = lat.loss(b, sigreg_dirs=8)
+    assert torch.allclose(terms["touch"], by_hand, atol=1e-5)
+    # the latent precision (the NLL's effective weight on latent errors) is reported for gnll runs only
+    assert float(terms["latent_precision"]) > 0 and "latent_precision" in terms_lat
+    assert "latent_precision" not in make("VFX").loss(b, sigreg_dirs=8)[1]
+    with pytest.raises(ConfigError, match="needs objective='gnll'"):
+        make("VFX", gnll_heads="all")
+    with pytest.raises(ConfigError, match="unknown gnll_heads"):
+        make("VFX", objective="gnll", gnll_heads="touch")

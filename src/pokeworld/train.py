@@ -39,7 +39,7 @@ import torch
 from .config import from_preset, to_dict
 from .errors import ConfigError, DataError
 from .losses import random_directions
-from .models.xjepa import OBJECTIVES, SYSID_PARAMS, XJEPA, area_downsample, check_variant
+from .models.xjepa import GNLL_HEADS, OBJECTIVES, SYSID_PARAMS, XJEPA, area_downsample, check_variant
 
 
 @dataclass
@@ -73,6 +73,10 @@ class TrainConfig:
     (pixel-reconstruction control: shared deconv decoder replaces latent targets, SIGReg omitted) or 'belief'
     (episode-level latent: amortised posterior over the window, learned causal prior, KL term; an ELBO whose
     optimum is not a conditional mean of the future, docs/model.md "belief")."""
+    gnll_heads: str = "latent"
+    """objective='gnll': which heads are Gaussian NLL — 'latent' (the latent Δ-heads; proprio/touch stay MSE)
+    or 'all' (proprio/touch heads also predict a log-variance, so no target gains weight over another through
+    its learned precision; docs/model.md "The Gaussian-NLL control")."""
     belief_dim: int = 8
     """objective='belief': dimension K of the episode-level latent u."""
     belief_kl_weight: float = 0.01
@@ -218,6 +222,10 @@ def validate(cfg: TrainConfig) -> None:
         raise ConfigError("tokens=True supports objective='latent' only")
     if cfg.objective == "belief" and cfg.belief_dim < 1:
         raise ConfigError(f"belief_dim must be ≥ 1, got {cfg.belief_dim}")
+    if cfg.gnll_heads not in GNLL_HEADS:
+        raise ConfigError(f"unknown gnll_heads {cfg.gnll_heads!r}; choose one of {list(GNLL_HEADS)}")
+    if cfg.gnll_heads != "latent" and cfg.objective != "gnll":
+        raise ConfigError(f"gnll_heads={cfg.gnll_heads!r} needs objective='gnll'")
     if cfg.image_size % 16 or cfg.image_size < 16:
         raise ConfigError(f"image_size must be a multiple of 16 (4 stride-2 stages), got {cfg.image_size}")
     if len(cfg.channels) != 4:
@@ -483,7 +491,7 @@ def model_kwargs(cfg: TrainConfig, dims: tuple[int, int, int]) -> dict[str, Any]
                 horizons=(1,) if cfg.tokens else tuple(cfg.horizons), objective=cfg.objective, tokens=cfg.tokens,
                 sysid=cfg.sysid_weight > 0, max_len=max(128, cfg.window), vec_dim=cfg.vec_dim,
                 contact_channel=cfg.contact_channel, pool=cfg.pool, belief_dim=cfg.belief_dim,
-                motion_channel=cfg.motion_channel)
+                motion_channel=cfg.motion_channel, gnll_heads=cfg.gnll_heads)
 
 
 def lr_lambda(step: int, warmup: int, total: int) -> float:

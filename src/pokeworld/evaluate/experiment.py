@@ -227,6 +227,7 @@ def exp_frame_averaged(c: MapConfig) -> list[RunSpec]:
 def exp_controls(c: MapConfig) -> list[RunSpec]:
     s, lam = c.seeds[0], c.sigreg_weight
     return [_spec("controls", "VFX", s, lam, sysid_weight=0.5), _spec("controls", "VFX", s, lam, objective="gnll"),
+            _spec("controls", "VFX", s, lam, objective="gnll", gnll_heads="all"),
             _spec("controls", "V", s, lam, objective="recon"), _spec("controls", "VFX", s, lam, objective="recon"),
             _spec("controls", "VFX", s, lam, tokens=True)]
 

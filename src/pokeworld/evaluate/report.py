@@ -741,7 +741,7 @@ def _control_key(r: dict) -> str:
     if t.get("sysid_weight"):
         return "VFX+sysid"
     if t.get("objective") == "gnll":
-        return "VFX-gnll"
+        return "VFX-gnll" + (" (every head)" if t.get("gnll_heads", "latent") == "all" else "")
     if t.get("objective") == "recon":
         return f"{t['variant']}-recon"
     if t.get("tokens"):

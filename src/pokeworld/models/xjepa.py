@@ -10,7 +10,8 @@ dataset arrays.
 
 Variants (inputs × targets, paper Table "targets"); see :data:`VARIANTS`.
 Objectives: ``latent`` (MSE to jointly learned encoder targets, no stop-gradient),
-``gnll`` (latent heads also output a log-variance; Gaussian NLL), ``recon`` (a shared
+``gnll`` (latent heads also output a log-variance; Gaussian NLL; with ``gnll_heads='all'`` the
+proprio/touch heads too, so every target keeps its relative weight), ``recon`` (a shared
 deconvolutional decoder reconstructs future frames instead of latent targets; SIGReg off),
 ``belief`` (an episode-level latent u: amortised posterior q(u | whole window), learned causal prior
 p(u | trunk state h_t), every head reads h_t + W·u; MSE + β·KL(q ‖ p_t), an ELBO; docs/model.md "belief").
@@ -43,6 +44,7 @@ VARIANTS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "VFX": (("vision", "proprio", "touch"), ("latent", "proprio", "touch")),
 }
 OBJECTIVES = ("latent", "gnll", "recon", "belief")
+GNLL_HEADS = ("latent", "all")
 SYSID_PARAMS = ("log_m", "gamma", "log_k")
 
 
@@ -140,7 +142,8 @@ class XJEPA(nn.Module):
                  width: int = 192, depth: int = 4, heads: int = 8, dropout: float = 0.1,
                  horizons: tuple[int, ...] = (1, 4, 16), objective: str = "latent", tokens: bool = False,
                  sysid: bool = False, max_len: int = 128, vec_dim: int = 64, contact_channel: int = 6,
-                 recon_positions: int = 8, pool: bool = False, belief_dim: int = 8, motion_channel: bool = True):
+                 recon_positions: int = 8, pool: bool = False, belief_dim: int = 8, motion_channel: bool = True,
+                 gnll_heads: str = "latent"):
         super().__init__()
         check_variant(variant)
         if objective not in OBJECTIVES:
@@ -150,6 +153,10 @@ class XJEPA(nn.Module):
             raise ConfigError(f"horizons must be positive integers, got {horizons}")
         if tokens and objective != "latent":
             raise ConfigError("the token variant supports objective='latent' only")
+        if gnll_heads not in GNLL_HEADS:
+            raise ConfigError(f"unknown gnll_heads {gnll_heads!r}; choose one of {list(GNLL_HEADS)}")
+        if gnll_heads != "latent" and objective != "gnll":
+            raise ConfigError(f"gnll_heads={gnll_heads!r} needs objective='gnll'")
         if objective == "belief" and belief_dim < 1:
             raise ConfigError(f"belief_dim must be ≥ 1 for objective='belief', got {belief_dim}")
         self.config: dict[str, Any] = dict(
@@ -157,8 +164,9 @@ class XJEPA(nn.Module):
             image_size=image_size, channels=tuple(channels), latent_dim=latent_dim, width=width, depth=depth,
             heads=heads, dropout=dropout, horizons=horizons, objective=objective, tokens=tokens, sysid=sysid,
             max_len=max_len, vec_dim=vec_dim, contact_channel=contact_channel, recon_positions=recon_positions,
-            pool=pool, belief_dim=belief_dim, motion_channel=motion_channel)
+            pool=pool, belief_dim=belief_dim, motion_channel=motion_channel, gnll_heads=gnll_heads)
         self.motion_channel = motion_channel
+        self.modal_gnll = objective == "gnll" and gnll_heads == "all"  # proprio/touch heads output (mean, log σ²)
         self.variant, self.horizons, self.latent_dim, self.width = variant, horizons, latent_dim, width
         self.inputs, self.targets = VARIANTS[variant]
         self.objective, self.tokens, self.image_size = objective, tokens, image_size
@@ -178,7 +186,8 @@ class XJEPA(nn.Module):
         for m in ("proprio", "touch"):
             if m in self.targets:
                 self.modal_heads[m] = nn.ModuleDict(
-                    {str(d): DeltaHead(width, d * action_dim, self.dims[m]) for d in horizons})
+                    {str(d): DeltaHead(width, d * action_dim, self.dims[m] * (2 if self.modal_gnll else 1))
+                     for d in horizons})
         self.sysid_head = (nn.Sequential(nn.Linear(width, width), nn.GELU(), nn.Linear(width, len(SYSID_PARAMS)))
                            if sysid else None)
         self.belief = (BeliefModule(latent_dim, action_dim, width, belief_dim) if objective == "belief" else None)
@@ -344,6 +353,8 @@ class XJEPA(nn.Module):
         if modality not in self.modal_heads:
             raise ValueError(f"variant {self.variant} has no {modality!r} forecasting head")
         y = self._head_out(h, actions, delta, self.modal_heads[modality][str(delta)])
+        if self.modal_gnll:
+            y = y.chunk(2, -1)[0]  # the mean; the log-variance half only enters the loss
         return self.denorm(modality, y) if raw else y
 
     def sysid(self, h: torch.Tensor, raw: bool = True) -> torch.Tensor:
@@ -487,16 +498,20 @@ class XJEPA(nn.Module):
             terms["sigreg"] = sigreg(flat, token_dirs, sigreg_seed, sigreg_knots, max_rows=token_rows,
                                      directions=sigreg_directions)
         elif self.objective in ("latent", "gnll", "belief"):
-            losses = []
+            losses, precisions = [], []
             for d in valid:
                 mean, logvar = self.predict(h, actions, d, return_logvar=True)
                 if self.objective == "gnll":
                     l_d = gaussian_nll(mean[:, :L - d], logvar[:, :L - d], z[:, d:], at_latent(d))
+                    # the NLL weighs a latent error by exp(-s): its mean is the latent terms' effective weight
+                    precisions.append(torch.exp(-logvar.detach().float().clamp(*LOGVAR_RANGE)).mean())
                 else:
                     l_d = masked_mse(mean[:, :L - d], z[:, d:], at_latent(d))
                 terms[f"pred_{d}"] = l_d
                 losses.append(l_d)
             total = total + torch.stack(losses).mean()
+            if precisions:
+                terms["latent_precision"] = torch.stack(precisions).mean()
             # per time step over the batch (LeWM), then averaged over time and directions
             terms["sigreg"] = sigreg(z.transpose(0, 1), sigreg_dirs, sigreg_seed, sigreg_knots,
                                      directions=sigreg_directions)
@@ -532,7 +547,11 @@ class XJEPA(nn.Module):
                     contact = batch[m][:, d:, self.contact_channel] > 0.5
                     cw = 1.0 + (touch_contact_weight - 1.0) * contact.float()
                     weight = cw if weight is None else cw * weight  # the two reweightings compose
-                losses.append(masked_mse(pred, target[:, d:], weight))
+                if self.modal_gnll:
+                    mean, logvar = pred.chunk(2, -1)
+                    losses.append(gaussian_nll(mean, logvar, target[:, d:], weight))
+                else:
+                    losses.append(masked_mse(pred, target[:, d:], weight))
             terms[m] = torch.stack(losses).mean()
             total = total + w * terms[m]
 
