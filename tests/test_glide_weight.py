@@ -155,8 +155,8 @@ def test_config_validation_and_retired_sampling_weight(tiny_dataset, tmp_path):
         run(cfg)
 
 
-def test_dose_glide_sweeps_the_loss_weight_and_labels_the_realised_share(tmp_path):
-    from pokeworld.evaluate.experiment import dose_glide_label, exp_dose_glide
+def test_dose_glide_sweeps_the_loss_weight_and_reads_the_realised_share(tmp_path):
+    from pokeworld.evaluate.experiment import exp_dose_glide, realised_glide_share
     from pokeworld.evaluate.experiment import make_config as map_config
 
     specs = exp_dose_glide(map_config("tiny", out=str(tmp_path)))
@@ -167,8 +167,8 @@ def test_dose_glide_sweeps_the_loss_weight_and_labels_the_realised_share(tmp_pat
             {"step": 4, "glide_loss_share": 0.7}]
     (run_dir / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
     results = {"map_config": {"out": str(tmp_path)}, "runs": {s.name: {"train": s.train} for s in specs}}
-    assert dose_glide_label(results, results["runs"][specs[1].name]) == "glide loss weight 4 (glide loss share 65%)"
-    assert dose_glide_label(results, results["runs"][specs[0].name]) == "glide loss weight 1 (glide loss share —)"
+    assert realised_glide_share(results, results["runs"][specs[1].name]) == pytest.approx(0.65)  # mean of the steps
+    assert realised_glide_share(results, results["runs"][specs[0].name]) is None  # the run is not on disk
 
 
 @pytest.mark.parametrize("kw", [dict(objective="gnll"), dict(objective="recon"), dict(tokens=True, image_size=32)])

@@ -24,6 +24,7 @@ returns early (without ``DONE``) for time-sliced jobs.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -199,6 +200,11 @@ RESUMABLE_FIELDS = ("steps", "stop_at", "ckpt_every", "log_every", "tensorboard"
 #: exactly like the current code; a run that set anything else conflicts. (Fields added later are
 #: compared at their default, which by convention reproduces the behaviour before they existed.)
 RETIRED_FIELDS: dict[str, Any] = {"glide_episode_weight": 1.0}
+
+
+def field_defaults() -> dict[str, Any]:
+    """TrainConfig field -> its default (the value a run gets when nothing overrides it)."""
+    return {f.name: f.default for f in dataclasses.fields(TrainConfig)}
 
 
 def make_config(preset: str = "cpu", **overrides: Any) -> TrainConfig:

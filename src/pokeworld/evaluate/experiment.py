@@ -190,9 +190,9 @@ def _spec(exp, variant, seed, lam, horizons=(1, 4, 16), corpus="standard", measu
           measure: dict | None = None, **extra):
     # an override equal to the training default is the default run itself: it keeps the plain name, so a
     # dose level that equals the operating point (touch contact weight 4, glide weight 1) shares the factorial's run
-    from ..train import TrainConfig
+    from ..train import field_defaults
 
-    defaults = {f.name: f.default for f in dataclasses.fields(TrainConfig)}
+    defaults = field_defaults()
     extra = {k: v for k, v in extra.items() if not (k in defaults and defaults[k] == v)}
     tag = "".join(f"-{k}{v}" for k, v in sorted(extra.items()))
     name = f"{variant}-{_h(horizons)}-lam{lam:g}-{corpus}{tag}-s{seed}"
@@ -278,14 +278,6 @@ def realised_glide_share(results: dict, run: dict) -> float | None:
     if name is not None and path.exists():
         shares = [r["glide_loss_share"] for r in map(json.loads, path.read_text().splitlines()) if "glide_loss_share" in r]
     return sum(shares) / len(shares) if shares else None
-
-
-def dose_glide_label(results: dict, run: dict) -> str:
-    """Row label of a dose-glide run: its glide loss weight and the glide loss share its training realised
-    ("—" when the run is not on disk)."""
-    w = run["train"].get("glide_loss_weight", 1.0)
-    share = realised_glide_share(results, run)
-    return f"glide loss weight {w:g} (glide loss share {'—' if share is None else f'{100 * share:.0f}%'})"
 
 
 def exp_planning(c: MapConfig) -> list[RunSpec]:

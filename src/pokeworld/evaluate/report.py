@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import platform
 import subprocess
@@ -106,6 +105,11 @@ def fmt(v, digits=2) -> str:
     return "—" if v is None else f"{v:+.{digits}f}" if digits == 2 else f"{v:.{digits}f}"
 
 
+def _ours_paper(v, p, digits=2) -> str:
+    """A table cell "ours / paper"."""
+    return f"{fmt(v, digits)} / {fmt(p, digits)}"
+
+
 # --------------------------------------------------------------------------- tables
 def certificate_table(results: dict) -> list[str]:
     std = results["certificates"].get("standard")
@@ -173,9 +177,9 @@ def token_factorial_table(results: dict) -> list[str]:
         p = P.TOKENS.get(v, {})
         glob = [g for g in variant_runs(results, "factorial", v) if g["train"].get("seed") == r["train"].get("seed")]
         k_glob = mean_over(glob, lambda g: probe(g, "log_k"))
-        lines.append(f"| {v} | {fmt(probe(r, 'log_k'))}{dagger(run_gate_failed(results, r, 'log_k'))} / "
-                     f"{fmt(p.get('log_k'))} | {fmt(k_glob)} | {fmt(probe(r, 'log_m'))} | "
-                     f"{fmt(probe(r, 'object_pos'))} / {fmt(p.get('object_pos'))} | "
+        k_tok = fmt(probe(r, "log_k")) + dagger(run_gate_failed(results, r, "log_k"))
+        lines.append(f"| {v} | {k_tok} / {fmt(p.get('log_k'))} | {fmt(k_glob)} | {fmt(probe(r, 'log_m'))} | "
+                     f"{_ours_paper(probe(r, 'object_pos'), p.get('object_pos'))} | "
                      f"{fmt(r['prediction'].get('direct16'), 3)} |")
     lines.append("\nThe paper states the ordering is unchanged under a token-based encoder and gives the VFX token "
                  "run's stiffness (0.62) and position (0.98); its other token cells are not reported. The global-"
@@ -433,16 +437,6 @@ def readout_table(results: dict) -> list[str]:
             "| run | " + " | ".join(LABELS[q] for q in qs) + " |", "|" + "---|" * (len(qs) + 1), *rows, ""]
 
 
-def _train_default(field_name: str):
-    from ..train import TrainConfig  # local: training code is only needed once runs exist
-
-    return next(f.default for f in dataclasses.fields(TrainConfig) if f.name == field_name)
-
-
-def _ours_paper(v, p, digits=2) -> str:
-    return f"{fmt(v, digits)} / {fmt(p, digits)}"
-
-
 def dose_glide_table(results: dict) -> list[str]:
     """App. C Table "dose1": glide-frame loss weight -> realised glide loss share, γ on glide windows, the
     functional glide test, log k and velocity (ours / paper)."""
@@ -453,7 +447,9 @@ def dose_glide_table(results: dict) -> list[str]:
     lines = ["## Dose-response 1: reweighting toward the blind parameter (VFX; glide-frame loss weight)", "",
              "| glide weight | glide loss share | γ, glide windows | γ, contact windows | glide test: model | "
              "glide test: median-γ | log k | velocity |", "|---|---|---|---|---|---|---|---|"]
-    default = _train_default("glide_loss_weight")
+    from ..train import field_defaults  # local: training code is only needed once runs exist
+
+    default = field_defaults()["glide_loss_weight"]
     for name in results["experiments"]["dose_glide"]:
         r = results["runs"][name]
         w = float(r["train"].get("glide_loss_weight", default))
@@ -479,7 +475,9 @@ def dose_touch_table(results: dict) -> list[str]:
         return []
     lines = ["## Dose-response 2: starving an acquired parameter (VFX; contact-frame touch-loss weight)", "",
              "| touch weight | log k | log m | γ | obj. position |", "|---|---|---|---|---|"]
-    default = _train_default("touch_contact_weight")
+    from ..train import field_defaults  # local: training code is only needed once runs exist
+
+    default = field_defaults()["touch_contact_weight"]
     for name in results["experiments"]["dose_touch"]:
         r = results["runs"][name]
         w = float(r["train"].get("touch_contact_weight", default))
@@ -533,7 +531,7 @@ def attribute_matrix_table(results: dict) -> list[str]:
     lines = ["## The attribute matrix (VFX; contact windows; ours / paper)", "",
              "| cell | parameter | linear cert. | recurrent cert. | model: ridge (MLP) | model / recurrent cert. |",
              "|---|---|---|---|---|---|"]
-    rng = lambda v: "—" if v is None else f"{v[0]:.2f}–{v[1]:.2f}" if isinstance(v, tuple) else f"{v:+.2f}"  # noqa: E731
+    paper_cell = lambda v: "—" if v is None else f"{v[0]:.2f}–{v[1]:.2f}" if isinstance(v, tuple) else f"{v:+.2f}"  # noqa: E731
     for key, cell, param, corpus, qs in ATTRIBUTE_CELLS:
         p = P.ATTRIBUTES[key]
         lin, _ = cert(corpus, ("linear",), qs)
@@ -541,10 +539,10 @@ def attribute_matrix_table(results: dict) -> list[str]:
         ridge, mlp = model(corpus, qs, "ridge"), model(corpus, qs, "mlp")
         ratio = ridge / rec if ridge is not None and rec else None
         mark = dagger(any(gate_failed(results, q, corpus) for q in qs if q in ("log_m", "gamma", "log_k")))
-        lines.append(f"| {cell} | {param} | {fmt(lin)} / {rng(p['linear'])} | {fmt(rec)}"
-                     f"{f' ({rec_est})' if rec_est else ''} / {rng(p['recurrent'])} | {fmt(ridge)}"
-                     f"{f' ({fmt(mlp)})' if mlp is not None else ''}{mark} / {rng(p['model'])} | "
-                     f"{fmt(ratio)} / {rng(p['ratio'])} |")
+        lines.append(f"| {cell} | {param} | {fmt(lin)} / {paper_cell(p['linear'])} | {fmt(rec)}"
+                     f"{f' ({rec_est})' if rec_est else ''} / {paper_cell(p['recurrent'])} | {fmt(ridge)}"
+                     f"{f' ({fmt(mlp)})' if mlp is not None else ''}{mark} / {paper_cell(p['model'])} | "
+                     f"{fmt(ratio)} / {paper_cell(p['ratio'])} |")
     drag = certs.get("standard", {}).get("estimators", {}).get("drag", {}).get("contact", {}).get("gamma")
     lines.append("\nRecurrent certificate = the best of the GRU estimators (named); a 2-d force bias scores the mean "
                  "of its two components' R². Certificates are lower bounds, so model / recurrent certificate is a "
