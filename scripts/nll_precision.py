@@ -20,7 +20,7 @@ import torch
 from pokeworld.data import load
 from pokeworld.errors import ConfigError
 from pokeworld.io import write_json
-from pokeworld.losses import LOGVAR_RANGE
+from pokeworld.losses import nll_precision
 from pokeworld.train import WindowSampler, load_model
 
 
@@ -35,10 +35,11 @@ def precisions(model, ds, windows: int, window: int = 24, seed: int = 0) -> dict
         for d in model.horizons:
             contact = b["touch"][:, d:, model.contact_channel] > 0.5  # target frame t+Δ in finger contact
             _, lv = model.predict(h, b["actions"], d, return_logvar=True)
-            prec = {"latent": torch.exp(-lv[:, :window - d].float().clamp(*LOGVAR_RANGE)).mean(-1)}
-            if model.modal_gnll:
-                y = model._head_out(h, b["actions"], d, model.modal_heads["touch"][str(d)])[:, :window - d]
-                prec["touch"] = torch.exp(-y.chunk(2, -1)[1].float().clamp(*LOGVAR_RANGE)).mean(-1)
+            prec = {"latent": nll_precision(lv[:, :window - d]).mean(-1)}
+            if "touch" in model.modal_heads:
+                _, lv_touch = model.forecast(h, b["actions"], d, "touch", return_logvar=True)
+                if lv_touch is not None:  # gnll_heads='all'
+                    prec["touch"] = nll_precision(lv_touch[:, :window - d]).mean(-1)
             out[str(d)] = {"contact_share": float(contact.float().mean()),
                            **{f"{k}_contact": float(p[contact].mean()) for k, p in prec.items()},
                            **{f"{k}_free": float(p[~contact].mean()) for k, p in prec.items()}}

@@ -1,5 +1,6 @@
 """X-JEPA architecture: variants, AdaLN-zero, causality, heads, controls."""
 
+import numpy as np
 import pytest
 import torch
 
@@ -169,3 +170,36 @@ def test_gnll_on_every_head_scores_proprio_and_touch_by_their_own_nll():
         make("VFX", gnll_heads="all")
     with pytest.raises(ConfigError, match="unknown gnll_heads"):
         make("VFX", objective="gnll", gnll_heads="touch")
+
+
+def test_nll_precision_script_reads_planted_log_variances(tiny_dataset):
+    """scripts/nll_precision.py on a model whose log-variance halves are planted constants: it must read
+    e^{-s} of the log-variance half (not the mean half) on contact and contact-free frames alike."""
+    import importlib.util
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location(
+        "nll_precision", Path(__file__).resolve().parents[1] / "scripts" / "nll_precision.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+
+    ds = tiny_dataset
+    m = make("VFX", objective="gnll", gnll_heads="all", image_size=16, proprio_dim=ds.proprio.shape[-1],
+             touch_dim=ds.touch.shape[-1], action_dim=ds.actions.shape[-1])
+    planted = {"latent": 50.0, "touch": 7.0}
+    with torch.no_grad():
+        for heads, name in ((m.latent_heads, "latent"), (m.modal_heads["touch"], "touch")):
+            for head in heads.values():
+                last = head.net[-1]
+                half = last.out_features // 2
+                last.weight.zero_()
+                last.bias[:half] = 3.0  # the mean half: a wrong read would give e^{-3}
+                last.bias[half:] = -float(np.log(planted[name]))
+    res = script.precisions(m, ds, windows=32)
+    for row in res.values():
+        assert 0.0 < row["contact_share"] < 1.0
+        for name, p in planted.items():
+            assert row[f"{name}_contact"] == pytest.approx(p, rel=1e-5)
+            assert row[f"{name}_free"] == pytest.approx(p, rel=1e-5)
+    with pytest.raises(ConfigError, match="only for objective='gnll'"):
+        script.precisions(make("VFX", image_size=16), ds, windows=4)

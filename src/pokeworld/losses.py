@@ -209,6 +209,11 @@ LOGVAR_RANGE = (-8.0, 8.0)
 """Clamp of the belief objective's log-variances, shared by the KL and the reparameterised sample."""
 
 
+def nll_precision(logvar: torch.Tensor) -> torch.Tensor:
+    """Precision e^{-s} with which :func:`gaussian_nll` weighs a squared error (s clamped as there)."""
+    return torch.exp(-logvar.float().clamp(*LOGVAR_RANGE))
+
+
 def gaussian_kl(mu_q: torch.Tensor, logvar_q: torch.Tensor, mu_p: torch.Tensor, logvar_p: torch.Tensor,
                 min_logvar: float = LOGVAR_RANGE[0], max_logvar: float = LOGVAR_RANGE[1]) -> torch.Tensor:
     """KL(q || p) of diagonal Gaussians, summed over the last dim (nats); log-variances clamped.

@@ -30,7 +30,7 @@ from torch import nn
 
 from ..errors import ConfigError
 from ..losses import (LOGVAR_RANGE, gaussian_kl, gaussian_nll, glide_loss_share, glide_weights, masked_mse,
-                      motion_weights, sigreg)
+                      motion_weights, nll_precision, sigreg)
 from .encoders import FusedEncoder
 from .predictor import CausalPredictor
 
@@ -347,15 +347,19 @@ class XJEPA(nn.Module):
             return (mean, logvar) if return_logvar else mean
         return (out, None) if return_logvar else out
 
-    def forecast(self, h: torch.Tensor, actions, delta: int, modality: str, raw: bool = True) -> torch.Tensor:
-        """Cross-modal forecast of ``modality`` ('touch' / 'proprio') at t+Δ: (B, L, Dm), raw units by default."""
+    def forecast(self, h: torch.Tensor, actions, delta: int, modality: str, raw: bool = True,
+                 return_logvar: bool = False):
+        """Cross-modal forecast of ``modality`` ('touch' / 'proprio') at t+Δ: (B, L, Dm), raw units by default.
+        With ``return_logvar`` also its log-variance in normalised units (``gnll_heads='all'``; None otherwise)."""
         self._check_delta(delta)
         if modality not in self.modal_heads:
             raise ValueError(f"variant {self.variant} has no {modality!r} forecasting head")
         y = self._head_out(h, actions, delta, self.modal_heads[modality][str(delta)])
+        logvar = None
         if self.modal_gnll:
-            y = y.chunk(2, -1)[0]  # the mean; the log-variance half only enters the loss
-        return self.denorm(modality, y) if raw else y
+            y, logvar = y.chunk(2, -1)
+        y = self.denorm(modality, y) if raw else y
+        return (y, logvar) if return_logvar else y
 
     def sysid(self, h: torch.Tensor, raw: bool = True) -> torch.Tensor:
         """System-ID control head: (B, L, width) -> (B, L, 3) estimates of (log m, γ, log k)."""
@@ -504,7 +508,7 @@ class XJEPA(nn.Module):
                 if self.objective == "gnll":
                     l_d = gaussian_nll(mean[:, :L - d], logvar[:, :L - d], z[:, d:], at_latent(d))
                     # the NLL weighs a latent error by exp(-s): its mean is the latent terms' effective weight
-                    precisions.append(torch.exp(-logvar.detach().float().clamp(*LOGVAR_RANGE)).mean())
+                    precisions.append(nll_precision(logvar.detach()).mean())
                 else:
                     l_d = masked_mse(mean[:, :L - d], z[:, d:], at_latent(d))
                 terms[f"pred_{d}"] = l_d
@@ -541,17 +545,16 @@ class XJEPA(nn.Module):
             target = self.norm(m, batch[m])
             losses = []
             for d in valid:
-                pred = self._head_out(h, actions, d, self.modal_heads[m][str(d)])[:, :L - d]
+                pred, logvar = self.forecast(h, actions, d, m, raw=False, return_logvar=True)
                 weight = at(d)
                 if m == "touch" and 0 <= self.contact_channel < batch[m].shape[-1]:
                     contact = batch[m][:, d:, self.contact_channel] > 0.5
                     cw = 1.0 + (touch_contact_weight - 1.0) * contact.float()
                     weight = cw if weight is None else cw * weight  # the two reweightings compose
-                if self.modal_gnll:
-                    mean, logvar = pred.chunk(2, -1)
-                    losses.append(gaussian_nll(mean, logvar, target[:, d:], weight))
+                if logvar is None:
+                    losses.append(masked_mse(pred[:, :L - d], target[:, d:], weight))
                 else:
-                    losses.append(masked_mse(pred, target[:, d:], weight))
+                    losses.append(gaussian_nll(pred[:, :L - d], logvar[:, :L - d], target[:, d:], weight))
             terms[m] = torch.stack(losses).mean()
             total = total + w * terms[m]
 
