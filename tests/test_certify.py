@@ -208,3 +208,21 @@ def test_ridge_path_equals_sklearn_ridge_for_every_alpha(rng, n, d):
     X_eval = rng.normal(size=(20, d))
     for a, pred in zip(ALPHAS, ridge_path(X, Y, X_eval, ALPHAS)):
         np.testing.assert_allclose(pred, Ridge(alpha=a).fit(X, Y).predict(X_eval), rtol=1e-7, atol=1e-9)
+
+
+def test_per_target_fits_do_not_share_one_penalty():
+    """A dense noise-free target wants no ridge penalty, a weak one in noise a heavy one: a joint fit picks one
+    penalty for both and under-reads the first; per-target fits (the default, as the model probes) do not."""
+    from pokeworld.certify import CertifyConfig, fit_predict
+    from pokeworld.regressors import RidgeCV, r2_scores
+
+    assert CertifyConfig().separate_targets
+    rng = np.random.default_rng(0)
+    n, d = 240, 120
+    X = rng.normal(size=(2 * n, d))
+    groups = np.arange(2 * n) // 4
+    Y = np.c_[X[:, :60] @ rng.normal(size=60), 0.3 * X[:, 0] + rng.normal(size=2 * n)]
+    joint = r2_scores(Y[n:], fit_predict(RidgeCV, X[:n], Y[:n], groups[:n], X[n:], separate=False))
+    separate = r2_scores(Y[n:], fit_predict(RidgeCV, X[:n], Y[:n], groups[:n], X[n:], separate=True))
+    assert separate[0] > 0.99 and joint[0] < 0.9
+    assert separate[1] > joint[1]

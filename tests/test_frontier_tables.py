@@ -108,3 +108,45 @@ def test_token_factorial_shares_the_controls_token_run_and_reads_beside_the_glob
     t = "\n".join(report.token_factorial_table(results))
     assert "| VFX | +0.60 / +0.62 | +0.20 | — | +0.90 / +0.98 | — |" in t
     assert "| VF | +0.50 / — | +0.20 |" in t
+
+
+def test_lambda_sweep_trains_every_seed_and_reports_their_mean(tmp_path):
+    from pokeworld.evaluate.experiment import exp_lambda
+
+    c = map_config("tiny", out=str(tmp_path), experiments=("factorial", "lambda"), seeds=(0, 1), variants=("VFX",),
+                   lambdas=(0.3, 0.02))
+    specs = exp_lambda(c)
+    assert sorted((s.train["sigreg_weight"], s.train["seed"]) for s in specs) == [(0.02, 0), (0.02, 1), (0.3, 0), (0.3, 1)]
+    # λ = 0.02 is the operating point: its runs are the factorial's VFX, not retrained
+    assert {s.name for s in specs if s.train["sigreg_weight"] == 0.02} <= {s.name for s in exp_factorial(c)}
+    runs = {}
+    for s in specs:
+        k = {0.3: 0.1, 0.02: 0.4}[s.train["sigreg_weight"]] + 0.1 * s.train["seed"]
+        runs[s.name] = {**_run(s, {"contact": {"log_k": k, "log_m": 0.2, "object_vel": 0.5}}),
+                        "prediction": {"direct16": 0.1}}
+    t = "\n".join(report.lambda_table({"runs": runs, "experiments": {"lambda": [s.name for s in specs]},
+                                       "certificates": {}}))
+    assert "| 0.3 | 2 | +0.15 / +0.12 | +0.20 / +0.12 | +0.50 / +0.54 | 0.100 / 0.128 |" in t
+    assert "| 0.02 | 2 | +0.45 / +0.50 |" in t
+    assert t.index("| 0.3 |") < t.index("| 0.02 |")  # heaviest regularizer first, as in the paper
+
+
+def test_an_attribute_corpus_certifies_its_attribute_and_inherits_the_standard_gate():
+    from pokeworld.certify import certificate_table, gate
+    from pokeworld.evaluate.experiment import with_standard_gate
+
+    std_est = {"gru": {"contact": {"log_m": 0.66, "gamma": 0.28, "log_k": 0.71}}, "drag": {"contact": {"gamma": 0.83}}}
+    std = {"estimators": std_est, "counts": {"contact": {"fit": 10, "test": 9}}}
+    std["gate"] = gate(certificate_table(std_est, ("log_m", "gamma", "log_k")), std_est)
+    own = {"estimators": {"gru": {"contact": {"bias_x": 0.8, "bias_y": 0.82}}, "linear": {"contact": {"bias_x": 0.1}}},
+           "config": {"targets": ["bias_x", "bias_y"]}, "counts": {"contact": {"fit": 7, "test": 6}}}
+    merged = with_standard_gate(std, own)
+    assert merged["gate"] == std["gate"] and merged["gate_from"] == "standard"
+    assert merged["estimators"]["gru"]["contact"] == {"log_m": 0.66, "gamma": 0.28, "log_k": 0.71,
+                                                      "bias_x": 0.8, "bias_y": 0.82}
+    assert merged["certificate"]["contact"]["gamma"] == {"r2": 0.83, "estimator": "drag"}
+    assert merged["certificate"]["contact"]["bias_x"] == {"r2": 0.8, "estimator": "gru"}
+    # a failed standard gate is stated once, on the standard corpus, not again per attribute corpus
+    std_fail = {**std, "gate": {"log_k": {**std["gate"]["log_k"], "passed": False}}}
+    lines = report.no_claim_lines({"certificates": {"standard": std_fail, "bias0.5": with_standard_gate(std_fail, own)}})
+    assert sum("no claim" in ln for ln in lines) == 1

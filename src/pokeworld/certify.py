@@ -91,6 +91,10 @@ class CertifyConfig:
     """Early-stopping patience in epochs."""
     seed: int = 0
     """Seed for estimator initialisation and subsampling."""
+    separate_targets: bool = True
+    """Fit each estimator once per target (as the model probes are fit) rather than once for all targets.
+    A joint fit shares one early stop (neural) or one ridge penalty (linear) across targets, which cuts a
+    slow, low-variance target short: on the ±0.5 bias corpus the joint GRU reads bias 0.06, per-target 0.8."""
 
     def __post_init__(self) -> None:
         bad = set(self.estimators) - set(ESTIMATORS)
@@ -230,6 +234,16 @@ def _glide_pairs(ds: Dataset, w: Windows) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- main
+def fit_predict(make, X_fit: np.ndarray, Y_fit: np.ndarray, groups: np.ndarray, X_test: np.ndarray,
+                separate: bool) -> np.ndarray:
+    """Fit ``make()`` on (X_fit, Y_fit) and predict X_test: one model for all columns of Y_fit, or one per
+    column when ``separate``. Returns (len(X_test), Y_fit.shape[1])."""
+    if not separate or Y_fit.shape[1] == 1:
+        return make().fit(X_fit, Y_fit, groups).predict(X_test).reshape(len(X_test), -1)
+    return np.column_stack([make().fit(X_fit, Y_fit[:, [j]], groups).predict(X_test).reshape(-1)
+                            for j in range(Y_fit.shape[1])])
+
+
 def certify(ds: Dataset, cfg: CertifyConfig) -> dict:
     """Run every requested estimator; return the certificates dictionary."""
     missing = [t for t in cfg.targets if t not in ds.params]
@@ -292,14 +306,14 @@ def certify(ds: Dataset, cfg: CertifyConfig) -> dict:
                 if est.endswith("_notouch"):
                     X_fit, X_test = X_fit[..., NO_TOUCH], X_test[..., NO_TOUCH]
                 if est == "linear":
-                    model = RidgeCV().fit(X_fit.reshape(len(X_fit), -1), y_fit, w_fit.episode)
-                    pred = model.predict(X_test.reshape(len(X_test), -1))
+                    X_fit, X_test = X_fit.reshape(len(X_fit), -1), X_test.reshape(len(X_test), -1)
+                    make = RidgeCV
                 else:
                     arch = "mlp" if est == "mlp" else "gru"
                     kw = dict(hidden=cfg.gru_hidden, layers=cfg.gru_layers) if arch == "gru" else {}
-                    model = TorchRegressor(arch, epochs=cfg.epochs, patience=cfg.patience, seed=cfg.seed,
-                                           **kw).fit(X_fit, y_fit, w_fit.episode)
-                    pred = model.predict(X_test)
+                    make = lambda: TorchRegressor(arch, epochs=cfg.epochs, patience=cfg.patience,  # noqa: E731
+                                                  seed=cfg.seed, **kw)
+                pred = fit_predict(make, X_fit, y_fit, w_fit.episode, X_test, cfg.separate_targets)
                 r2 = {t: float(v) for t, v in zip(cfg.targets, r2_scores(y_test, pred))}
             results["estimators"].setdefault(est, {})[kind] = r2
             print(f"[certify] {kind:8s} {est:11s} " + " ".join(f"{t}={v:+.3f}" for t, v in r2.items()))
@@ -433,4 +447,4 @@ def load_gate(path: str | Path) -> dict:
 
 
 __all__ = ["CertifyConfig", "PRESETS", "GATES", "GATE_ESTIMATOR", "certify", "gate", "gate_of", "load_gate", "run",
-           "make_config", "drag_estimates", "pixel_object_state", "window_features"]
+           "make_config", "fit_predict", "drag_estimates", "pixel_object_state", "window_features"]
