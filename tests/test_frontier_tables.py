@@ -150,3 +150,26 @@ def test_an_attribute_corpus_certifies_its_attribute_and_inherits_the_standard_g
     std_fail = {**std, "gate": {"log_k": {**std["gate"]["log_k"], "passed": False}}}
     lines = report.no_claim_lines({"certificates": {"standard": std_fail, "bias0.5": with_standard_gate(std_fail, own)}})
     assert sum("no claim" in ln for ln in lines) == 1
+
+
+def test_frame_averaged_section_sets_the_model_beside_the_factorial_vfx(tmp_path):
+    c = map_config("tiny", out=str(tmp_path), experiments=("factorial", "frame_averaged"), variants=("VFX",),
+                   seeds=(0, 1))
+    specs = {s.name: s for s in all_specs(c)}
+    runs = {}
+    for name, s in specs.items():
+        k = 0.2 if s.corpus == "frame_averaged" else 0.3 + 0.1 * s.seed  # factorial seeds read 0.3 and 0.4
+        runs[name] = _run(s, {"contact": {"log_k": k, "gamma": 0.0}})
+        runs[name]["prediction"]["direct16"] = 0.1
+    est = lambda k_lin, k_gru: {"linear": {"contact": {"log_k": k_lin}}, "gru": {"contact": {"log_k": k_gru}}}  # noqa: E731
+    cert = lambda k: {"contact": {"log_k": {"r2": k}}}  # noqa: E731
+    results = {"runs": runs, "experiments": {e: [n for n, s in specs.items() if s.experiment == e]
+                                             for e in ("factorial", "frame_averaged")},
+               "certificates": {"standard": {"certificate": cert(0.8), "estimators": est(0.2, 0.8)},
+                                "frame_averaged": {"certificate": cert(0.6), "estimators": est(0.05, 0.6)}}}
+    t = "\n".join(report.frame_averaged_lines(results))
+    assert "sub-step touch: ours +0.80 (paper 0.87); with frame-averaged touch: ours +0.60" in t
+    assert "| linear | +0.20 | +0.05 |" in t and "| gru | +0.80 | +0.60 |" in t
+    assert "| sub-step touch (factorial) | +0.35 | — | +0.00 | — | — | 0.100 |" in t  # mean over the two seeds
+    assert "| frame-averaged touch | +0.20 | — | +0.00 | — | — | 0.100 |" in t
+    assert report.frame_averaged_lines({"certificates": {}, "runs": {}, "experiments": {}}) == []

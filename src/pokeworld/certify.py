@@ -33,6 +33,7 @@ whenever the two verdicts disagree; only the paper's rule licenses a claim.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -311,8 +312,8 @@ def certify(ds: Dataset, cfg: CertifyConfig) -> dict:
                 else:
                     arch = "mlp" if est == "mlp" else "gru"
                     kw = dict(hidden=cfg.gru_hidden, layers=cfg.gru_layers) if arch == "gru" else {}
-                    make = lambda: TorchRegressor(arch, epochs=cfg.epochs, patience=cfg.patience,  # noqa: E731
-                                                  seed=cfg.seed, **kw)
+                    make = functools.partial(TorchRegressor, arch, epochs=cfg.epochs, patience=cfg.patience,
+                                             seed=cfg.seed, **kw)
                 pred = fit_predict(make, X_fit, y_fit, w_fit.episode, X_test, cfg.separate_targets)
                 r2 = {t: float(v) for t, v in zip(cfg.targets, r2_scores(y_test, pred))}
             results["estimators"].setdefault(est, {})[kind] = r2
