@@ -251,3 +251,13 @@ def test_token_models_are_probed_through_their_token_trunk(tiny_dataset):
     assert states.shape == (len(w), 16)
     np.testing.assert_allclose(states[0], expected, rtol=1e-4, atol=1e-5)
     np.testing.assert_allclose(lat.gather(w)[0], z.mean(2)[0].numpy(), rtol=1e-5, atol=1e-6)
+
+
+def test_a_measurement_with_mlp_probes_answers_a_request_without_them():
+    key = lambda mlp, seed=0: {"config": {"mlp": mlp, "seed": seed}, "data_sha256": "a", "final_mtime": 1}  # noqa: E731
+    assert M.covers(key(False), key(False)) and M.covers(key(True), key(True))
+    assert M.covers(key(True), key(False))  # the MLP readouts are extra numbers, the rest is identical
+    assert not M.covers(key(False), key(True))  # asked for MLP probes that were never fit
+    assert not M.covers(key(True, seed=1), key(False))  # any other difference still re-measures
+    assert not M.covers({**key(True), "data_sha256": "b"}, key(False))
+    assert not M.covers(None, key(False))
