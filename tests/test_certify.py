@@ -213,7 +213,7 @@ def test_ridge_path_equals_sklearn_ridge_for_every_alpha(rng, n, d):
 def test_per_target_fits_do_not_share_one_penalty():
     """A dense noise-free target wants no ridge penalty, a weak one in noise a heavy one: a joint fit picks one
     penalty for both and under-reads the first; per-target fits (the default, as the model probes) do not."""
-    from pokeworld.certify import CertifyConfig, fit_predict
+    from pokeworld.certify import CertifyConfig, fit_targets
     from pokeworld.regressors import RidgeCV, r2_scores
 
     assert CertifyConfig().separate_targets
@@ -222,7 +222,7 @@ def test_per_target_fits_do_not_share_one_penalty():
     X = rng.normal(size=(2 * n, d))
     groups = np.arange(2 * n) // 4
     Y = np.c_[X[:, :60] @ rng.normal(size=60), 0.3 * X[:, 0] + rng.normal(size=2 * n)]
-    joint = r2_scores(Y[n:], fit_predict(RidgeCV, X[:n], Y[:n], groups[:n], X[n:], separate=False))
-    separate = r2_scores(Y[n:], fit_predict(RidgeCV, X[:n], Y[:n], groups[:n], X[n:], separate=True))
+    joint = r2_scores(Y[n:], fit_targets(RidgeCV, X[:n], Y[:n], groups[:n], X[n:], separate=False))
+    separate = r2_scores(Y[n:], fit_targets(RidgeCV, X[:n], Y[:n], groups[:n], X[n:], separate=True))
     assert separate[0] > 0.99 and joint[0] < 0.9
     assert separate[1] > joint[1]

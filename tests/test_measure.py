@@ -261,3 +261,17 @@ def test_a_measurement_with_mlp_probes_answers_a_request_without_them():
     assert not M.covers(key(True, seed=1), key(False))  # any other difference still re-measures
     assert not M.covers({**key(True), "data_sha256": "b"}, key(False))
     assert not M.covers(None, key(False))
+
+
+def test_mlp_probes_leave_every_other_number_unchanged(tiny_dataset):
+    """The premise of ``covers``: fitting MLP probes only adds numbers; ridge, action-conditioned, prediction and
+    untrained-bound numbers come out identical, so a measurement with them answers a request without them."""
+    torch.manual_seed(0)
+    m = XJEPA(**{**TINY_MODEL, "image_size": 32}).eval()
+    bound = M.untrained_copy(m)
+    plain = M.measure(m, tiny_dataset, M.make_config("tiny", mlp=False), bound)
+    with_mlp = M.measure(m, tiny_dataset, M.make_config("tiny", mlp=True), bound)
+    assert "mlp" in with_mlp["probes"] and "mlp" not in plain["probes"]
+    assert with_mlp["probes"]["ridge"] == plain["probes"]["ridge"]
+    for k in ("probes_action_conditioned", "prediction", "untrained"):
+        assert with_mlp[k] == plain[k], k

@@ -235,7 +235,7 @@ def _glide_pairs(ds: Dataset, w: Windows) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- main
-def fit_predict(make, X_fit: np.ndarray, Y_fit: np.ndarray, groups: np.ndarray, X_test: np.ndarray,
+def fit_targets(make, X_fit: np.ndarray, Y_fit: np.ndarray, groups: np.ndarray, X_test: np.ndarray,
                 separate: bool) -> np.ndarray:
     """Fit ``make()`` on (X_fit, Y_fit) and predict X_test: one model for all columns of Y_fit, or one per
     column when ``separate``. Returns (len(X_test), Y_fit.shape[1])."""
@@ -314,7 +314,7 @@ def certify(ds: Dataset, cfg: CertifyConfig) -> dict:
                     kw = dict(hidden=cfg.gru_hidden, layers=cfg.gru_layers) if arch == "gru" else {}
                     make = functools.partial(TorchRegressor, arch, epochs=cfg.epochs, patience=cfg.patience,
                                              seed=cfg.seed, **kw)
-                pred = fit_predict(make, X_fit, y_fit, w_fit.episode, X_test, cfg.separate_targets)
+                pred = fit_targets(make, X_fit, y_fit, w_fit.episode, X_test, cfg.separate_targets)
                 r2 = {t: float(v) for t, v in zip(cfg.targets, r2_scores(y_test, pred))}
             results["estimators"].setdefault(est, {})[kind] = r2
             print(f"[certify] {kind:8s} {est:11s} " + " ".join(f"{t}={v:+.3f}" for t, v in r2.items()))
@@ -448,4 +448,4 @@ def load_gate(path: str | Path) -> dict:
 
 
 __all__ = ["CertifyConfig", "PRESETS", "GATES", "GATE_ESTIMATOR", "certify", "gate", "gate_of", "load_gate", "run",
-           "make_config", "fit_predict", "drag_estimates", "pixel_object_state", "window_features"]
+           "make_config", "fit_targets", "drag_estimates", "pixel_object_state", "window_features"]

@@ -572,11 +572,11 @@ def frame_averaged_lines(results: dict) -> list[str]:
              f"{P.FRAME_AVERAGED['certificate_log_k_substep']}); with frame-averaged touch: ours {fmt(k_fa)} "
              "(paper: unrecoverable).", "",
              "| log k certificate | sub-step touch | frame-averaged touch |", "|---|---|---|"]
-    ests = [e for e in ("linear", "gru", "gru_geom", "gru_pixel", "gru_pixel_notouch")
-            if e in std.get("estimators", {}) or e in fa.get("estimators", {})]
-    for e in ests:
-        cell = lambda c, e=e: fmt(c.get("estimators", {}).get(e, {}).get("contact", {}).get("log_k"))  # noqa: E731
-        lines.append(f"| {e} | {cell(std)} | {cell(fa)} |")
+    k_of = {name: {e: kinds.get("contact", {}).get("log_k") for e, kinds in c.get("estimators", {}).items()}
+            for name, c in (("std", std), ("fa", fa))}
+    for e in sorted(e for e in k_of["std"].keys() | k_of["fa"].keys()
+                    if k_of["std"].get(e) is not None or k_of["fa"].get(e) is not None):
+        lines.append(f"| {e} | {fmt(k_of['std'].get(e))} | {fmt(k_of['fa'].get(e))} |")
     model = [results["runs"][n] for n in results["experiments"].get("frame_averaged", [])]
     base = variant_runs(results, "factorial", "VFX")
     if model:
