@@ -1,6 +1,6 @@
 """CPU training throughput study for the `cpu` preset (issue: the demo on 2 cores).
 
-Usage:  python benchmarks/train_cpu.py [--preset cpu] [--steps 30] [--out benchmarks/results/train_cpu.json]
+Usage:  python benchmarks/train_cpu.py [--preset cpu] [--batch-size N] [--steps 30] [--out benchmarks/results/train_cpu.json]
 
 Measures, on synthetic data at the preset's sizes, full optimisation steps as ``pokeworld.train.run`` takes them:
 
@@ -66,15 +66,15 @@ def time_steps(preset: str, steps: int, threads: int, compile: bool = False, cha
     return (time.perf_counter() - t) / steps
 
 
-def _worker(args, q):
-    q.put(time_steps(*args))
+def _worker(args, over, q):
+    q.put(time_steps(*args, **over))
 
 
-def side_by_side(preset: str, steps: int, n: int = 2) -> list[float]:
+def side_by_side(preset: str, steps: int, n: int = 2, **over) -> list[float]:
     """Seconds per step of each of ``n`` concurrent single-threaded models (separate processes)."""
     ctx = mp.get_context("spawn")
     q = ctx.Queue()
-    procs = [ctx.Process(target=_worker, args=((preset, steps, 1), q)) for _ in range(n)]
+    procs = [ctx.Process(target=_worker, args=((preset, steps, 1), over, q)) for _ in range(n)]
     for p in procs:
         p.start()
     out = [q.get() for _ in procs]
@@ -83,10 +83,10 @@ def side_by_side(preset: str, steps: int, n: int = 2) -> list[float]:
     return out
 
 
-def cost_split(preset: str, reps: int) -> dict:
+def cost_split(preset: str, reps: int, **over) -> dict:
     """Seconds per step spent in each part of an eager single-threaded step."""
     torch.set_num_threads(1)
-    cfg, sampler, model, opt = setup(preset)
+    cfg, sampler, model, opt = setup(preset, **over)
     kw = loss_kwargs(cfg)
     b = sampler.sample(cfg.batch_size)
     dirs = sigreg_directions(cfg, 0, "cpu")
@@ -132,31 +132,33 @@ def cost_split(preset: str, reps: int) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--preset", default="cpu")
+    ap.add_argument("--batch-size", type=int, default=0, help="windows per step (0: the preset's)")
     ap.add_argument("--steps", type=int, default=30)
     ap.add_argument("--out", default="benchmarks/results/train_cpu.json")
     args = ap.parse_args()
     load_before = os.getloadavg()
+    over = {"batch_size": args.batch_size} if args.batch_size else {}
     rows = []
-    one1 = time_steps(args.preset, args.steps, 1)
+    one1 = time_steps(args.preset, args.steps, 1, **over)
     rows.append({"setting": "one model, 1 thread", "sec_per_step": one1, "model_steps_per_s": 1 / one1})
-    one2 = time_steps(args.preset, args.steps, 2)
+    one2 = time_steps(args.preset, args.steps, 2, **over)
     rows.append({"setting": "one model, 2 threads", "sec_per_step": one2, "model_steps_per_s": 1 / one2})
-    pair = side_by_side(args.preset, args.steps)
+    pair = side_by_side(args.preset, args.steps, **over)
     rows.append({"setting": "two models, 1 thread each (2 processes)", "sec_per_step": pair,
                  "model_steps_per_s": sum(1 / s for s in pair)})
-    cl = time_steps(args.preset, args.steps, 1, channels_last=True)
+    cl = time_steps(args.preset, args.steps, 1, channels_last=True, **over)
     rows.append({"setting": "one model, 1 thread, channels_last", "sec_per_step": cl, "model_steps_per_s": 1 / cl})
     try:
-        comp = time_steps(args.preset, args.steps, 1, compile=True)
+        comp = time_steps(args.preset, args.steps, 1, compile=True, **over)
         rows.append({"setting": "one model, 1 thread, torch.compile", "sec_per_step": comp,
                      "model_steps_per_s": 1 / comp})
     except Exception as e:  # inductor needs a C++ compiler; record why it could not be timed
         rows.append({"setting": "one model, 1 thread, torch.compile", "error": f"{type(e).__name__}: {e}"[:300]})
     for r in rows:
         print(json.dumps(r))
-    split = cost_split(args.preset, max(5, args.steps // 3))
+    split = cost_split(args.preset, max(5, args.steps // 3), **over)
     print(json.dumps(split))
-    res = {"preset": args.preset, "rows": rows, "cost_split_1_thread": split,
+    res = {"preset": args.preset, "batch_size": args.batch_size or make_config(args.preset).batch_size, "rows": rows, "cost_split_1_thread": split,
            "loadavg_before": load_before, "loadavg_after": os.getloadavg()}
     write_results(args.out, torch.device("cpu"), [res])
 

@@ -142,9 +142,12 @@ def test_tiny_map_runs_the_belief_experiment(tmp_path):
     experiment.run(c)
     res = json.loads((out / "results.json").read_text())
     names = res["experiments"]["belief"]
-    assert len(names) == 4 and set(names) == set(res["runs"])
-    objectives = sorted((r["train"].get("objective", "latent"), r["train"].get("window", 0)) for r in res["runs"].values())
-    assert objectives == [("belief", 0), ("belief", 65), ("latent", 0), ("latent", 65)]
+    assert len(names) == 5 and set(names) == set(res["runs"])
+    objectives = sorted((r["train"].get("objective", "latent"), r["train"].get("window", 0),
+                         r["train"].get("sysid_weight", 0)) for r in res["runs"].values())
+    assert objectives == [("belief", 0, 0), ("belief", 65, 0), ("latent", 0, 0), ("latent", 0, 0.5), ("latent", 65, 0)]
+    # whole-episode runs keep the standard runs' frames per step (tiny: 4 × 18 -> max(2, round(72 / 65)))
+    assert {r["train"].get("batch_size") for r in res["runs"].values() if r["train"].get("window") == 65} == {2}
     for name, r in res["runs"].items():
         m = json.loads((out / "runs" / name / "measure.json").read_text())
         assert ("probes_belief" in m) == (r["train"].get("objective") == "belief") == ("probes_belief" in m["readout"])
@@ -158,7 +161,7 @@ def test_tiny_map_runs_the_belief_experiment(tmp_path):
     md = (out / "results.md").read_text()
     assert "## Belief objective" in md
     for label in ("VFX latent, standard windows", "VFX belief, standard windows", "VFX latent, whole episodes",
-                  "VFX belief, whole episodes"):
+                  "VFX belief, whole episodes", "VFX latent + system-ID head (supervised), standard windows"):
         assert f"| {label} |" in md
 
 

@@ -97,6 +97,52 @@ def test_predict_forecast_rollout_shapes_and_window():
     assert torch.allclose(out, out2)
 
 
+
+
+def naive_rollout(m, z_context, actions, steps):
+    """The definition the cached rollout must reproduce: re-run the trunk over the whole grown sequence."""
+    seq, outs = z_context, []
+    for _ in range(steps):
+        L = seq.shape[1]
+        h = m.trunk(seq, actions[:, :L])
+        outs.append(m.predict(h[:, -1:], actions[:, L - 1:L], 1))
+        seq = torch.cat([seq, outs[-1]], 1)
+    return torch.cat(outs, 1)
+
+
+@pytest.mark.parametrize("objective", ["latent", "belief"])
+def test_cached_rollout_equals_rerunning_the_grown_sequence(objective):
+    m = make("VFX", objective=objective)
+    for blk in m.predictor.blocks:  # non-zero action modulation, so a misaligned action would show
+        torch.nn.init.normal_(blk.ada[1].weight, std=0.1)
+    b = batch()
+    z = m.encode(b["frames"], b["proprio"], b["touch"])
+    with torch.no_grad():
+        ref = naive_rollout(m, z[:, :6], b["actions"], 10)
+    out = m.rollout(z[:, :6], b["actions"], steps=10)
+    assert torch.allclose(out, ref, atol=1e-5)
+    # past the predictor's context the rollout slides its window instead (no cache), still defined
+    short = make("VFX", objective=objective, max_len=8)
+    assert short.rollout(z[:, :6], b["actions"], steps=5).shape == (B, 5, 16)
+
+
+def test_incremental_trunk_states_equal_the_full_pass():
+    from pokeworld.models.predictor import KVCache
+
+    m = make()
+    for blk in m.predictor.blocks:
+        torch.nn.init.normal_(blk.ada[1].weight, std=0.1)
+    b = batch()
+    z = m.encode(b["frames"], b["proprio"], b["touch"])
+    full = m.trunk(z, b["actions"])
+    cache, parts, t = KVCache(), [], 0
+    for n in (5, 1, 3, 1, 8):  # several new steps at once exercises the offset causal mask
+        parts.append(m.trunk(z[:, t:t + n], b["actions"][:, t:t + n], cache))
+        t += n
+    assert cache.length == L
+    assert torch.allclose(torch.cat(parts, 1), full, atol=1e-5)
+    with pytest.raises(ValueError, match="max_len"):
+        m.trunk(z[:, :1].expand(B, 200, 16), torch.zeros(B, 200, 2), cache)
 def test_single_horizon_and_raw_frames_are_downsampled():
     m = make("V", horizons=(1,))
     assert set(m.latent_heads.keys()) == {"1"}

@@ -82,6 +82,9 @@ class MapConfig(LaunchOptions):
     """Operating-point SIGReg weight for every other experiment."""
     train_steps: int = 0
     """Override of training steps per run (0 keeps the preset's)."""
+    train_batch_size: int = 0
+    """Override of windows per training step (0 keeps the preset's); the whole-episode belief runs keep the
+    frames per step of this batch size."""
     num_episodes: int = 0
     """Override of episodes per corpus (0 keeps the preset's)."""
     data_seed: int = 0
@@ -149,7 +152,9 @@ DEMO = {  # the newcomer's first run: four variants, one seed; 8 min 55 s measur
     "experiments": ("factorial",), "variants": ("V", "VF", "VX_t", "VFX"), "seeds": (0,),
     # the cpu map's corpus: a 1,200-episode one halves the probe-fit split, and a ridge readout fit on 240 episodes
     # under-reads a weak signal (VFX log k 0.06 vs 0.10 for one checkpoint, docs/model.md "Learning speed")
-    "num_episodes": 2400, "train_steps": 500, "mlp_probes": False, "untrained": False,
+    # the cpu model at a quarter of its batch, so 4× the steps for the compute of 500 steps at 32: at equal compute
+    # stiffness enters twice as far (docs/model.md "Learning speed")
+    "num_episodes": 2400, "train_steps": 2000, "train_batch_size": 8, "mlp_probes": False, "untrained": False,
     # certificates for the demo only: the paper's GRU oracle, the geometry GRU that certifies log k, the
     # linear floor and the drag estimator, on contact windows, with a smaller fit set and fewer epochs
     "certify_estimators": ("gru", "gru_geom", "linear", "drag"), "certify_kinds": ("contact",),
@@ -245,6 +250,16 @@ LONG_WINDOW = 65
 LONG_MEASURE = {"window": 48, "stride": 64, "context": 48}
 
 
+def long_batch_size(preset: str, batch_size: int = 0) -> int:
+    """Whole-episode batch size that keeps the frames per step of the standard runs (``batch_size``, 0 = the
+    preset's; cpu: 32 × 24 -> 12 × 65): the long-history runs then differ from the standard ones in history
+    length only, not in compute or in frames seen (docs/design.md, "The belief experiment")."""
+    from ..train import PRESETS as TRAIN_PRESETS, TrainConfig
+
+    t = from_preset(TrainConfig, TRAIN_PRESETS, preset)
+    return max(2, round((batch_size or t.batch_size) * t.window / LONG_WINDOW))
+
+
 def exp_tokens(c: MapConfig) -> list[RunSpec]:
     """The factorial ordering under a spatial-token encoder (paper §4.1 / App. C: "unchanged under a token-based
     encoder", VFX stiffness 0.62): every factorial variant with ``tokens=True``, first seed (VFX is the controls'
@@ -253,16 +268,17 @@ def exp_tokens(c: MapConfig) -> list[RunSpec]:
 
 
 def exp_belief(c: MapConfig) -> list[RunSpec]:
-    """Objective × history length on the VFX trunk: latent (the factorial's VFX run) and belief objectives,
-    each on the standard windows and on whole episodes (docs/model.md "belief")."""
-    s, lam = c.seeds[0], c.sigreg_weight
-    runs = []
-    if "window" in c.belief_histories:
-        runs += [_spec("belief", "VFX", s, lam), _spec("belief", "VFX", s, lam, objective="belief")]
-    if "episode" in c.belief_histories:
-        runs += [_spec("belief", "VFX", s, lam, measure=LONG_MEASURE, window=LONG_WINDOW),
-                 _spec("belief", "VFX", s, lam, measure=LONG_MEASURE, objective="belief", window=LONG_WINDOW)]
-    return runs
+    """Objective × history length on the VFX trunk, every seed: latent (the factorial's VFX run) and belief
+    objectives, each on the standard windows and on whole episodes at equal frames per step (docs/model.md
+    "belief"), beside the system-ID head (the controls' run): what a supervised readout of the same trunk reaches."""
+    lam, runs = c.sigreg_weight, []
+    for s in c.seeds:
+        if "window" in c.belief_histories:
+            runs += [_spec("belief", "VFX", s, lam), _spec("belief", "VFX", s, lam, objective="belief")]
+        if "episode" in c.belief_histories:
+            long = dict(measure=LONG_MEASURE, window=LONG_WINDOW, batch_size=long_batch_size(c.preset, c.train_batch_size))
+            runs += [_spec("belief", "VFX", s, lam, **long), _spec("belief", "VFX", s, lam, objective="belief", **long)]
+    return runs + [_spec("controls", "VFX", c.seeds[0], lam, sysid_weight=0.5)]
 
 
 def exp_dose_touch(c: MapConfig) -> list[RunSpec]:
@@ -515,6 +531,8 @@ def _jobs(c: MapConfig, specs: list[RunSpec], threads: int, deadline: float = 0.
                   progress=False)
         if c.train_steps:
             tr["steps"] = c.train_steps
+        if c.train_batch_size and "batch_size" not in s.train:
+            tr["batch_size"] = c.train_batch_size
         if threads:
             tr["threads"] = threads
         measure_data = str(corpus_dir(c, s.measure_corpus)) if s.measure_corpus != s.corpus else ""

@@ -373,7 +373,8 @@ def belief_label(run: dict) -> str:
     t = run["train"]
     w = t.get("window")
     hist = "standard windows" if w is None else "whole episodes" if w >= 65 else f"{w}-observation windows"
-    return f"{t['variant']} {t.get('objective', 'latent')}, {hist}"
+    sysid = " + system-ID head (supervised)" if t.get("sysid_weight", 0) > 0 else ""
+    return f"{t['variant']} {t.get('objective', 'latent')}{sysid}, {hist}"
 
 
 def belief_table(results: dict) -> list[str]:

@@ -32,7 +32,7 @@ from ..errors import ConfigError
 from ..losses import (LOGVAR_RANGE, gaussian_kl, gaussian_nll, glide_loss_share, glide_weights, masked_mse,
                       motion_weights, nll_precision, sigreg)
 from .encoders import FusedEncoder
-from .predictor import CausalPredictor
+from .predictor import CausalPredictor, KVCache
 
 #: variant name -> (input modalities, target modalities). "latent" is the visual/fused latent target.
 VARIANTS: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
@@ -261,13 +261,14 @@ class XJEPA(nn.Module):
         z = self.encoder(x.reshape(b * L, *x.shape[2:]), p, t)
         return z.reshape(b, L, *z.shape[1:])
 
-    def trunk_tokens(self, z: torch.Tensor, actions) -> torch.Tensor:
-        """(B, L, D) or (B, L, S, D) latents + (B, L, Da) raw actions -> (B, L, S, width) causal states."""
+    def trunk_tokens(self, z: torch.Tensor, actions, cache: KVCache | None = None) -> torch.Tensor:
+        """(B, L, D) or (B, L, S, D) latents + (B, L, Da) raw actions -> (B, L, S, width) causal states.
+        ``cache``: these steps continue the ones fed before with the same cache (incremental decoding)."""
         if z.dim() == 3:
             z = z[:, :, None, :]
-        return self.predictor(z, self.norm("action", actions))
+        return self.predictor(z, self.norm("action", actions), cache)
 
-    def trunk(self, z: torch.Tensor, actions) -> torch.Tensor:
+    def trunk(self, z: torch.Tensor, actions, cache: KVCache | None = None) -> torch.Tensor:
         """Causal predictor states: the state every head reads when only the past is known.
 
         Args:
@@ -279,15 +280,17 @@ class XJEPA(nn.Module):
             h: (B, L, width) (token mode: mean over the S token states). For ``objective='belief'`` the
             transformer state conditioned on the causal prior's mean, h_t + W·μ_p(h_t) (still causal;
             :meth:`trunk_raw` gives the unconditioned state).
+            With ``cache`` (a :class:`~pokeworld.models.predictor.KVCache`), z and actions are the steps that
+            follow those fed before with the same cache, and only their states are returned.
         """
-        h = self.trunk_raw(z, actions)
+        h = self.trunk_raw(z, actions, cache)
         if self.belief is not None:
             h = self.condition(h, self.belief.prior_of(h)[0])
         return h
 
-    def trunk_raw(self, z: torch.Tensor, actions) -> torch.Tensor:
+    def trunk_raw(self, z: torch.Tensor, actions, cache: KVCache | None = None) -> torch.Tensor:
         """Transformer states (B, L, width) before any belief conditioning (equal to :meth:`trunk` otherwise)."""
-        return self.trunk_tokens(z, actions).mean(2)
+        return self.trunk_tokens(z, actions, cache).mean(2)
 
     def _need_belief(self) -> "BeliefModule":
         if self.belief is None:
@@ -392,7 +395,19 @@ class XJEPA(nn.Module):
         if acts.shape[1] < C + steps - 1:
             raise ValueError(f"rollout needs actions for {C + steps - 1} steps from the context start "
                              f"(or pass actions_context), got {acts.shape[1]}")
-        seq, outs = z_context, []
+        outs = []
+        if C + steps - 1 <= self.predictor.max_len:
+            # every step's state is that of the whole grown sequence (causal, absolute time): feed each
+            # prediction alone against cached keys/values instead of re-running the sequence
+            cache = KVCache()
+            h = self.trunk(z_context, acts[:, :C], cache)
+            for L in range(C, C + steps):
+                z_next = self.predict(h[:, -1:], acts[:, L - 1:L], 1)
+                outs.append(z_next)
+                if L < C + steps - 1:
+                    h = self.trunk(z_next, acts[:, L:L + 1], cache)
+            return torch.cat(outs, 1)
+        seq = z_context  # longer than the predictor's context: slide a max_len window (times shift every step)
         for _ in range(steps):
             L = seq.shape[1]
             ctx = seq[:, -self.predictor.max_len:]
