@@ -141,6 +141,27 @@ def test_compiled_and_eager_losses_agree():
         torch.testing.assert_close(gc[n], ge[n], rtol=1e-3, atol=1e-5, msg=n)
 
 
+def test_train_step_calls_a_loss_wrapper_without_asking_its_truth_value():
+    """``torch.compile`` returns a module wrapper whose ``len()`` (hence truth value) raises TypeError in torch
+    2.13; ``train_step`` must call the wrapper it is given, not test it, or ``--compile`` training crashes."""
+    cfg = make_config("tiny")
+    model, sampler = _model_and_sampler(cfg)
+    calls = []
+
+    class NoTruthValue:
+        def __call__(self, *a, **kw):
+            calls.append(1)
+            return model(*a, **kw)
+
+        def __len__(self):
+            raise TypeError("XJEPA does not support len()")
+
+    opt = train.make_optimizer(model, cfg)
+    loss, _ = train.train_step(model, opt, cfg, sampler.sample(cfg.batch_size), 0, CPU, loss_kwargs(cfg),
+                               loss_fn=NoTruthValue())
+    assert calls == [1] and torch.isfinite(loss)
+
+
 class FakeClock:
     """Wall clock that advances one minute per training step (each call of XJEPA.loss)."""
 

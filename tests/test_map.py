@@ -125,3 +125,35 @@ def torch_step(path) -> int:
     import torch
 
     return int(torch.load(path, weights_only=False)["step"])
+
+
+def test_demo_budget_knobs_are_validated():
+    with pytest.raises(ConfigError, match="split_fractions"):
+        experiment.make_config("tiny", split_fractions=(0.5, 0.5))
+    with pytest.raises(ConfigError, match="train_preset"):
+        experiment.make_config("tiny", train_preset="laptop")
+    with pytest.raises(ConfigError, match="measure_kinds"):
+        experiment.make_config("tiny", measure_kinds=("sideways",))
+    demo = experiment.make_demo_config("cpu")
+    assert (demo.preset, demo.train_preset, demo.split_fractions, demo.measure_kinds) == (
+        "cpu", "demo", (0.4, 0.4, 0.2), ("contact",))
+    job = experiment._jobs(demo, experiment.all_specs(demo), threads=1)[0]
+    assert job["train_preset"] == "demo" and job["preset"] == "cpu"
+    assert job["measure"] == {"kinds": ("contact",), "max_windows": 12000}
+
+
+@pytest.mark.slow
+def test_map_budget_knobs_reach_generation_training_and_measurement(tmp_path):
+    out = tmp_path / "map"
+    c = experiment.make_config("tiny", out=str(out), workers=1, variants=("VX_t",), split_fractions=(0.4, 0.4, 0.2),
+                               measure_kinds=("contact",), measure_max_windows=40, train_preset="tiny",
+                               train_steps=4)
+    experiment.run(c)
+    counts = json.loads((out / "data/standard/manifest.json").read_text())["split_counts"]
+    n = sum(counts.values())
+    for split, share in (("train", 0.4), ("probe_fit", 0.4), ("probe_test", 0.2)):
+        assert abs(counts[split] - share * n) <= 1, counts
+    run = out / "runs" / "VX_t-h1-4-16-lam0.02-standard-s0"
+    m = json.loads((run / "measure.json").read_text())
+    assert set(m["probes"]["ridge"]) == {"contact"} and 10 <= m["probes"]["counts"]["contact"]["fit"] <= 40
+    assert json.loads((run / "config.json").read_text())["steps"] == 4

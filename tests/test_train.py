@@ -19,7 +19,13 @@ def data_dir(tmp_path_factory):
 
 
 def test_presets_and_validation():
-    assert set(PRESETS) == {"tiny", "cpu", "paper"}
+    assert set(PRESETS) == {"tiny", "cpu", "paper", "demo"}
+    # the demo's model is the cpu model at another budget: batch, steps, checkpointing and the paper's vector-
+    # encoder width differ; the objective (targets, weights, λ, horizons, window, schedule shape) does not
+    cpu, demo = make_config("cpu"), make_config("demo")
+    differ = {f for f in TrainConfig.__dataclass_fields__ if getattr(cpu, f) != getattr(demo, f)}
+    assert differ == {"batch_size", "steps", "vec_dim", "ckpt_every", "log_every"}
+    assert demo.vec_dim == make_config("paper").vec_dim
     paper = make_config("paper")
     assert (paper.window, paper.horizons, paper.sigreg_weight, paper.sigreg_dirs, paper.lr) == (24, (1, 4, 16), 0.02, 1024, 3e-4)
     assert make_config("cpu").window == 24

@@ -187,6 +187,11 @@ PRESETS: dict[str, dict[str, Any]] = {
     "cpu": dict(image_size=32, channels=(16, 32, 64, 64), width=128, depth=2, heads=4, vec_dim=32,
                 batch_size=32, steps=4000, warmup=100, lr=1e-3, sigreg_dirs=256, token_rows=1024,
                 token_dirs=128, ckpt_every=500, log_every=50),
+    # the demo's model: the cpu preset with the paper's 64-wide proprio/touch encoders, at a quarter of its batch
+    # for more updates per CPU-second; stiffness enters VFX faster per frame seen (docs/model.md "Learning speed")
+    "demo": dict(image_size=32, channels=(16, 32, 64, 64), width=128, depth=2, heads=4, vec_dim=64,
+                 batch_size=8, steps=2200, warmup=100, lr=1e-3, sigreg_dirs=256, token_rows=1024,
+                 token_dirs=128, ckpt_every=1000, log_every=100),
     "tiny": dict(image_size=16, channels=(4, 8, 8, 8), latent_dim=16, width=16, depth=1, heads=2, vec_dim=8,
                  batch_size=4, window=18, steps=10, warmup=2, sigreg_dirs=16, token_rows=64, token_dirs=16,
                  ckpt_every=5, log_every=5, tensorboard=False, progress=False, device="cpu"),
@@ -320,7 +325,7 @@ def train_step(model: torch.nn.Module, opt: torch.optim.Optimizer, cfg: TrainCon
     """
     dirs = sigreg_directions(cfg, step, dev, non_blocking=fast)
     with torch.autocast(dev.type, dtype=torch.bfloat16, enabled=amp):
-        loss, terms = (loss_fn or model)(batch, sigreg_seed=sigreg_seed(cfg, step), sigreg_directions=dirs, **loss_kw)
+        loss, terms = (model if loss_fn is None else loss_fn)(batch, sigreg_seed=sigreg_seed(cfg, step), sigreg_directions=dirs, **loss_kw)
     opt.zero_grad(set_to_none=True)
     loss.backward()
     if cfg.grad_clip > 0:

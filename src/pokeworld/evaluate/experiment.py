@@ -75,11 +75,14 @@ class MapConfig(LaunchOptions):
     "planning"), beside a random controller."""
     belief_histories: tuple[str, ...] = ("window", "episode")
     """History lengths of the ``belief`` experiment: 'window' (the standard training windows) and/or 'episode'
-    (whole 64-step episodes; ≈ 2.7× the cost of a standard run at the same batch size)."""
+    (whole 64-step episodes, trained at the batch size that keeps the standard runs' frames per step)."""
     lazy_variants: tuple[str, ...] = ("V", "VX_p", "VX_t", "VX", "VFX")
     """Variants trained single-horizon (Δ = 1 only) in the lazy-equilibrium experiment."""
     sigreg_weight: float = 0.02
     """Operating-point SIGReg weight for every other experiment."""
+    train_preset: str = ""
+    """Training preset of every run (empty: ``preset``); the demo trains with ``pokeworld train``'s ``demo``
+    preset (the cpu model at batch 8 with 64-wide vector encoders) and measures as ``preset``."""
     train_steps: int = 0
     """Override of training steps per run (0 keeps the preset's)."""
     train_batch_size: int = 0
@@ -89,6 +92,9 @@ class MapConfig(LaunchOptions):
     """Override of episodes per corpus (0 keeps the preset's)."""
     data_seed: int = 0
     """Seed of the generated corpora."""
+    split_fractions: tuple[float, ...] = ()
+    """Train / probe-fit / probe-test shares of every generated corpus (empty keeps the generator's 0.6 / 0.2 /
+    0.2); the demo gives the probe-fit split 0.4 (its models see fewer windows than 960 episodes hold)."""
     certify_estimators: tuple[str, ...] = ("gru", "gru_geom", "linear", "mlp", "drag", "gru_pixel", "drag_pixel",
                                            "gru_notouch", "gru_pixel_notouch")
     """Certificate estimators to run."""
@@ -104,6 +110,11 @@ class MapConfig(LaunchOptions):
     its budget (on the standard corpus joint fits read at most 0.07 less, docs/design.md "Certificates")."""
     mlp_probes: bool = True
     """Fit early-stopped MLP probes besides ridge."""
+    measure_max_windows: int = 0
+    """Cap on probe-fit windows per kind (0 keeps the measurement preset's, 6,000 at cpu)."""
+    measure_kinds: tuple[str, ...] = ()
+    """Window kinds every run's probes read (empty: the measurement's default, contact, glide and all windows);
+    the demo probes contact windows only, the ones its tables show."""
     untrained: bool = True
     """Probe randomly initialised models too (the untrained bound)."""
     time_budget_min: float = 0.0
@@ -130,8 +141,19 @@ class MapConfig(LaunchOptions):
             raise ConfigError(f"unknown variants {sorted(badv)}; choose from {list(VARIANTS)}")
         if not self.belief_histories or set(self.belief_histories) - {"window", "episode"}:
             raise ConfigError(f"belief_histories must name 'window' and/or 'episode', got {self.belief_histories}")
+        if self.split_fractions and (len(self.split_fractions) != 3 or min(self.split_fractions) <= 0):
+            raise ConfigError(f"split_fractions must be three positive shares (train, probe-fit, probe-test), "
+                              f"got {self.split_fractions}")
+        from .probes import KINDS
+
+        if set(self.measure_kinds) - set(KINDS):
+            raise ConfigError(f"unknown measure_kinds {sorted(set(self.measure_kinds) - set(KINDS))}; choose from {list(KINDS)}")
         if self.preset not in ("tiny", "cpu", "paper"):
             raise ConfigError(f"unknown preset {self.preset!r}; choose tiny, cpu or paper")
+        from ..train import PRESETS as TRAIN_PRESETS
+
+        if self.train_preset and self.train_preset not in TRAIN_PRESETS:
+            raise ConfigError(f"unknown train_preset {self.train_preset!r}; choose one of {sorted(TRAIN_PRESETS)}")
         if self.time_budget_min < 0 or self.time_reserve_min < 0:
             raise ConfigError("time_budget_min and time_reserve_min must be non-negative")
         if 0 < self.time_budget_min <= self.time_reserve_min:
@@ -152,9 +174,14 @@ DEMO = {  # the newcomer's first run: four variants, one seed; 8 min 55 s measur
     "experiments": ("factorial",), "variants": ("V", "VF", "VX_t", "VFX"), "seeds": (0,),
     # the cpu map's corpus: a 1,200-episode one halves the probe-fit split, and a ridge readout fit on 240 episodes
     # under-reads a weak signal (VFX log k 0.06 vs 0.10 for one checkpoint, docs/model.md "Learning speed")
-    # the cpu model at a quarter of its batch, so 4× the steps for the compute of 500 steps at 32: at equal compute
-    # stiffness enters twice as far (docs/model.md "Learning speed")
-    "num_episodes": 2400, "train_steps": 2000, "train_batch_size": 8, "mlp_probes": False, "untrained": False,
+    # the model: train's "demo" preset (cpu sizes, 64-wide vector encoders, batch 8, 2,200 steps); probes read
+    # contact windows only, the ones the demo's tables show
+    "train_preset": "demo", "measure_kinds": ("contact",),
+    # a ridge readout of a 128-d state at R² ≈ 0.25 is fit-set limited (the same checkpoint reads 0.27 from 5.4k
+    # probe-fit windows and 0.29 from 10.7k, docs/model.md "Learning speed"), and 2,200 steps × 8 windows
+    # sample fewer windows than 960 training episodes hold: 40 % of the episodes go to the probe-fit split
+    "split_fractions": (0.4, 0.4, 0.2), "measure_max_windows": 12000,
+    "num_episodes": 2400, "mlp_probes": False, "untrained": False,
     # certificates for the demo only: the paper's GRU oracle, the geometry GRU that certifies log k, the
     # linear floor and the drag estimator, on contact windows, with a smaller fit set and fewer epochs
     "certify_estimators": ("gru", "gru_geom", "linear", "drag"), "certify_kinds": ("contact",),
@@ -276,7 +303,8 @@ def exp_belief(c: MapConfig) -> list[RunSpec]:
         if "window" in c.belief_histories:
             runs += [_spec("belief", "VFX", s, lam), _spec("belief", "VFX", s, lam, objective="belief")]
         if "episode" in c.belief_histories:
-            long = dict(measure=LONG_MEASURE, window=LONG_WINDOW, batch_size=long_batch_size(c.preset, c.train_batch_size))
+            long = dict(measure=LONG_MEASURE, window=LONG_WINDOW,
+                        batch_size=long_batch_size(c.train_preset or c.preset, c.train_batch_size))
             runs += [_spec("belief", "VFX", s, lam, **long), _spec("belief", "VFX", s, lam, objective="belief", **long)]
     return runs + [_spec("controls", "VFX", c.seeds[0], lam, sysid_weight=0.5)]
 
@@ -394,6 +422,8 @@ def ensure_corpus(c: MapConfig, corpus: str) -> Path:
     overrides: dict[str, Any] = {"out": str(corpus_dir(c, corpus)), "corpus": corpus, "seed": c.data_seed}
     if c.num_episodes:
         overrides["num_episodes"] = c.num_episodes
+    if c.split_fractions:
+        overrides["split_fractions"] = tuple(c.split_fractions)
     return generate.run(generate.make_config(c.preset, **overrides))
 
 
@@ -514,7 +544,7 @@ def execute(job: dict) -> dict:
         return {"name": job["name"], "status": "pending"}
     if job.get("threads"):
         torch.set_num_threads(job["threads"])
-    tcfg = train.make_config(job["preset"], **job["train"], deadline=deadline)
+    tcfg = train.make_config(job.get("train_preset", job["preset"]), **job["train"], deadline=deadline)
     run_dir = train.run(tcfg)
     if not (run_dir / "DONE").exists() or _past(deadline):
         return {"name": job["name"], "status": "partial"}
@@ -536,9 +566,12 @@ def _jobs(c: MapConfig, specs: list[RunSpec], threads: int, deadline: float = 0.
         if threads:
             tr["threads"] = threads
         measure_data = str(corpus_dir(c, s.measure_corpus)) if s.measure_corpus != s.corpus else ""
-        jobs.append({"name": s.name, "preset": c.preset, "train": tr, "measure_data": measure_data,
+        measure = ({"kinds": tuple(c.measure_kinds)} if c.measure_kinds else {}) | (
+            {"max_windows": c.measure_max_windows} if c.measure_max_windows else {}) | dict(s.measure)
+        jobs.append({"name": s.name, "preset": c.preset, "train_preset": c.train_preset or c.preset, "train": tr,
+                     "measure_data": measure_data,
                      "mlp": c.mlp_probes, "untrained": c.untrained, "threads": threads, "deadline": deadline,
-                     "measure": dict(s.measure)})
+                     "measure": measure})
     return jobs
 
 
