@@ -162,7 +162,8 @@ def test_tiny_map_runs_the_belief_experiment(tmp_path):
     assert "## Belief objective" in md
     for label in ("VFX latent, standard windows", "VFX belief, standard windows", "VFX latent, whole episodes",
                   "VFX belief, whole episodes", "VFX latent + system-ID head (supervised), standard windows"):
-        assert f"| {label} |" in md
+        assert f"| {label}, seed 0 |" in md
+    assert "| certificate (best estimator) |" in md
 
 
 def test_belief_probes_read_a_planted_episode_latent_and_not_noise(tiny_dataset):

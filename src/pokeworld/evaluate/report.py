@@ -374,7 +374,7 @@ def belief_label(run: dict) -> str:
     w = t.get("window")
     hist = "standard windows" if w is None else "whole episodes" if w >= 65 else f"{w}-observation windows"
     sysid = " + system-ID head (supervised)" if t.get("sysid_weight", 0) > 0 else ""
-    return f"{t['variant']} {t.get('objective', 'latent')}{sysid}, {hist}"
+    return f"{t['variant']} {t.get('objective', 'latent')}{sysid}, {hist}, seed {t.get('seed', 0)}"
 
 
 def belief_table(results: dict) -> list[str]:
@@ -402,6 +402,14 @@ def belief_table(results: dict) -> list[str]:
         cells += [fmt(probe(r, q)) for q in ("object_pos", "object_vel")]
         cells += [fmt(r["prediction"].get("direct16"), 3), glide]
         lines.append(f"| {belief_label(r)} | " + " | ".join(cells) + " |")
+    std = results["certificates"].get("standard", {}).get("certificate", {})
+
+    def cc(q: str, kind: str) -> str:  # the corpus's certificate cell: R² (best estimator)
+        c = std.get(kind, {}).get(q, {})
+        return f"{fmt(c['r2'])} ({c['estimator']})" if c.get("r2") is not None else "—"
+
+    lines.append(f"| certificate (best estimator) | {cc('gamma', 'contact')} | {cc('gamma', 'glide')} | — | — | "
+                 f"{cc('log_k', 'contact')} | {cc('log_m', 'contact')} | — | — | — | — |")
     rows = []
     for n in names:
         pb = results["runs"][n].get("probes_belief", {})
