@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from collections import Counter
 from pathlib import Path
 
 from pokeworld import train
@@ -42,8 +43,6 @@ def gather(runs: list[Path], preset: str) -> list[dict]:
 def shared_changes(rows: list[dict]) -> dict:
     """Settings most runs share (each field's most common value, when over half the runs set it): the base the
     figure's labels are read against."""
-    from collections import Counter
-
     counts = Counter((k, json.dumps(v)) for r in rows for k, v in r["changes"].items())
     return {k: json.loads(v) for (k, v), n in counts.most_common() if n > len(rows) / 2}
 

@@ -11,7 +11,7 @@ from pokeworld import cli, data
 from pokeworld.errors import ConfigError
 from pokeworld.real import rh20t, synthetic
 from pokeworld.real.rh20t import make_config, run
-from pokeworld.real.synthetic import DEFECTS, load_truth
+from pokeworld.real.synthetic import DEFECTS, check_conversion, load_truth, store_chunks
 
 
 @pytest.fixture(scope="module")
@@ -21,15 +21,6 @@ def corpus(tmp_path_factory):
     man = json.loads((root / "truth" / "manifest.json").read_text())
     out = run(make_config("tiny", root=str(root), out=str(base / "store")))
     return root, man, out, data.load(out)
-
-
-def _chunks(ds, root):
-    """(episode, manifest scene row, truth, grid slice of the chunk) for every stored episode."""
-    T1 = ds.labels["force"].shape[1]
-    for e in range(ds.num_episodes):
-        row = ds.manifest["scenes"][int(ds.params["scene_index"][e])]
-        ci = int(ds.params["chunk_index"][e])
-        yield e, row, load_truth(root, row["name"]), slice(ci * T1, (ci + 1) * T1)
 
 
 def test_layout_is_rh20t(corpus):
@@ -56,7 +47,7 @@ def test_conversion_reproduces_the_recorded_signals_exactly(corpus):
     """expected_* = linear interpolation of the recorded samples after the drop rules: float precision."""
     root, man, out, ds = corpus
     n = 0
-    for e, row, tr, sl in _chunks(ds, root):
+    for e, row, tr, sl in store_chunks(ds, root):
         assert row["start_ms"] == int(tr["start_ms"])  # the converter's grid is the truth's grid
         np.testing.assert_allclose(ds.labels["time_s"][e], tr["time_s"][sl], atol=1e-5)
         np.testing.assert_allclose(ds.labels["force"][e], tr["expected_force"][sl], atol=1e-4)
@@ -72,7 +63,7 @@ def test_conversion_matches_the_physical_truth_within_interpolation_error(corpus
     """Against the noise-free simulator signal: sampling at ~20 Hz and re-interpolating loses only impact peaks."""
     root, man, out, ds = corpus
     f_true, f_conv, c_true, c_conv, pos_err = [], [], [], [], []
-    for e, row, tr, sl in _chunks(ds, root):
+    for e, row, tr, sl in store_chunks(ds, root):
         f_true.append(tr["force"][sl])
         f_conv.append(ds.labels["force"][e])
         c_true.append(tr["contact"][sl])
@@ -84,12 +75,12 @@ def test_conversion_matches_the_physical_truth_within_interpolation_error(corpus
     assert max(pos_err) < 0.03  # [m]: 20 Hz piecewise-linear motion re-sampled at ~20 Hz
     ct, cc = np.concatenate(c_true), np.concatenate(c_conv)
     assert 0.05 < ct.mean() < 0.6 and (ct == cc).mean() > 0.95  # contacts exceed 10 N, and are found
-    assert (np.concatenate([tr["force_norm"] for *_, tr, _ in _chunks(ds, root)]) > 10).any()
+    assert (np.concatenate([tr["force_norm"] for *_, tr, _ in store_chunks(ds, root)]) > 10).any()
 
 
 def test_contact_labels_follow_the_converter_definition(corpus):
     root, man, out, ds = corpus
-    for e, row, tr, sl in _chunks(ds, root):
+    for e, row, tr, sl in store_chunks(ds, root):
         whole = rh20t.contact_onset(np.linalg.norm(tr["expected_force"], axis=1), 10.0, 4)
         np.testing.assert_array_equal(ds.labels["contact"][e], whole[0][sl])
         np.testing.assert_array_equal(ds.labels["contact_onset"][e], whole[1][sl])
@@ -207,13 +198,13 @@ def _check_script():
 
 
 def test_conversion_check_script_passes_a_correct_store_and_catches_a_corrupted_one(corpus, tmp_path):
-    """scripts/check_synth_conversion.py: float-precision errors and planted counts on the converted store; a
+    """check_conversion (and its script): float-precision errors and planted counts on the converted store; a
     store whose force was scaled (a units slip) must show up as a large error against expected_force."""
     import shutil
 
     root, man, out, ds = corpus
     script = _check_script()
-    good = script.check(str(out), str(root))
+    good = check_conversion(out, root)
     assert all(good["counts_match_planted"].values())
     assert good["max_abs_error_vs_expected"]["force_n"] < 1e-4 and good["force_r2_vs_noise_free_truth"] > 0.9
     bad = tmp_path / "bad"
@@ -224,6 +215,6 @@ def test_conversion_check_script_passes_a_correct_store_and_catches_a_corrupted_
     finally:
         ds.labels["force"] = force
     shutil.copy(out / "conversion_report.json", bad / "conversion_report.json")
-    worse = script.check(str(bad), str(root))
+    worse = check_conversion(bad, root)
     assert worse["max_abs_error_vs_expected"]["force_n"] > 1.0
     assert script.main([str(tmp_path / "missing"), str(root)]) == 2

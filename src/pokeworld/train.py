@@ -187,15 +187,14 @@ PRESETS: dict[str, dict[str, Any]] = {
     "cpu": dict(image_size=32, channels=(16, 32, 64, 64), width=128, depth=2, heads=4, vec_dim=32,
                 batch_size=32, steps=4000, warmup=100, lr=1e-3, sigreg_dirs=256, token_rows=1024,
                 token_dirs=128, ckpt_every=500, log_every=50),
-    # the demo's model: the cpu preset with the paper's 64-wide proprio/touch encoders, at a quarter of its batch
-    # for more updates per CPU-second; stiffness enters VFX faster per frame seen (docs/model.md "Learning speed")
-    "demo": dict(image_size=32, channels=(16, 32, 64, 64), width=128, depth=2, heads=4, vec_dim=64,
-                 batch_size=8, steps=2200, warmup=100, lr=1e-3, sigreg_dirs=256, token_rows=1024,
-                 token_dirs=128, ckpt_every=1000, log_every=100),
     "tiny": dict(image_size=16, channels=(4, 8, 8, 8), latent_dim=16, width=16, depth=1, heads=2, vec_dim=8,
                  batch_size=4, window=18, steps=10, warmup=2, sigreg_dirs=16, token_rows=64, token_dirs=16,
                  ckpt_every=5, log_every=5, tensorboard=False, progress=False, device="cpu"),
 }
+# the demo's model: the cpu preset with the paper's 64-wide proprio/touch encoders, at a quarter of its batch for
+# more updates per CPU-second; stiffness enters VFX faster per frame seen (docs/model.md "Learning speed")
+PRESETS["demo"] = {**PRESETS["cpu"], "vec_dim": 64, "batch_size": 8, "steps": 2200, "ckpt_every": 1000,
+                   "log_every": 100}
 
 #: Fields that may differ when re-running into an existing run directory.
 RESUMABLE_FIELDS = ("steps", "stop_at", "ckpt_every", "log_every", "tensorboard", "progress", "threads", "device",

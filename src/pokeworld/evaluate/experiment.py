@@ -544,7 +544,7 @@ def execute(job: dict) -> dict:
         return {"name": job["name"], "status": "pending"}
     if job.get("threads"):
         torch.set_num_threads(job["threads"])
-    tcfg = train.make_config(job.get("train_preset", job["preset"]), **job["train"], deadline=deadline)
+    tcfg = train.make_config(job["train_preset"], **job["train"], deadline=deadline)
     run_dir = train.run(tcfg)
     if not (run_dir / "DONE").exists() or _past(deadline):
         return {"name": job["name"], "status": "partial"}

@@ -628,5 +628,57 @@ def load_truth(root: str | Path, scene: str) -> dict[str, np.ndarray]:
         return {k: z[k] for k in z.files}
 
 
+def store_chunks(ds, root: str | Path):
+    """(episode, manifest scene row, truth, grid slice of the episode) for every episode of a store converted
+    from the synthetic corpus at ``root``: the truth of an episode is its scene's truth over that slice."""
+    T1 = ds.labels["force"].shape[1]
+    for e in range(ds.num_episodes):
+        row = ds.manifest["scenes"][int(ds.params["scene_index"][e])]
+        ci = int(ds.params["chunk_index"][e])
+        yield e, row, load_truth(root, row["name"]), slice(ci * T1, (ci + 1) * T1)
+
+
+def check_conversion(store: str | Path, root: str | Path) -> dict:
+    """A converted store against the corpus's ground truth (docs/rh20t.md, "What conversion gives").
+
+    Two separate things: conversion mechanics (stored signals against ``expected_*``, the linear interpolation of
+    the recorded samples after the drop rules: float precision when the converter is right) and sampling loss
+    (against the noise-free simulator signal), plus whether the skip / F/T-source counts are the planted ones."""
+    from ..data import load
+    from .evaluate import r2
+
+    ds = load(store)
+    man = json.loads((Path(root) / "truth" / "manifest.json").read_text())
+    rep = json.loads((Path(store) / "conversion_report.json").read_text())
+    err = {"force_n": 0.0, "torque_nm": 0.0, "tcp_pos_m": 0.0}
+    f_true, f_conv, c_true, c_conv, pos_err = [], [], [], [], []
+    for e, _, tr, sl in store_chunks(ds, root):
+        for key, label in (("force_n", "force"), ("torque_nm", "torque"), ("tcp_pos_m", "tcp_pos")):
+            err[key] = max(err[key], float(np.abs(ds.labels[label][e] - tr[f"expected_{label}"][sl]).max()))
+        f_true.append(tr["force"][sl])
+        f_conv.append(ds.labels["force"][e])
+        c_true.append(tr["contact"][sl])
+        c_conv.append(ds.labels["contact"][e])
+        pos_err.append(float(np.abs(ds.labels["tcp_pos"][e] - tr["tcp_pos"][sl]).max()))
+    ft, fc = np.concatenate(f_true), np.concatenate(f_conv)
+    ct, cc = np.concatenate(c_true), np.concatenate(c_conv)
+    return {
+        "store": str(store), "root": str(root), "episodes": int(ds.num_episodes),
+        "scenes_converted": rep["scenes_converted"], "skip_counts": rep["skip_counts"],
+        "camera_counts": rep["camera_counts"], "ft_source_counts": rep["ft_source_counts"],
+        "counts_match_planted": {
+            "skip_counts": rep["skip_counts"] == man["expected_skip_counts"],
+            "scenes_converted": rep["scenes_converted"] == man["expected_converted"],
+            "ft_source_counts": rep["ft_source_counts"] == man["expected_ft_source_counts"]},
+        "max_abs_error_vs_expected": err,
+        "force_r2_vs_noise_free_truth": r2(ft, fc),
+        "force_max_abs_error_vs_truth_n": float(np.abs(fc - ft).max()),
+        "tcp_max_abs_error_vs_truth_m": max(pos_err),
+        "contact_label_agreement": float((ct == cc).mean()),
+        "contact_share": float(cc.mean()),
+        "onset_base_rate": ds.manifest.get("onset_base_rate"),
+    }
+
+
 __all__ = ["SynthConfig", "PRESETS", "TASKS", "DEFECTS", "make_config", "run", "plan_scenes", "simulate_scene",
-           "load_truth", "content_config"]
+           "load_truth", "store_chunks", "check_conversion", "content_config"]
