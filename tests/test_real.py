@@ -199,3 +199,13 @@ def test_pokeworld_real_tiny_end_to_end(stores, tmp_path):
     assert (out / "scissors.png").stat().st_size > 0
     ours = f"{m['trained']['readout']['ridge']['force']['iid']:.2f} / {m['trained']['readout']['ridge']['force']['ood']:.2f}"
     assert ours in md and "0.87 / 0.56" in md  # our number and the paper's, in separate columns
+    # fixture scenes are not a synthetic corpus: the report says RH20T; stores converted from an
+    # rh20t-synth corpus label the whole report, or each store when mixed
+    assert md.startswith("# Real-robot results (RH20T") and "SYNTHETIC" not in md
+    from pokeworld.real import report
+
+    for keys, title in ((set(res["store_info"]), "# Real-robot pipeline on SYNTHETIC"), ({"flexiv"}, "SYNTHETIC stores mixed")):
+        planted = {**res, "store_info": {k: {**v, "synthetic": k in keys} for k, v in res["store_info"].items()}}
+        md_syn = report.markdown(planted)
+        assert title in md_syn.splitlines()[0] and "- store `flexiv` (synthetic)" in md_syn
+        assert ("- store `kuka` (synthetic)" in md_syn) == ("kuka" in keys)

@@ -151,6 +151,7 @@ def test_bad_scenes_are_skipped_with_counted_reasons(converted):
     assert got == fx["bad"]
     assert all(s["message"] for s in rep["skipped"]) and set(rep["skip_reason_meaning"]) == set(got.values())
     assert ds.manifest["skip_counts"] == rep["skip_counts"]
+    assert ds.manifest["source"] == rep["source"] == {"synthetic": False}  # no rh20t-synth truth beside the scenes
 
 
 def test_splits_are_scene_level_disjoint_and_heldout_tasks(converted):

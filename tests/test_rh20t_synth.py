@@ -43,6 +43,18 @@ def test_layout_is_rh20t(corpus):
     assert all(r["tcp"].shape == (7,) for r in tcp)
 
 
+def test_store_records_that_it_came_from_a_synthetic_corpus(corpus, tmp_path):
+    root, man, out, ds = corpus
+    src = ds.manifest["source"]
+    assert src["synthetic"] is True and src["seed"] == man["seed"] and src["generator"] == "pokeworld.real.synthetic"
+    assert rh20t.corpus_source(root / "RH20T_cfg7", 7)["synthetic"]  # the cfg folder given as root
+    (tmp_path / "truth").mkdir()  # a truth folder some other tool wrote is not ours
+    (tmp_path / "truth" / "manifest.json").write_text(json.dumps({"generator": "someone.else"}))
+    assert rh20t.corpus_source(tmp_path, 7) == {"synthetic": False}
+    (tmp_path / "truth" / "manifest.json").write_text("{not json")
+    assert rh20t.corpus_source(tmp_path, 7) == {"synthetic": False}
+
+
 def test_conversion_reproduces_the_recorded_signals_exactly(corpus):
     """expected_* = linear interpolation of the recorded samples after the drop rules: float precision."""
     root, man, out, ds = corpus

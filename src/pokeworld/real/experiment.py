@@ -341,5 +341,5 @@ def collect(c: RealConfig, runs: list[RealRun], stores: dict[str, str]) -> dict:
         res.setdefault("store_info", {})[key] = {
             "episodes": man.get("num_episodes"), "split_counts": man.get("split_counts"),
             "scenes": len(man.get("scenes", [])) or None, "onset_base_rate": man.get("onset_base_rate"),
-            "subset": man.get("subset")}
+            "subset": man.get("subset"), "synthetic": bool((man.get("source") or {}).get("synthetic"))}
     return res

@@ -1059,6 +1059,23 @@ def assemble(scenes: list[tuple[SceneRef, dict]], cfg: ConvertConfig) -> tuple[D
 # ------------------------------------------------------------------------------------- run
 
 
+def corpus_source(root: str | os.PathLike, cfg_id: int) -> dict:
+    """Where the scenes under ``root`` come from: a corpus written by ``pokeworld rh20t-synth`` keeps its
+    ground truth in ``<corpus>/truth/manifest.json`` beside ``RH20T_cfgN/``; anything else is taken as recorded
+    RH20T data. The store carries this so that every report on it can say which of the two it measured."""
+    root = Path(root)
+    corpus = root.parent if root.name == f"RH20T_cfg{cfg_id}" else root
+    man_path = corpus / "truth" / "manifest.json"
+    try:
+        man = json.loads(man_path.read_text())
+    except (OSError, ValueError):
+        return {"synthetic": False}
+    if not isinstance(man, dict) or man.get("generator") != "pokeworld.real.synthetic":
+        return {"synthetic": False}
+    return {"synthetic": True, "generator": man["generator"], "generator_version": man.get("version"),
+            "seed": man.get("seed"), "truth": str(man_path)}
+
+
 def run(cfg: ConvertConfig) -> Path:
     """Convert ``cfg.root`` into a store at ``out_dir(cfg)``; write ``conversion_report.json`` inside it.
 
@@ -1124,7 +1141,7 @@ def run(cfg: ConvertConfig) -> Path:
         ft_sources[r["ft_source"]] = ft_sources.get(r["ft_source"], 0) + 1
     report = {
         "root": str(cfg.root), "cfg": cfg.cfg, "robot": ROBOTS[cfg.cfg], "camera": cfg.camera,
-        "scenes_found": len(refs), "scenes_candidate": len(candidates), "scenes_sampled": len(chosen),
+        "source": corpus_source(root, cfg.cfg), "scenes_found": len(refs), "scenes_candidate": len(candidates), "scenes_sampled": len(chosen),
         "subset": subset, "scenes_converted": len(rows),
         "camera_counts": {role: dict(sorted(v.items())) for role, v in sorted(camera_counts.items())},
         "camera_fallback_scenes": sum(any(c["fallback"] for c in r["cameras"]) for r in rows),
@@ -1157,7 +1174,7 @@ def run(cfg: ConvertConfig) -> Path:
         "chunk_stride": info["chunk_stride"], "scenes": info["scenes"],
         "skip_counts": report["skip_counts"], "camera_counts": report["camera_counts"],
         "ft_source_counts": report["ft_source_counts"], "dropped_records": report["dropped_records"],
-        "subset": subset,
+        "subset": subset, "source": report["source"],
     }
     save(ds, out, manifest)
     report["split_counts"] = ds.manifest["split_counts"]
