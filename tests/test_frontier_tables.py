@@ -108,6 +108,12 @@ def test_token_factorial_shares_the_controls_token_run_and_reads_beside_the_glob
     t = "\n".join(report.token_factorial_table(results))
     assert "| VFX | +0.60 / +0.62 | +0.20 | — | +0.90 / +0.98 | — |" in t
     assert "| VF | +0.50 / — | +0.20 |" in t
+    # MLP probes, where fit, in parentheses beside ridge in both log k columns
+    runs[tok[0].name]["probes"]["mlp"] = {"contact": {"log_k": 0.45}}
+    for s in exp_factorial(c):
+        runs[s.name]["probes"]["mlp"] = {"contact": {"log_k": 0.25}}
+    t = "\n".join(report.token_factorial_table(results))
+    assert "| VF | +0.50 (+0.45) / — | +0.20 (+0.25) |" in t and "| VFX | +0.60 / +0.62 | +0.20 (+0.25) |" in t
 
 
 def test_lambda_sweep_trains_every_seed_and_reports_their_mean(tmp_path):
