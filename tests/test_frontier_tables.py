@@ -2,6 +2,8 @@
 
 import json
 
+import pytest
+
 from pokeworld import paper_values as P
 from pokeworld.evaluate import report
 from pokeworld.evaluate.experiment import all_specs, exp_dose_glide, exp_dose_touch, exp_factorial
@@ -179,3 +181,42 @@ def test_frame_averaged_section_sets_the_model_beside_the_factorial_vfx(tmp_path
     assert "| sub-step touch (factorial) | +0.35 | — | +0.00 | — | — | 0.100 |" in t  # mean over the two seeds
     assert "| frame-averaged touch | +0.20 | — | +0.00 | — | — | 0.100 |" in t
     assert report.frame_averaged_lines({"certificates": {}, "runs": {}, "experiments": {}}) == []
+
+
+def test_merge_script_folds_in_reproduced_runs_and_refuses_ones_that_do_not_reproduce(tmp_path):
+    """scripts/merge_map_results.py: a re-trained run replaces the base's only when its ridge numbers agree;
+    new runs and experiments are added; one mismatch writes nothing."""
+    import importlib.util
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location(
+        "merge_map_results", Path(__file__).resolve().parents[1] / "scripts" / "merge_map_results.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+
+    def run(k, mlp=None):
+        r = {"train": {"variant": "VFX", "seed": 0}, "probes": {"ridge": {"contact": {"log_k": k, "log_m": 0.1}}}}
+        if mlp is not None:
+            r["probes"]["mlp"] = {"contact": {"log_k": mlp}}
+        return r
+
+    base = {"runs": {"a": run(0.35), "b": run(0.2)}, "experiments": {"controls": ["a", "b"]}, "certificates": {"x": 1},
+            "map_config": {"experiments": ["controls"]}, "provenance": {"command": "old", "git": "g0"}}
+    new = {"runs": {"a": run(0.35 + 1e-6, mlp=0.37), "c": run(0.5)}, "experiments": {"controls": ["a"], "tokens": ["c"]},
+           "certificates": {"x": 2}, "map_config": {"experiments": ["controls", "tokens"]},
+           "provenance": {"command": "new", "git": "g1"}}
+    merged, rec = script.merge(base, new, ["controls", "tokens"], 1e-4)
+    assert merged["runs"]["a"]["probes"]["mlp"]["contact"]["log_k"] == 0.37  # the MLP numbers came in
+    assert merged["runs"]["b"] == base["runs"]["b"] and merged["certificates"] == {"x": 1}
+    assert merged["experiments"] == {"controls": ["a", "b"], "tokens": ["c"]}
+    assert rec["runs_replaced_reproduced"] == ["a"] and rec["runs_added"] == ["c"]
+    assert merged["provenance"]["merged"][0]["git"] == "g1" and "merged" not in base["provenance"]
+
+    bj, nj, out = tmp_path / "base.json", tmp_path / "new.json", tmp_path / "merged.json"
+    bj.write_text(json.dumps(base))
+    new["runs"]["a"] = run(0.30)  # does not reproduce
+    nj.write_text(json.dumps(new))
+    with pytest.raises(SystemExit, match="do not reproduce"):
+        script.main([str(bj), str(nj), "--experiments", "controls", "--out", str(out)])
+    assert not out.exists()
+    assert script.main([str(bj), str(tmp_path / "nope.json"), "--experiments", "controls", "--out", str(out)]) == 2

@@ -27,6 +27,16 @@ def test_bad_map_configs_raise():
         experiment.make_config("tiny", variants=("VZ",))
     with pytest.raises(ConfigError, match="launcher"):
         experiment.make_config("tiny", launcher="kubernetes")
+    with pytest.raises(ConfigError, match="unknown attribute corpora"):
+        experiment.make_config("tiny", attribute_corpora=("bias9",))
+
+
+def test_attribute_corpora_pick_the_matrix_cells_to_run():
+    c = experiment.make_config("tiny", experiments=("attributes",), attribute_corpora=("bias2.5", "gain"))
+    specs = experiment.exp_attributes(c)
+    assert [(s.corpus, s.measure_corpus) for s in specs] == [("bias2.5", "bias2.5"), ("gain", "gain")]
+    full = experiment.exp_attributes(experiment.make_config("tiny", experiments=("attributes",)))
+    assert {s.name for s in specs} < {s.name for s in full}  # same run names: a subset re-runs those cells
 
 
 def test_glide_test_references(tiny_dataset):

@@ -76,6 +76,9 @@ class MapConfig(LaunchOptions):
     belief_histories: tuple[str, ...] = ("window", "episode")
     """History lengths of the ``belief`` experiment: 'window' (the standard training windows) and/or 'episode'
     (whole 64-step episodes, trained at the batch size that keeps the standard runs' frames per step)."""
+    attribute_corpora: tuple[str, ...] = ("bias0.5", "bias1.5", "bias2.5", "gain")
+    """Corpora of the attribute matrix (``attributes``): persistent force bias ±0.5 / ±1.5 / ±2.5 and the
+    actuator gain; a subset re-runs some cells (e.g. to add MLP probes) without re-training the others."""
     lazy_variants: tuple[str, ...] = ("V", "VX_p", "VX_t", "VX", "VFX")
     """Variants trained single-horizon (Δ = 1 only) in the lazy-equilibrium experiment."""
     sigreg_weight: float = 0.02
@@ -136,6 +139,9 @@ class MapConfig(LaunchOptions):
             raise ConfigError(f"unknown experiments {sorted(bad)}; choose from {sorted(EXPERIMENTS)}")
         from ..models.xjepa import VARIANTS
 
+        bad_corpora = set(self.attribute_corpora) - set(CORPUS_TARGETS)
+        if bad_corpora:
+            raise ConfigError(f"unknown attribute corpora {sorted(bad_corpora)}; choose from {sorted(CORPUS_TARGETS)}")
         badv = (set(self.variants) | set(self.lazy_variants) | set(self.planning_variants)) - set(VARIANTS)
         if badv:
             raise ConfigError(f"unknown variants {sorted(badv)}; choose from {list(VARIANTS)}")
@@ -344,7 +350,7 @@ def exp_coordinate(c: MapConfig) -> list[RunSpec]:
 
 def exp_attributes(c: MapConfig) -> list[RunSpec]:
     return [_spec("attributes", "VFX", c.seeds[0], c.sigreg_weight, corpus=corp, measure_corpus=corp)
-            for corp in ("bias0.5", "bias1.5", "bias2.5", "gain")]
+            for corp in c.attribute_corpora]
 
 
 #: γ ledger rows: mechanism -> the run that deploys it (train overrides on VFX beside the horizons and corpus);
