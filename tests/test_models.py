@@ -249,3 +249,28 @@ def test_nll_precision_script_reads_planted_log_variances(tiny_dataset):
             assert row[f"{name}_free"] == pytest.approx(p, rel=1e-5)
     with pytest.raises(ConfigError, match="only for objective='gnll'"):
         script.precisions(make("VFX", image_size=16), ds, windows=4)
+
+
+def test_token_state_probe_script_mean_pool_is_the_measured_state():
+    """scripts/token_state_probe.py: its 'mean' pool is exactly the state every table probes (XJEPA.trunk at
+    the last step) and 'concat' keeps every token, so the comparison between pools is like for like."""
+    import importlib.util
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location(
+        "token_state_probe", Path(__file__).resolve().parents[1] / "scripts" / "token_state_probe.py")
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+
+    m = make("VFX", tokens=True, image_size=32)  # 32 px -> a 2 x 2 token map
+    b = batch()
+    with torch.no_grad():
+        z = m.encode(b["frames"], b["proprio"], b["touch"])
+    a = b["actions"].numpy()
+    h = script.token_states(m, z.numpy(), a)
+    assert h.shape[:2] == (B, m.num_tokens) and m.num_tokens > 1
+    with torch.no_grad():
+        want = m.trunk(z, a)[:, -1].numpy()
+    np.testing.assert_allclose(script.pooled(h, "mean"), want, atol=1e-5)
+    assert script.pooled(h, "concat").shape == (B, m.num_tokens * h.shape[-1])
+    np.testing.assert_allclose(script.pooled(h, "max"), h.max(1))

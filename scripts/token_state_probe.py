@@ -1,0 +1,108 @@
+"""Where does a spatial-token model keep stiffness? Probe its predictor state three ways.
+
+The measurement reads a token model through the mean of its S token states at the probed step (what
+``XJEPA.trunk`` returns, so the token runs share every table with the global-embedding runs). A parameter that
+lives in a few tokens — the ones over the contact — can be diluted by that mean. This probes the same
+contact windows, with the same leak-free readout, split and ridge probe (``probes.probe_windows``), from
+(a) the mean over tokens (must equal the run's measure.json), (b) every token state concatenated (S × width)
+and (c) the element-wise max over tokens, for the trained model and for its untrained copy (the bound that
+says how much a wider feature vector reads by itself).
+
+    python scripts/token_state_probe.py out/map/data/standard out/map/runs/VF-…-tokensTrue-s0 \
+        out/map/runs/VFX-…-tokensTrue-s0 --out docs/results/token_state_probe_cpu.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from pokeworld.data import load
+from pokeworld.evaluate import measure
+from pokeworld.evaluate.probes import probe_latents, probe_windows
+from pokeworld.evaluate.state import neutral_last, padded_actions
+from pokeworld.io import write_json
+from pokeworld.train import load_model
+
+TARGETS = ("log_k", "log_m", "gamma", "object_pos")
+POOLS = ("mean", "concat", "max")
+
+
+@torch.no_grad()
+def token_states(model, z_win: np.ndarray, a_win: np.ndarray, batch: int = 256) -> np.ndarray:
+    """(W, L, S, D) token latents + (W, L, Da) actions -> (W, S, width) token states at the last step."""
+    out = []
+    for i in range(0, len(z_win), batch):
+        h = model.trunk_tokens(torch.as_tensor(z_win[i:i + batch]), a_win[i:i + batch])
+        out.append(h[:, -1].float().cpu().numpy())
+    return np.concatenate(out)
+
+
+def pooled(h: np.ndarray, pool: str) -> np.ndarray:
+    if pool == "mean":
+        return h.mean(1)
+    if pool == "max":
+        return h.max(1)
+    return h.reshape(len(h), -1)
+
+
+def probe_pools(model, ds, cfg) -> dict:
+    lat = dict(zip(("fit", "test"), probe_latents(model, ds, cfg)))
+    acts = padded_actions(ds)
+    cache: dict = {}
+
+    def states(pool):
+        def read(w, part):
+            key = (part, len(w), int(w.episode[0]), int(w.start[0]))
+            if key not in cache:  # one trunk pass per window set, three pools
+                cache[key] = token_states(model, lat[part].gather(w, trunk=True), neutral_last(w.gather(acts)))
+            return pooled(cache[key], pool)
+        return read
+
+    res = {}
+    for pool in POOLS:
+        r = probe_windows(ds, states(pool), ("contact",), cfg.window, cfg.stride, cfg.max_windows, cfg.seed,
+                          mlp=False, targets=TARGETS)
+        res[pool] = {"ridge": r["ridge"]["contact"], "counts": r["counts"]["contact"]}
+    return res
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("data", type=Path, help="corpus the runs were measured on")
+    ap.add_argument("runs", type=Path, nargs="+", help="token-model run directories")
+    ap.add_argument("--preset", default="cpu", help="measurement preset (windows, caps, seed)")
+    ap.add_argument("--out", type=Path, required=True)
+    a = ap.parse_args(argv)
+    for p in (a.data, *a.runs):
+        if not p.exists():
+            print(f"error: {p} does not exist", file=sys.stderr)
+            return 2
+    ds, cfg = load(a.data), measure.make_config(a.preset)
+    out = {"data": str(a.data), "preset": a.preset, "targets": list(TARGETS), "runs": {}}
+    for run in a.runs:
+        model = load_model(run, map_location="cpu").eval()
+        if not getattr(model, "tokens", False):
+            print(f"error: {run} is not a token model", file=sys.stderr)
+            return 2
+        torch.manual_seed(cfg.seed)
+        row = {"trained": probe_pools(model, ds, cfg),
+               "untrained": probe_pools(measure.untrained_like(run).eval(), ds, cfg)}
+        measured = Path(run) / "measure.json"
+        if measured.exists():  # the mean pool must reproduce the run's own measurement
+            stored = json.loads(measured.read_text())["probes"]["ridge"]["contact"]
+            row["measure_json_mean"] = {q: stored.get(q) for q in TARGETS}
+        out["runs"][run.name] = row
+        print(run.name, {p: {q: round(row["trained"][p]["ridge"][q], 3) for q in TARGETS} for p in POOLS},
+              "untrained", {p: round(row["untrained"][p]["ridge"]["log_k"], 3) for p in POOLS})
+    write_json(a.out, out)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
