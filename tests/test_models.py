@@ -57,7 +57,10 @@ def test_adaln_zero_trunk_ignores_actions_at_init():
 
 @pytest.mark.parametrize("tokens", [False, True])
 def test_causality(tokens):
-    m = make("VFX", tokens=tokens, horizons=(1,) if tokens else (1, 4, 16))
+    # tokens at 32 px: a 2 x 2 map, so the block-causal mask over (t, s)-major tokens is exercised (at 16 px
+    # the map is 1 x 1 and the token trunk is the plain causal one)
+    m = make("VFX", tokens=tokens, horizons=(1,) if tokens else (1, 4, 16), **({"image_size": 32} if tokens else {}))
+    assert m.num_tokens == (4 if tokens else 1)
     # give the AdaLN modulation non-zero weights so the action path is exercised too
     for blk in m.predictor.blocks:
         torch.nn.init.normal_(blk.ada[1].weight, std=0.1)
