@@ -112,7 +112,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"error: {run} is not a token model", file=sys.stderr)
             return 2
         torch.manual_seed(cfg.seed)
-        row = {"trained": probe_pools(model, ds, cfg),
+        row = {"tokens_per_step": model.num_tokens, "width": model.width, "image_size": model.image_size,
+               "trained": probe_pools(model, ds, cfg),
                "untrained": probe_pools(measure.untrained_like(run).eval(), ds, cfg)}
         measured = Path(run) / "measure.json"
         if measured.exists():  # the mean pool must reproduce the run's own measurement
