@@ -755,6 +755,7 @@ def markdown(results: dict) -> str:
     out = ["# Identifiability map: results", "",
            f"Produced by `{prov['command']}` (preset `{prov['preset']}`, pokeworld {prov['pokeworld']}, git {prov['git']}). "
            "Paper values are the paper's own numbers, shown beside ours for comparison; they are never used as ours.", ""]
+    out += merged_lines(prov)
     out += certificate_table(results)
     out += no_claim_lines(results)
     out += factorial_table(results)
@@ -777,6 +778,17 @@ def markdown(results: dict) -> str:
     out += planning_table(results)
     out += readout_table(results)
     return "\n".join(out) + "\n"
+
+
+def merged_lines(prov: dict) -> list[str]:
+    """What later invocations folded into this record (``scripts/merge_map_results.py``), one line each."""
+    out = []
+    for m in prov.get("merged", []):
+        out += [f"Merged in from `{m['command']}` (git {m['git']}), experiments {', '.join(m['experiments'])}: "
+                f"{len(m['runs_replaced_reproduced'])} re-trained runs reproduced this record's ridge numbers (to "
+                f"{m['tol']:g}) and replaced them, adding what that invocation measured besides (e.g. MLP probes); "
+                f"{len(m['runs_added'])} runs added.", ""]
+    return out
 
 
 def _control_key(r: dict) -> str:
