@@ -4,7 +4,9 @@ A map's results.json is the record of one invocation. When a later invocation re
 example with MLP probes switched on) or adds runs on the same corpora, this puts them into one report without
 re-training the rest — but only if the re-trained runs reproduce: every ridge probe number of a run present in
 both must agree to ``--tol``, otherwise nothing is written (training is deterministic in seed, data and config,
-so a mismatch means the code or the data changed and the two records cannot share a table). The earlier map's
+so a mismatch means the code or the data changed and the two records cannot share a table). With
+``--replace-differing`` such a run replaces the record's wholesale (every number of the row then comes from the
+re-trained run) and its largest ridge difference is recorded and named in the report. The earlier map's
 certificates are kept; what was merged, from which command and commit, is appended to ``provenance["merged"]``.
 
     python scripts/merge_map_results.py docs/results/frontier_cpu.json out/map/results.json \
@@ -35,22 +37,30 @@ def mismatches(old: dict, new: dict, tol: float) -> list[str]:
     return out
 
 
-def merge(base: dict, new: dict, experiments: list[str], tol: float) -> tuple[dict, dict]:
+def max_difference(old: dict, new: dict) -> float:
+    a, b = ridge_numbers(old), ridge_numbers(new)
+    return max((abs(a[k] - b[k]) for k in set(a) & set(b)), default=float("nan"))
+
+
+def merge(base: dict, new: dict, experiments: list[str], tol: float,
+          replace_differing: bool = False) -> tuple[dict, dict]:
     missing = [e for e in experiments if e not in new["experiments"]]
     if missing:
         raise SystemExit(f"error: {missing} not in the new results (it has {sorted(new['experiments'])})")
     merged = json.loads(json.dumps(base))
-    added, replaced, bad = [], [], {}
+    added, replaced, bad, differing = [], [], {}, {}
     for exp in experiments:
         names = merged["experiments"].setdefault(exp, [])
         for name in new["experiments"][exp]:
             run = new["runs"][name]
             if name in merged["runs"]:
                 diff = mismatches(merged["runs"][name], run, tol)
-                if diff:
+                if diff and not replace_differing:
                     bad[name] = diff
                     continue
-                if name not in replaced:
+                if diff:
+                    differing[name] = max_difference(merged["runs"][name], run)
+                elif name not in replaced:
                     replaced.append(name)
             elif name not in added:
                 added.append(name)
@@ -64,7 +74,8 @@ def merge(base: dict, new: dict, experiments: list[str], tol: float) -> tuple[di
         raise SystemExit("error: re-trained runs do not reproduce the base record (ridge, tol "
                          f"{tol:g}); nothing written:\n" + "\n".join(lines))
     record = {"command": new["provenance"].get("command"), "git": new["provenance"].get("git"),
-              "experiments": experiments, "runs_added": added, "runs_replaced_reproduced": replaced, "tol": tol}
+              "experiments": experiments, "runs_added": added, "runs_replaced_reproduced": replaced, "tol": tol,
+              "runs_replaced_differing": differing}
     merged["provenance"].setdefault("merged", []).append(record)
     return merged, record
 
@@ -77,18 +88,23 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, required=True, help="merged results.json")
     ap.add_argument("--markdown", type=Path, help="also write the report of the merged record here")
     ap.add_argument("--tol", type=float, default=1e-4, help="largest ridge R² difference a reproduced run may show")
+    ap.add_argument("--replace-differing", action="store_true",
+                    help="let a re-trained run that does not reproduce replace the record's anyway; its largest "
+                         "ridge difference is recorded in provenance and named in the report")
     a = ap.parse_args(argv)
     for p in (a.base, a.new):
         if not p.is_file():
             print(f"error: {p} does not exist", file=sys.stderr)
             return 2
-    merged, record = merge(json.loads(a.base.read_text()), json.loads(a.new.read_text()), a.experiments, a.tol)
+    merged, record = merge(json.loads(a.base.read_text()), json.loads(a.new.read_text()), a.experiments, a.tol,
+                           a.replace_differing)
     write_json(a.out, merged)
     if a.markdown:
         with atomic_path(a.markdown) as tmp:
             tmp.write_text(report.markdown(merged))
     print(f"[merge] {len(record['runs_replaced_reproduced'])} runs reproduced and replaced, "
-          f"{len(record['runs_added'])} added -> {a.out}")
+          f"{len(record['runs_added'])} added, {len(record['runs_replaced_differing'])} differing and replaced "
+          f"{ {k: round(v, 4) for k, v in record['runs_replaced_differing'].items()} } -> {a.out}")
     return 0
 
 

@@ -223,3 +223,10 @@ def test_merge_script_folds_in_reproduced_runs_and_refuses_ones_that_do_not_repr
         script.main([str(bj), str(nj), "--experiments", "controls", "--out", str(out)])
     assert not out.exists()
     assert script.main([str(bj), str(tmp_path / "nope.json"), "--experiments", "controls", "--out", str(out)]) == 2
+    # asked to, a differing run replaces the record's whole row and the report names it with its difference
+    assert script.main([str(bj), str(nj), "--experiments", "controls", "--out", str(out), "--replace-differing"]) == 0
+    got = json.loads(out.read_text())
+    assert got["runs"]["a"]["probes"]["ridge"]["contact"]["log_k"] == 0.30
+    rec = got["provenance"]["merged"][0]
+    assert rec["runs_replaced_differing"] == {"a": pytest.approx(0.05)} and rec["runs_replaced_reproduced"] == []
+    assert "`a` did not reproduce (largest ridge difference 0.0500)" in report.merged_lines(got["provenance"])[0]

@@ -787,7 +787,10 @@ def merged_lines(prov: dict) -> list[str]:
         out += [f"Merged in from `{m['command']}` (git {m['git']}), experiments {', '.join(m['experiments'])}: "
                 f"{len(m['runs_replaced_reproduced'])} re-trained runs reproduced this record's ridge numbers (to "
                 f"{m['tol']:g}) and replaced them, adding what that invocation measured besides (e.g. MLP probes); "
-                f"{len(m['runs_added'])} runs added.", ""]
+                f"{len(m['runs_added'])} runs added."
+                + "".join(f" `{n}` did not reproduce (largest ridge difference {d:.4f}) and was replaced by its re-trained "
+                          "run: every number of its row is the re-trained run's." for n, d in
+                          m.get("runs_replaced_differing", {}).items()), ""]
     return out
 
 
