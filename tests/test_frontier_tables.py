@@ -212,8 +212,8 @@ def test_merge_script_folds_in_reproduced_runs_and_refuses_ones_that_do_not_repr
     assert rec["runs_replaced_reproduced"] == ["a"] and rec["runs_added"] == ["c"]
     assert merged["provenance"]["merged"][0]["git"] == "g1" and "merged" not in base["provenance"]
     line = report.merged_lines(merged["provenance"])[0]
-    assert line.startswith("Merged in from `new` (git g1), experiments controls, tokens: 1 re-trained runs reproduced")
-    assert line.endswith("1 runs added.")
+    assert line.startswith("Merged in from `new` (git g1), experiments controls, tokens: 1 re-trained run reproduced")
+    assert line.endswith("1 run added.")
 
     bj, nj, out = tmp_path / "base.json", tmp_path / "new.json", tmp_path / "merged.json"
     bj.write_text(json.dumps(base))

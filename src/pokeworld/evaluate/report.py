@@ -784,10 +784,11 @@ def merged_lines(prov: dict) -> list[str]:
     """What later invocations folded into this record (``scripts/merge_map_results.py``), one line each."""
     out = []
     for m in prov.get("merged", []):
+        n_rep, n_add = len(m["runs_replaced_reproduced"]), len(m["runs_added"])
         out += [f"Merged in from `{m['command']}` (git {m['git']}), experiments {', '.join(m['experiments'])}: "
-                f"{len(m['runs_replaced_reproduced'])} re-trained runs reproduced this record's ridge numbers (to "
-                f"{m['tol']:g}) and replaced them, adding what that invocation measured besides (e.g. MLP probes); "
-                f"{len(m['runs_added'])} runs added."
+                f"{n_rep} re-trained run{'s' * (n_rep != 1)} reproduced this record's ridge numbers (to "
+                f"{m['tol']:g}) and replaced the record's, adding what that invocation measured besides (e.g. MLP "
+                f"probes); {n_add} run{'s' * (n_add != 1)} added."
                 + "".join(f" `{n}` did not reproduce (largest ridge difference {d:.4f}) and was replaced by its re-trained "
                           "run: every number of its row is the re-trained run's." for n, d in
                           m.get("runs_replaced_differing", {}).items()), ""]
