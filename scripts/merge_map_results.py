@@ -42,6 +42,12 @@ def max_difference(old: dict, new: dict) -> float:
     return max((abs(a[k] - b[k]) for k in set(a) & set(b)), default=float("nan"))
 
 
+def combine(old: dict, new: dict) -> dict:
+    """A reproduced run: the new record's entry, keeping probe families only the old one measured (a re-run
+    without MLP probes must not drop the MLP numbers of the run it reproduces)."""
+    return {**old, **new, "probes": {**old.get("probes", {}), **new.get("probes", {})}}
+
+
 def merge(base: dict, new: dict, experiments: list[str], tol: float,
           replace_differing: bool = False) -> tuple[dict, dict]:
     missing = [e for e in experiments if e not in new["experiments"]]
@@ -60,8 +66,10 @@ def merge(base: dict, new: dict, experiments: list[str], tol: float,
                     continue
                 if diff:
                     differing[name] = max_difference(merged["runs"][name], run)
-                elif name not in replaced:
-                    replaced.append(name)
+                else:
+                    run = combine(merged["runs"][name], run)
+                    if name not in replaced:
+                        replaced.append(name)
             elif name not in added:
                 added.append(name)
             merged["runs"][name] = run
@@ -69,6 +77,8 @@ def merge(base: dict, new: dict, experiments: list[str], tol: float,
                 names.append(name)
         if exp not in merged["map_config"]["experiments"]:
             merged["map_config"]["experiments"].append(exp)
+        if exp == "planning":  # its table reads the closed-loop results, not the runs' probes
+            merged["planning"] = new["planning"]
     if bad:
         lines = [f"  {n}: " + "; ".join(d[:4]) + (" …" if len(d) > 4 else "") for n, d in bad.items()]
         raise SystemExit("error: re-trained runs do not reproduce the base record (ridge, tol "

@@ -211,6 +211,10 @@ def test_merge_script_folds_in_reproduced_runs_and_refuses_ones_that_do_not_repr
     assert merged["experiments"] == {"controls": ["a", "b"], "tokens": ["c"]}
     assert rec["runs_replaced_reproduced"] == ["a"] and rec["runs_added"] == ["c"]
     assert merged["provenance"]["merged"][0]["git"] == "g1" and "merged" not in base["provenance"]
+    new_pl = {**new, "experiments": {**new["experiments"], "planning": ["a"]}, "planning": {"summary": 1},
+              "runs": {"a": run(0.35)}}  # a ridge-only re-run of a run whose MLP numbers the merged record holds
+    again = script.merge(merged, new_pl, ["planning"], 1e-4)[0]
+    assert again["planning"] == {"summary": 1} and again["runs"]["a"]["probes"]["mlp"]["contact"]["log_k"] == 0.37
     line = report.merged_lines(merged["provenance"])[0]
     assert line.startswith("Merged in from `new` (git g1), experiments controls, tokens: 1 re-trained run reproduced")
     assert line.endswith("1 run added.")
