@@ -16,6 +16,7 @@ certificates are kept; what was merged, from which command and commit, is append
 from __future__ import annotations
 
 import argparse
+import copy
 import json
 import sys
 from pathlib import Path
@@ -53,7 +54,7 @@ def merge(base: dict, new: dict, experiments: list[str], tol: float,
     missing = [e for e in experiments if e not in new["experiments"]]
     if missing:
         raise SystemExit(f"error: {missing} not in the new results (it has {sorted(new['experiments'])})")
-    merged = json.loads(json.dumps(base))
+    merged = copy.deepcopy(base)
     added, replaced, bad, differing = [], [], {}, {}
     for exp in experiments:
         names = merged["experiments"].setdefault(exp, [])

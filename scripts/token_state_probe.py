@@ -29,22 +29,12 @@ import torch
 from pokeworld.data import load
 from pokeworld.evaluate import measure
 from pokeworld.evaluate.probes import probe_latents, probe_windows
-from pokeworld.evaluate.state import neutral_last, padded_actions
+from pokeworld.evaluate.state import padded_actions, window_states
 from pokeworld.io import write_json
-from pokeworld.train import WindowSampler, finished_run_config, load_model, loss_kwargs, make_config
+from pokeworld.train import TrainConfig, WindowSampler, finished_run_config, load_model, loss_kwargs
 
 TARGETS = ("log_k", "log_m", "gamma", "object_pos")
 POOLS = ("mean", "concat", "max")
-
-
-@torch.no_grad()
-def token_states(model, z_win: np.ndarray, a_win: np.ndarray, batch: int = 256) -> np.ndarray:
-    """(W, L, S, D) token latents + (W, L, Da) actions -> (W, S, width) token states at the last step."""
-    out = []
-    for i in range(0, len(z_win), batch):
-        h = model.trunk_tokens(torch.as_tensor(z_win[i:i + batch]), a_win[i:i + batch])
-        out.append(h[:, -1].float().cpu().numpy())
-    return np.concatenate(out)
 
 
 def pooled(h: np.ndarray, pool: str) -> np.ndarray:
@@ -62,9 +52,9 @@ def probe_pools(model, ds, cfg) -> dict:
 
     def states(pool):
         def read(w, part):
-            key = (part, len(w), int(w.episode[0]), int(w.start[0]))
+            key = (part, w.episode.tobytes(), w.start.tobytes())
             if key not in cache:  # one trunk pass per window set, three pools
-                cache[key] = token_states(model, lat[part].gather(w, trunk=True), neutral_last(w.gather(acts)))
+                cache[key] = window_states(model, ds, lat[part], w, acts, per_token=True)
             return pooled(cache[key], pool)
         return read
 
@@ -80,9 +70,8 @@ def probe_pools(model, ds, cfg) -> dict:
 def heldout_terms(run: Path, ds, batches: int = 10, batch_size: int = 64, seed: int = 0) -> dict:
     """Mean loss terms (``XJEPA.loss``, eval mode, the run's loss settings) on windows of probe-test episodes."""
     model = load_model(run, map_location="cpu").eval()
-    c = finished_run_config(run)
-    cfg = make_config("cpu", **{k: c[k] for k in loss_kwargs(make_config("cpu")) if k in c})  # the run's loss
-    smp = WindowSampler(ds, ds.episodes("probe_test"), model.image_size, c["window"], torch.device("cpu"), seed=seed)
+    cfg = TrainConfig(**finished_run_config(run))
+    smp = WindowSampler(ds, ds.episodes("probe_test"), model.image_size, cfg.window, torch.device("cpu"), seed=seed)
     acc: dict = {}
     for _ in range(batches):
         _, terms = model.loss(smp.sample(batch_size), **loss_kwargs(cfg))

@@ -254,26 +254,44 @@ def test_nll_precision_script_reads_planted_log_variances(tiny_dataset):
         script.precisions(make("VFX", image_size=16), ds, windows=4)
 
 
-def test_token_state_probe_script_mean_pool_is_the_measured_state():
-    """scripts/token_state_probe.py: its 'mean' pool is exactly the state every table probes (XJEPA.trunk at
-    the last step) and 'concat' keeps every token, so the comparison between pools is like for like."""
+def test_token_state_probe_script_mean_pool_is_the_measured_state(tiny_dataset):
+    """scripts/token_state_probe.py: its 'mean' pool is exactly the state every table probes (the trunk state at
+    the last step, leak-free) and 'concat' keeps every token, so the comparison between pools is like for like;
+    on planted token states where the signal lives in the difference between tokens, the mean reads nothing and
+    the concatenation reads it, so the pooling comparison can come out either way."""
     import importlib.util
     from pathlib import Path
+
+    from pokeworld.evaluate.probes import fit_probes
+    from pokeworld.evaluate.state import EpisodeLatents, padded_actions, window_states
+    from pokeworld.windows import make_windows
 
     spec = importlib.util.spec_from_file_location(
         "token_state_probe", Path(__file__).resolve().parents[1] / "scripts" / "token_state_probe.py")
     script = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(script)
 
-    m = make("VFX", tokens=True, image_size=32)  # 32 px -> a 2 x 2 token map
-    b = batch()
-    with torch.no_grad():
-        z = m.encode(b["frames"], b["proprio"], b["touch"])
-    a = b["actions"].numpy()
-    h = script.token_states(m, z.numpy(), a)
-    assert h.shape[:2] == (B, m.num_tokens) and m.num_tokens > 1
-    with torch.no_grad():
-        want = m.trunk(z, a)[:, -1].numpy()
+    ds = tiny_dataset
+    m = make("VFX", tokens=True, image_size=32, proprio_dim=ds.proprio.shape[-1], touch_dim=ds.touch.shape[-1],
+             action_dim=ds.actions.shape[-1])  # 32 px -> a 2 x 2 token map
+    eps = ds.episodes("probe_test")[:6]
+    lat, acts = EpisodeLatents(m, ds, eps, 8), padded_actions(ds)
+    w = make_windows(ds, eps, 8, 4)
+    h = window_states(m, ds, lat, w, acts, per_token=True)
+    assert h.shape[:2] == (len(w), m.num_tokens) and m.num_tokens > 1
+    want = window_states(m, ds, lat, w, acts)
     np.testing.assert_allclose(script.pooled(h, "mean"), want, atol=1e-5)
-    assert script.pooled(h, "concat").shape == (B, m.num_tokens * h.shape[-1])
+    assert script.pooled(h, "concat").shape == (len(w), m.num_tokens * h.shape[-1])
     np.testing.assert_allclose(script.pooled(h, "max"), h.max(1))
+
+    rng = np.random.default_rng(0)
+    n, S, D = 400, 4, 8
+    y = rng.normal(size=(n, 1))
+    planted = rng.normal(size=(n, S, D)) * 0.1
+    planted[:, 0, 0] += y[:, 0]
+    planted[:, 1, 0] -= y[:, 0]  # token 0 carries +y, token 1 carries -y: the mean cancels it
+    g = np.arange(n) // 4
+    fit, test = slice(0, 300), slice(300, n)
+    r2 = {pool: fit_probes(script.pooled(planted[fit], pool), g[fit], {"y": y[fit]}, script.pooled(planted[test], pool),
+                           {"y": y[test]}, False, 0)["ridge"]["y"] for pool in script.POOLS}
+    assert r2["concat"] > 0.9 and r2["mean"] < 0.1

@@ -30,11 +30,13 @@ def encode_episodes(model, ds: Dataset, episodes: np.ndarray, batch: int = 64, k
 
 
 @torch.no_grad()
-def _trunk_at(model, z_win: np.ndarray, a_win: np.ndarray, index: int, batch: int = 512) -> np.ndarray:
+def _trunk_at(model, z_win: np.ndarray, a_win: np.ndarray, index: int, batch: int = 512,
+              per_token: bool = False) -> np.ndarray:
+    trunk = model.trunk_tokens if per_token else model.trunk
     out = []
     for i in range(0, len(z_win), batch):
         zt = torch.as_tensor(z_win[i:i + batch])
-        h = model.trunk(zt, a_win[i:i + batch])
+        h = trunk(zt, a_win[i:i + batch])
         out.append(h[:, index].float().cpu().numpy())
     return np.concatenate(out)
 
@@ -66,8 +68,9 @@ class EpisodeLatents:
 
 
 def window_states(model, ds: Dataset, lat: EpisodeLatents, w, acts: np.ndarray,
-                  neutral_last_action: bool = True) -> np.ndarray:
-    """Predictor state at the last observation of every window: (W, width).
+                  neutral_last_action: bool = True, per_token: bool = False) -> np.ndarray:
+    """Predictor state at the last observation of every window: (W, width); ``per_token``: every token's
+    state (W, S, width) — for a token model the probed state is their mean (S = 1 for the global variants).
 
     ``neutral_last_action`` replaces the action taken after that observation by raw zeros before the
     trunk sees it: the policy chose that action from the privileged object state, so a state conditioned
@@ -77,7 +80,7 @@ def window_states(model, ds: Dataset, lat: EpisodeLatents, w, acts: np.ndarray,
     a = w.gather(acts)
     if neutral_last_action:
         a = neutral_last(a)
-    return _trunk_at(model, lat.gather(w, trunk=True), a, w.length - 1)
+    return _trunk_at(model, lat.gather(w, trunk=True), a, w.length - 1, per_token=per_token)
 
 
 def neutral_last(a_win: np.ndarray) -> np.ndarray:

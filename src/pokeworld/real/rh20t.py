@@ -1141,7 +1141,8 @@ def run(cfg: ConvertConfig) -> Path:
         ft_sources[r["ft_source"]] = ft_sources.get(r["ft_source"], 0) + 1
     report = {
         "root": str(cfg.root), "cfg": cfg.cfg, "robot": ROBOTS[cfg.cfg], "camera": cfg.camera,
-        "source": corpus_source(root, cfg.cfg), "scenes_found": len(refs), "scenes_candidate": len(candidates), "scenes_sampled": len(chosen),
+        "source": corpus_source(root, cfg.cfg), "scenes_found": len(refs), "scenes_candidate": len(candidates),
+        "scenes_sampled": len(chosen),
         "subset": subset, "scenes_converted": len(rows),
         "camera_counts": {role: dict(sorted(v.items())) for role, v in sorted(camera_counts.items())},
         "camera_fallback_scenes": sum(any(c["fallback"] for c in r["cameras"]) for r in rows),
