@@ -22,7 +22,7 @@ from pathlib import Path
 
 import torch
 
-from pokeworld import train
+from pokeworld import checkpoint, train
 from pokeworld.data import load
 from pokeworld.evaluate import measure
 
@@ -37,7 +37,7 @@ def parse_value(text: str):
 
 
 def checkpoint_step(run_dir: Path) -> int:
-    return int(torch.load(run_dir / "ckpt.pt", map_location="cpu", weights_only=False)["step"])
+    return int(checkpoint.load(run_dir / "ckpt.pt")["step"])
 
 
 def probe_at(run_dir: Path, ds, mcfg) -> dict:

@@ -104,11 +104,11 @@ def test_fast_and_plain_training_runs_agree_and_sync_only_at_log_steps(data_dir,
     for x, y in zip(ra, rb):
         for k in ("loss", "sigreg", "pred_1", "touch", "proprio", "grad_norm"):
             assert y[k] == pytest.approx(x[k], rel=1e-4, abs=1e-6), k
-    sa = torch.load(a / "final.pt", weights_only=False)["model"]
-    sb = torch.load(b / "final.pt", weights_only=False)["model"]
+    sa = torch.load(a / "final.pt", weights_only=True)["model"]
+    sb = torch.load(b / "final.pt", weights_only=True)["model"]
     # biases that a normalisation removes (conv -> GroupNorm, proj -> BatchNorm, and that BatchNorm's running
     # mean of them) have an exactly-zero true gradient: Adam turns its rounding into lr-sized sign steps
-    model = XJEPA(**torch.load(a / "final.pt", weights_only=False)["model_kwargs"])
+    model = XJEPA(**torch.load(a / "final.pt", weights_only=True)["model_kwargs"])
     normalised_away = {f"{n}.bias" for n, m in model.named_modules() if isinstance(m, torch.nn.Conv2d)}
     normalised_away |= {"encoder.proj.bias", "encoder.norm.running_mean"}
     assert normalised_away <= set(sa)
@@ -184,14 +184,14 @@ def test_deadline_checkpoints_partway_and_resume_matches_uninterrupted(data_dir,
     sliced = tmp_path / "sliced"
     run(make_config("tiny", out=str(sliced), deadline=clock.t + 3 * 60, **kw))
     assert not (sliced / "DONE").exists()
-    assert torch.load(sliced / "ckpt.pt", weights_only=False)["step"] == 3
+    assert torch.load(sliced / "ckpt.pt", weights_only=True)["step"] == 3
     assert _rows(sliced)[-1]["step"] == 3
     run(make_config("tiny", out=str(sliced), deadline=clock.t, **kw))  # out of time before starting: a no-op
-    assert torch.load(sliced / "ckpt.pt", weights_only=False)["step"] == 3
+    assert torch.load(sliced / "ckpt.pt", weights_only=True)["step"] == 3
     run(make_config("tiny", out=str(sliced), **kw))
     assert (sliced / "DONE").exists()
-    sa = torch.load(full / "final.pt", weights_only=False)["model"]
-    sb = torch.load(sliced / "final.pt", weights_only=False)["model"]
+    sa = torch.load(full / "final.pt", weights_only=True)["model"]
+    sb = torch.load(sliced / "final.pt", weights_only=True)["model"]
     for k in sa:
         assert torch.allclose(sa[k].float(), sb[k].float(), atol=1e-6), k
     assert _rows(sliced)[-1]["loss"] == pytest.approx(_rows(full)[-1]["loss"], rel=1e-5)

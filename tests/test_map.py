@@ -134,7 +134,7 @@ def test_time_budget_stops_partway_resumes_and_packs(tmp_path, monkeypatch, caps
 def torch_step(path) -> int:
     import torch
 
-    return int(torch.load(path, weights_only=False)["step"])
+    return int(torch.load(path, weights_only=True)["step"])
 
 
 def test_demo_budget_knobs_are_validated():

@@ -3,6 +3,7 @@ encoder reads nothing, an action-copying encoder is caught by the leak-free read
 and a model or store that breaks the contract raises a pokeworld error."""
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -13,7 +14,8 @@ from pokeworld import certify as C
 from pokeworld.data import save
 from pokeworld.errors import ConfigError, DataError, ModelError
 from pokeworld.evaluate import measure as M
-from pokeworld.protocol import certify_model, make_config, run_probes
+from pokeworld.protocol import MAX_STATE, StateReader, certify_model, make_config, run_probes
+from pokeworld.windows import make_windows
 
 PARAMS = ("log_m", "gamma", "log_k")
 FAST = dict(preset="tiny", kinds=("contact", "all"))  # ridge only, two window kinds: seconds, not minutes
@@ -177,15 +179,105 @@ def test_certificates_are_computed_then_reused_and_a_store_s_own_are_loaded(corp
 
 
 # --------------------------------------------------------------------------- contract violations
+def noisy(scale: float, dtype=np.float64):
+    """A numpy model whose states are seeded noise of magnitude ``scale``: finite, and as large as asked."""
+    rng = np.random.default_rng(0)
+    return lambda f, p, t, a: (rng.standard_normal((*f.shape[:2], 4)) * scale).astype(dtype)
+
+
 @pytest.mark.parametrize("bad, match", [
+    # shape: the batch, the window length and the state width must be those the protocol asked for
     (lambda f, p, t, a: torch.zeros(f.shape[0], 8), r"shape \(\d+, 8\).*expected \(B=\d+, L=16, D\)"),
-    (lambda f, p, t, a: torch.zeros(f.shape[0], f.shape[1] + 1, 8), r"expected \(B=\d+, L=16, D\)"),
+    (lambda f, p, t, a: torch.zeros(f.shape[0], f.shape[1] + 1, 8), r"\(\d+, 17, 8\).*expected \(B=\d+, L=16, D\)"),
+    (lambda f, p, t, a: torch.zeros(f.shape[0], f.shape[1] - 1, 8), r"\(\d+, 15, 8\).*expected \(B=\d+, L=16, D\)"),
+    (lambda f, p, t, a: torch.zeros(1, *f.shape[1:2], 8), r"shape \(1, 16, 8\) for \d+ windows.*expected \(B="),
+    (lambda f, p, t, a: torch.zeros(f.shape[0] - 1, *f.shape[1:2], 8), r"for (\d+) windows.*expected \(B=\1, L=16"),
+    (lambda f, p, t, a: torch.zeros(*f.shape[:2], 0), r"shape \(\d+, 16, 0\)"),
+    # one state a batch: the width follows the batch size (256 windows, then the rest)
+    (lambda f, p, t, a: torch.zeros(*f.shape[:2], f.shape[0]), r"state width \d+ after 256 earlier"),
     (lambda f, p, t, a: (torch.zeros(*f.shape[:2], 8), None), "returned a tuple"),
+    # not plain real numbers: numpy would convert all of these with at most a warning
+    (lambda f, p, t, a: None, "returned None"),
+    (lambda f, p, t, a: np.full((*f.shape[:2], 4), "1.5"), r"returned ndarray of dtype <U3, not numbers"),
+    (lambda f, p, t, a: np.ones((*f.shape[:2], 4), dtype=object), r"dtype object, not numbers"),
+    (lambda f, p, t, a: "states", r"returned str of dtype <U6, not numbers"),
+    (lambda f, p, t, a: torch.ones(*f.shape[:2], 4, dtype=torch.complex64), r"complex states \(torch.complex64\)"),
+    (lambda f, p, t, a: np.ones((*f.shape[:2], 4), dtype=np.complex128), r"complex states \(complex128\)"),
+    # values
     (lambda f, p, t, a: torch.full((*f.shape[:2], 4), float("nan")), r"non-finite state values \(NaN/inf\)"),
+    (lambda f, p, t, a: torch.full((*f.shape[:2], 4), float("-inf")), r"non-finite state values \(NaN/inf\)"),
+    (noisy(1e20, np.float32), r"as large as [\d.]+e\+2\d .*exceed \|x\| <= 1e\+15.*standardisation can overflow"),
+    (noisy(1e30), r"as large as [\d.]+e\+3\d .*exceed \|x\| <= 1e\+15.*standardisation can overflow"),
+    (noisy(1e39), r"as large as [\d.]+e\+39 .*overflow to inf when the protocol reads states as float32"),
 ])
 def test_a_model_that_breaks_the_contract_raises_a_model_error(corpus, tmp_path, bad, match):
     with pytest.raises(ModelError, match=match):
         certify_model(bad, corpus, tmp_path, certificates=planted_certificates(), **FAST)
+
+
+def test_real_valued_states_of_any_numeric_dtype_within_the_bound_are_read_as_float32(corpus):
+    w = make_windows(corpus, corpus.episodes("probe_fit")[:3], 16, 4)
+    cfg = make_config("tiny", batch_windows=7, inputs="numpy")  # several batches, the last one short
+    assert len(w) > cfg.batch_windows and len(w) % cfg.batch_windows
+    at_bound = lambda f: np.where(f[..., :2, 0] > 100, -MAX_STATE, f[..., :2, 0])  # noqa: E731  (allowed)
+    assert (at_bound(w.gather(corpus.frames)[:, -1]) == -MAX_STATE).any()
+    for states, expect in [
+        (lambda f, p, t, a: f[..., :2, 0] > 100, lambda f: (f[..., :2, 0] > 100).astype(np.float32)),
+        (lambda f, p, t, a: f[..., :3, 0].astype(np.int64) - 2**40, lambda f: f[..., :3, 0] - np.float32(2**40)),
+        (lambda f, p, t, a: at_bound(f), lambda f: at_bound(f).astype(np.float32)),
+        (lambda f, p, t, a: torch.as_tensor(f[..., :2, 0], dtype=torch.float16),
+         lambda f: f[..., :2, 0].astype(np.float32)),
+    ]:
+        out = StateReader(states, corpus, cfg)(w)
+        assert out.dtype == np.float32 and out.shape[0] == len(w)
+        assert np.array_equal(out, expect(w.gather(corpus.frames)[:, -1]))
+
+
+class Raising(nn.Module):
+    """A module that raises ``error`` on its ``at``-th call and records the inputs of that call."""
+
+    def __init__(self, error: BaseException, at: int = 2):
+        super().__init__()
+        self.proj = nn.Linear(1, 4)
+        self.error, self.at, self.calls, self.seen = error, at, 0, None
+
+    def forward(self, frames, proprio, touch, actions):
+        self.calls += 1
+        if self.calls == self.at:
+            self.seen = (frames.numpy().copy(), proprio.numpy().copy())
+            raise self.error
+        return torch.randn(*frames.shape[:2], 4)
+
+
+def test_a_model_that_raises_is_reported_with_the_window_it_failed_on_and_left_in_training_mode(corpus, tmp_path):
+    model = Raising(RuntimeError("shape mismatch in layer 3")).train()
+    with pytest.raises(ModelError) as info:
+        certify_model(model, corpus, tmp_path, certificates=planted_certificates(), **FAST, batch_windows=100)
+    msg = str(info.value)
+    assert msg.startswith("the model raised RuntimeError: shape mismatch in layer 3 on windows 100..199 of ")
+    assert isinstance(info.value.__cause__, RuntimeError) and info.value.__cause__ is model.error
+    assert model.training  # eval() for the readout is undone on the way out
+    # the named window is the batch's first: its frames and proprioception are the store's at those steps
+    ep, first, last = map(int, re.search(r"first window: episode (\d+), steps (\d+)\.\.(\d+)\)", msg).groups())
+    assert last - first == 15 and corpus.split[ep] == 1  # a probe-fit episode
+    frames, proprio = model.seen
+    assert np.array_equal(frames[0], corpus.frames[ep, first:last + 1])
+    assert np.array_equal(proprio[0], corpus.proprio[ep, first:last + 1].astype(np.float32))
+    lo, hi = map(int, re.search(r"episodes (\d+)\.\.(\d+);", msg).groups())
+    assert lo <= ep <= hi
+
+    oom = Raising(MemoryError("out of memory"), at=1)
+    oom_match = r"raised MemoryError: out of memory on windows 0\.\.99 .*lower batch_windows \(now 100\)"
+    with pytest.raises(ModelError, match=oom_match):
+        certify_model(oom, corpus, tmp_path, certificates=planted_certificates(), **FAST, batch_windows=100)
+
+
+@pytest.mark.parametrize("error", [KeyboardInterrupt(), SystemExit(3)])
+def test_an_interrupt_inside_the_model_is_not_turned_into_a_model_error(corpus, tmp_path, error):
+    model = Raising(error, at=1).train()
+    with pytest.raises(type(error)) as info:
+        certify_model(model, corpus, tmp_path, certificates=planted_certificates(), **FAST)
+    assert info.value is error and model.training
 
 
 def test_a_store_without_probe_splits_and_bad_configs_are_refused(corpus, tmp_path):

@@ -60,10 +60,10 @@ def test_resume_matches_uninterrupted(data_dir, tmp_path):
     b_cfg = make_config("tiny", out=str(tmp_path / "b"), stop_at=5, **kw)
     run(b_cfg)
     assert not (tmp_path / "b" / "DONE").exists()
-    assert torch.load(tmp_path / "b" / "ckpt.pt", weights_only=False)["step"] == 5
+    assert torch.load(tmp_path / "b" / "ckpt.pt", weights_only=True)["step"] == 5
     b = run(make_config("tiny", out=str(tmp_path / "b"), **kw))
-    sa = torch.load(a / "final.pt", weights_only=False)["model"]
-    sb = torch.load(b / "final.pt", weights_only=False)["model"]
+    sa = torch.load(a / "final.pt", weights_only=True)["model"]
+    sb = torch.load(b / "final.pt", weights_only=True)["model"]
     for k in sa:
         assert torch.allclose(sa[k].float(), sb[k].float(), atol=1e-6), k
     la = [json.loads(x) for x in (a / "metrics.jsonl").read_text().splitlines()]

@@ -48,11 +48,11 @@ def _rows(d):
 
 
 def _final(d):
-    return torch.load(d / "final.pt", map_location="cpu", weights_only=False)["model"]
+    return torch.load(d / "final.pt", map_location="cpu", weights_only=True)["model"]
 
 
 def _init_state(run_dir):
-    ck = torch.load(run_dir / "final.pt", map_location="cpu", weights_only=False)
+    ck = torch.load(run_dir / "final.pt", map_location="cpu", weights_only=True)
     torch.manual_seed(ck["config"]["seed"])  # as train.run before construction
     return XJEPA(**ck["model_kwargs"]).state_dict()
 

@@ -17,4 +17,5 @@ class DataError(PokeworldError, ValueError):
 
 
 class ModelError(PokeworldError, ValueError):
-    """A user-supplied model that breaks its contract: wrong output shape, non-finite states."""
+    """A user-supplied model that breaks its contract: wrong output shape or type, non-finite or overflowing states,
+    or an exception raised inside it (chained as the cause)."""

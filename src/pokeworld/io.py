@@ -13,6 +13,8 @@ from typing import Any, Iterator
 
 import numpy as np
 
+from .faults import crash_point
+
 
 @contextlib.contextmanager
 def atomic_path(final: str | os.PathLike) -> Iterator[Path]:
@@ -28,6 +30,7 @@ def atomic_path(final: str | os.PathLike) -> Iterator[Path]:
         shutil.rmtree(tmp) if tmp.is_dir() else tmp.unlink()
     try:
         yield tmp
+        crash_point(f"rename:{final.name}")
         if final.exists() and final.is_dir() and tmp.is_dir():
             shutil.rmtree(final)
         os.replace(tmp, final)
@@ -88,42 +91,71 @@ def make_tmpdir(prefix: str = "pokeworld-") -> Path:
     return Path(tempfile.mkdtemp(prefix=prefix))
 
 
-@contextlib.contextmanager
-def run_lock(run_dir: str | os.PathLike, enabled: bool = True) -> Iterator[None]:
-    """Hold an exclusive lock on ``run_dir`` (``run_dir/.lock``, created with the directory) while training it.
+def lock_holder_line() -> str:
+    """Who holds a lock, for the message a refused second writer prints: pid, host, start time and command."""
+    import socket
+    import sys
+    import time
 
-    A second writer — e.g. a worker of an interrupted ``pokeworld map`` that outlived its parent, and the
-    resumed map — gets a clear error instead of interleaving checkpoints and metrics in one run directory.
-    The lock is the kernel's (``flock``): it goes away with the process that held it, so a crash never
-    leaves a stale lock. No-op where ``fcntl`` is unavailable or ``enabled`` is False (non-zero DDP ranks).
+    started = time.strftime("%Y-%m-%d %H:%M:%S %Z", time.localtime())
+    command = " ".join(Path(sys.argv[0]).name if i == 0 else a for i, a in enumerate(sys.argv)) if sys.argv else "?"
+    return f"pid {os.getpid()} on {socket.gethostname()} since {started} (`{command}`)"
+
+
+@contextlib.contextmanager
+def dir_lock(directory: str | os.PathLike, lock_name: str, refusal: str, enabled: bool = True) -> Iterator[str]:
+    """Hold an exclusive lock on ``directory/lock_name`` for the block; yields the previous holder's line when a
+    stale lock (its process gone) was taken over, else "".
+
+    The lock is the kernel's (``flock``): it goes away with the process that held it, so a crashed or killed
+    holder never blocks the next one; the file only keeps :func:`lock_holder_line` of the last holder, which a
+    refused second writer gets in its :class:`~pokeworld.errors.ConfigError` (``refusal`` formatted with
+    ``path`` and ``holder``). No-op where ``fcntl`` is unavailable or ``enabled`` is False.
     """
     try:
         import fcntl
     except ImportError:  # not POSIX
         enabled = False
     if not enabled:
-        yield
+        yield ""
         return
     from .errors import ConfigError
 
-    path = Path(run_dir)
+    path = Path(directory)
     path.mkdir(parents=True, exist_ok=True)
-    fh = open(path / ".lock", "a+")
+    fh = open(path / lock_name, "a+")
     try:
+        fh.seek(0)
+        previous = fh.read().strip()
         try:
             fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             fh.seek(0)
             holder = fh.read().strip() or "another process"
-            raise ConfigError(f"{path} is being trained by {holder}; wait for it or stop it before resuming "
-                              "(two writers would interleave its checkpoints)") from None
+            raise ConfigError(refusal.format(path=path, holder=holder)) from None
         fh.seek(0)
         fh.truncate()
-        fh.write(f"pid {os.getpid()}\n")
+        fh.write(lock_holder_line() + "\n")
         fh.flush()
-        yield
+        yield previous  # left by a holder that is gone (it released the flock by exiting without clearing it)
+        fh.seek(0)
+        fh.truncate()  # a clean exit leaves an empty lock file: nothing stale to report next time
+        fh.flush()
     finally:
         fh.close()
+
+
+@contextlib.contextmanager
+def run_lock(run_dir: str | os.PathLike, enabled: bool = True) -> Iterator[None]:
+    """Hold an exclusive lock on ``run_dir`` (``run_dir/.lock``) while training it (:func:`dir_lock`).
+
+    A second writer — e.g. a worker of an interrupted ``pokeworld map`` that outlived its parent, and the
+    resumed map — gets a clear error instead of interleaving checkpoints and metrics in one run directory.
+    ``enabled`` is False on non-zero DDP ranks, which never write the run directory.
+    """
+    with dir_lock(run_dir, ".lock", "{path} is being trained by {holder}; wait for it or stop it before resuming "
+                  "(two writers would interleave its checkpoints)", enabled):
+        yield
 
 
 def save_figure(fig, out: Path, stem: str, dpi: int = 150) -> list[Path]:

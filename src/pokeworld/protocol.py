@@ -14,7 +14,8 @@ frames     (B, L, H, W) uint8    grayscale observations
 proprio    (B, L, Dp) float32    proprioception at each observation (raw, unnormalised)
 touch      (B, L, Dt) float32    touch / force summarising the step that ended at each observation
 actions    (B, L, Da) float32    raw actions; ``actions[:, t]`` is the action taken *after* observation t
-returns    (B, L, D)             the model's state at each observation (torch tensor or numpy array)
+returns    (B, L, D)             the model's state at each observation (torch tensor or numpy array of
+                                 bool / int / float values, finite, |x| <= 1e15)
 =========  ====================  =========================================================================
 
 The protocol probes the state at each window's last observation, so a recurrent or bidirectional model
@@ -115,12 +116,27 @@ def make_config(preset: str = "cpu", **overrides) -> ProtocolConfig:
 
 
 # --------------------------------------------------------------------------- the model contract
+MAX_STATE = 1e15
+"""Largest state magnitude the protocol accepts.
+
+Every probe standardises the states in the float32 they are read as (:class:`pokeworld.regressors.
+Standardizer`): the variance sums squared deviations, each up to (2|x|)², over the N probe-fit windows, and
+that sum must stay below float32's maximum (3.4e38) or the standard deviation becomes inf, every
+standardised feature 0 and the R² a silent "nothing". At |x| <= 1e15 the sum is finite for N up to 8.5e7
+windows, far beyond any ``max_windows``; at 1e20 a single square overflows. No working network's state
+comes near 1e15, and nothing is lost by refusing one that does: standardised probes are invariant to the
+state's scale, so the user can divide it by a constant."""
+
+
 class StateReader:
     """Runs a user model on gathered windows and returns its state at each window's last observation.
 
-    Checks the contract on every call (shape (B, L, D) with one D throughout, finite values) and raises
-    :class:`ModelError` naming what came back, because a silently reshaped or NaN-filled state would turn
-    into a meaningless R² rather than an error.
+    Checks the contract on every call and raises :class:`ModelError` naming what came back, because a
+    silently reshaped, truncated or overflowing state would turn into a meaningless R² rather than an
+    error: one real-valued array (bool, int or float; strings, objects, None and complex numbers are
+    refused) of shape (B, L, D) with one D throughout, finite, with |x| <= :data:`MAX_STATE`. An exception
+    raised by the model comes back as a ``ModelError`` naming the batch and window it failed on (the
+    original chained as its cause); KeyboardInterrupt and SystemExit pass through untouched.
     """
 
     def __init__(self, model: StateFn, ds: Dataset, cfg: ProtocolConfig, role: str = "model"):
@@ -144,14 +160,14 @@ class StateReader:
         try:
             with torch.no_grad():
                 for i in range(0, len(w), self.cfg.batch_windows):
-                    part = w.select(np.arange(i, min(i + self.cfg.batch_windows, len(w))))
-                    out.append(self._batch(part, neutral_last_action))
+                    out.append(self._batch(w, i, min(i + self.cfg.batch_windows, len(w)), neutral_last_action))
         finally:
             if module is not None:
                 module.train(was_training)
         return np.concatenate(out)
 
-    def _batch(self, w, neutral_last_action: bool) -> np.ndarray:
+    def _batch(self, windows, lo: int, hi: int, neutral_last_action: bool) -> np.ndarray:
+        w = windows.select(np.arange(lo, hi))
         a = w.gather(self.acts)
         if neutral_last_action:
             a = neutral_last(a)
@@ -159,18 +175,49 @@ class StateReader:
                   w.gather(self.ds.touch).astype(np.float32), a.astype(np.float32))
         if self.cfg.inputs == "torch":
             arrays = tuple(torch.from_numpy(np.ascontiguousarray(x)).to(self.device) for x in arrays)
-        return self._check(self.model(*arrays), len(w), w.length, w.episode)[:, -1]
+        try:
+            states = self.model(*arrays)
+        except Exception as e:  # not BaseException: Ctrl-C and sys.exit must stop the run, not be reported
+            raise ModelError(self._raised(e, w, lo, hi, len(windows))) from e
+        return self._check(states, len(w), w.length, w.episode)[:, -1]
+
+    def _raised(self, e: Exception, w, lo: int, hi: int, total: int) -> str:
+        # the batch and its first window, so the failure can be reproduced on the store's own arrays
+        ep, st = int(w.episode[0]), int(w.start[0])
+        msg = (f"the {self.role} raised {type(e).__name__}: {e} on windows {lo}..{hi - 1} of {total} "
+               f"(episodes {int(w.episode.min())}..{int(w.episode.max())}; first window: episode {ep}, "
+               f"steps {st}..{st + w.length - 1})")
+        if isinstance(e, (MemoryError, torch.cuda.OutOfMemoryError)):
+            msg += f"; lower batch_windows (now {self.cfg.batch_windows})"
+        return msg
 
     def _check(self, out: Any, B: int, L: int, episodes: np.ndarray) -> np.ndarray:
+        given = type(out).__name__
         if isinstance(out, torch.Tensor):
-            out = out.detach().float().cpu().numpy()
+            if out.is_complex():
+                raise ModelError(self._complex(str(out.dtype)))
+            out = out.detach().cpu()
+            # float64 stays float64 so that a value beyond float32's range is reported as overflow, not as inf
+            out = out.numpy() if out.dtype == torch.float64 else out.float().numpy()
         elif isinstance(out, (tuple, list, dict)):
-            raise ModelError(f"the {self.role} returned a {type(out).__name__}; return one (B, L, D) array of "
+            raise ModelError(f"the {self.role} returned a {given}; return one (B, L, D) array of "
                              "states (wrap a model with several outputs in a function that picks the state)")
+        elif out is None:
+            raise ModelError(f"the {self.role} returned None, not a (B, L, D) array of states "
+                             "(does its forward end without a return?)")
         try:
-            out = np.asarray(out, dtype=np.float32)
+            out = np.asarray(out)
         except (TypeError, ValueError) as e:
-            raise ModelError(f"the {self.role} returned {type(out).__name__}, not an array of states ({e})") from None
+            raise ModelError(f"the {self.role} returned {given}, not an array of states ({e})") from None
+        # numpy would turn numeric strings and objects into floats and drop imaginary parts with only a
+        # warning, so a state that is not plainly real-valued is refused rather than converted
+        if out.dtype.kind == "c":
+            raise ModelError(self._complex(str(out.dtype)))
+        if out.dtype.kind not in "biuf":
+            raise ModelError(f"the {self.role} returned {given} of dtype {out.dtype}, not numbers; states must be "
+                             "bool, int or float (the probes regress on their values)")
+        if out.dtype.kind != "f":
+            out = out.astype(np.float64)  # exact for bool and int, and |int64.min| does not wrap around
         if out.ndim != 3 or out.shape[:2] != (B, L) or out.shape[2] == 0:
             raise ModelError(f"the {self.role} returned states of shape {tuple(out.shape)} for {B} windows of {L} "
                              f"observations; expected (B={B}, L={L}, D): one state vector per observation")
@@ -181,11 +228,31 @@ class StateReader:
                              "the state width must not depend on the batch")
         bad = ~np.isfinite(out)
         if bad.any():
-            eps = np.unique(episodes[bad.any((1, 2))])
             raise ModelError(f"the {self.role} returned {int(bad.sum())} non-finite state values (NaN/inf) on "
-                             f"windows of episodes {eps[:8].tolist()}{' ...' if eps.size > 8 else ''}; "
-                             "probes on such states are meaningless")
-        return out
+                             f"{self._where(bad, episodes)}; probes on such states are meaningless")
+        mag = np.abs(out)
+        big = mag > MAX_STATE
+        if big.any():
+            largest = float(mag.max())
+            if largest > float(np.finfo(np.float32).max):
+                why = "overflow to inf when the protocol reads states as float32"
+            else:
+                why = (f"exceed |x| <= {MAX_STATE:.0e}, past which the probes' float32 standardisation can "
+                       "overflow (its variance sums squared deviations over the fit windows) and leave the "
+                       "probes reading nothing")
+            raise ModelError(f"the {self.role} returned {int(big.sum())} state values as large as {largest:.3g} on "
+                             f"{self._where(big, episodes)}; they {why}. Divide the state by a constant: every "
+                             "probe standardises it, so its scale does not change the R²")
+        return out.astype(np.float32)
+
+    def _complex(self, dtype: str) -> str:
+        return (f"the {self.role} returned complex states ({dtype}); the probes are real-valued and would drop the "
+                "imaginary part, so return real and imaginary parts side by side (torch.view_as_real, flattened)")
+
+    @staticmethod
+    def _where(mask: np.ndarray, episodes: np.ndarray) -> str:
+        eps = np.unique(episodes[mask.any((1, 2))])
+        return f"windows of episodes {eps[:8].tolist()}{' ...' if eps.size > 8 else ''}"
 
 
 # --------------------------------------------------------------------------- certificates
@@ -471,5 +538,5 @@ def figure(result: dict, path: Path) -> Path:
     return path
 
 
-__all__ = ["ProtocolConfig", "PRESETS", "StateReader", "certify_model", "claims", "make_config", "markdown",
-           "figure", "resolve_certificates", "run_probes"]
+__all__ = ["MAX_STATE", "ProtocolConfig", "PRESETS", "StateReader", "certify_model", "claims", "make_config",
+           "markdown", "figure", "resolve_certificates", "run_probes"]

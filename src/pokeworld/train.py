@@ -37,8 +37,10 @@ from typing import Any
 import numpy as np
 import torch
 
+from . import checkpoint
 from .config import from_preset, to_dict
 from .errors import ConfigError, DataError
+from .faults import crash_point
 from .losses import random_directions
 from .models.xjepa import GNLL_HEADS, OBJECTIVES, SYSID_PARAMS, XJEPA, area_downsample, check_variant
 
@@ -512,27 +514,6 @@ def lr_lambda(step: int, warmup: int, total: int) -> float:
     return 0.5 * (1 + math.cos(math.pi * p))
 
 
-def _rng_state() -> dict[str, Any]:
-    st = {"python": random.getstate(), "numpy": np.random.get_state(), "torch": torch.get_rng_state()}
-    if torch.cuda.is_available():
-        st["cuda"] = torch.cuda.get_rng_state_all()
-    return st
-
-
-def _set_rng_state(st: dict[str, Any]) -> None:
-    random.setstate(st["python"])
-    np.random.set_state(st["numpy"])
-    torch.set_rng_state(st["torch"])
-    if "cuda" in st and torch.cuda.is_available():
-        torch.cuda.set_rng_state_all(st["cuda"])
-
-
-def _atomic_save(obj: Any, path: Path) -> None:
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    torch.save(obj, tmp)
-    os.replace(tmp, path)
-
-
 class MetricsLog:
     """A run's metrics record: one JSON line per row in ``metrics.jsonl`` and, when ``tensorboard``, the same
     scalars under ``tb/`` (``purge_step`` drops events a resumed run will write again)."""
@@ -561,7 +542,7 @@ class MetricsLog:
 
 def write_final(out: Path, state: dict, model_kwargs: dict, cfg_dict: dict, step: int, note: str = "") -> None:
     """Write a finished run's ``final.pt`` (weights, model kwargs, config, step) and its ``DONE`` marker."""
-    _atomic_save({"model": state, "model_kwargs": model_kwargs, "config": cfg_dict, "step": step}, out / "final.pt")
+    checkpoint.save({"model": state, "model_kwargs": model_kwargs, "config": cfg_dict, "step": step}, out / "final.pt")
     (out / "DONE").write_text(f"finished {step} steps{note}\n")
 
 
@@ -618,7 +599,7 @@ def load_model(run_dir: str | os.PathLike, map_location: str | torch.device = "c
         path = run_dir / "ckpt.pt"
     if not path.exists():
         raise FileNotFoundError(f"{run_dir} holds no final.pt or ckpt.pt; train it with `pokeworld train`")
-    ck = torch.load(path, map_location=map_location, weights_only=False)
+    ck = checkpoint.load(path, map_location=map_location)
     model = XJEPA(**ck["model_kwargs"])
     model.load_state_dict(ck["model"])
     return model.to(map_location).eval()
@@ -739,11 +720,11 @@ def _train(cfg: TrainConfig, out: Path, cfg_dict: dict) -> Path:
     step = 0
     ckpt_path = out / "ckpt.pt"
     if ckpt_path.exists():
-        ck = torch.load(ckpt_path, map_location="cpu", weights_only=False)
+        ck = checkpoint.load(ckpt_path)
         model.load_state_dict(ck["model"])
         opt.load_state_dict(ck["optimizer"])
         sched.load_state_dict(ck["scheduler"])
-        _set_rng_state(ck["rng"])
+        checkpoint.set_rng_state(ck["rng"])
         if rank == 0:
             sampler.gen.set_state(ck["sampler"])
         else:
@@ -767,8 +748,8 @@ def _train(cfg: TrainConfig, out: Path, cfg_dict: dict) -> Path:
 
     def save_ckpt(s: int) -> None:
         if main:
-            _atomic_save({"model": model.state_dict(), "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
-                          "rng": _rng_state(), "sampler": sampler.gen.get_state(), "step": s, "model_kwargs": mk,
+            checkpoint.save({"model": model.state_dict(), "optimizer": opt.state_dict(), "scheduler": sched.state_dict(),
+                          "rng": checkpoint.rng_state(), "sampler": sampler.gen.get_state(), "step": s, "model_kwargs": mk,
                           "config": cfg_dict}, ckpt_path)
 
     log = MetricsLog(out, cfg.tensorboard, step) if main else None
@@ -791,6 +772,7 @@ def _train(cfg: TrainConfig, out: Path, cfg_dict: dict) -> Path:
             loss, terms = train_step(model, opt, cfg, sampler.sample(cfg.batch_size), step, dev, loss_kw,
                                      amp=use_amp, fast=fast, loss_fn=loss_fn)
             sched.step()
+            crash_point("train_step")
             terms["loss"] = loss
             first_bad = torch.where((first_bad < 0) & ~torch.isfinite(terms["loss"]), step, first_bad)
             step += 1

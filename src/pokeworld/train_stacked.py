@@ -53,6 +53,7 @@ import numpy as np
 import torch
 
 from . import train as T
+from . import checkpoint
 from .config import from_preset, to_dict
 from .errors import ConfigError
 from .models.xjepa import VARIANTS, XJEPA
@@ -403,7 +404,7 @@ def _ckpt_step(cfg: T.TrainConfig) -> int:
     p = Path(cfg.out) / "ckpt.pt"
     if not p.exists():
         return 0
-    return int(torch.load(p, map_location="cpu", weights_only=False)["step"])
+    return int(checkpoint.load(p)["step"])
 
 
 def run(cfgs: Sequence[T.TrainConfig], *, mix_variants: bool = True, max_members: int = 0) -> list[Path]:
@@ -455,9 +456,9 @@ def _train_group(cfgs: list[T.TrainConfig]) -> None:
 
     step = 0
     if (outs[0] / "ckpt.pt").exists():
-        cks = [torch.load(out / "ckpt.pt", map_location="cpu", weights_only=False) for out in outs]
+        cks = [checkpoint.load(out / "ckpt.pt") for out in outs]
         g.load(cks)
-        T._set_rng_state(cks[0]["rng"])
+        checkpoint.set_rng_state(cks[0]["rng"])
         step = int(cks[0]["step"])
         for out in outs:
             T.restart_metrics(out, step)
@@ -469,9 +470,9 @@ def _train_group(cfgs: list[T.TrainConfig]) -> None:
             T.restart_metrics(out, 0, start_row)
 
     def save_ckpt(s: int) -> None:
-        rng = T._rng_state()
+        rng = checkpoint.rng_state()
         for i, (c, out) in enumerate(zip(cfgs, outs)):
-            T._atomic_save({"model": g.member_state(i), "optimizer": g.member_optimizer_state(i),
+            checkpoint.save({"model": g.member_state(i), "optimizer": g.member_optimizer_state(i),
                             "scheduler": g.sched.state_dict(), "rng": rng, "sampler": g.gens[i].get_state(),
                             "step": s, "model_kwargs": g.mks[i], "config": to_dict(c)}, out / "ckpt.pt")
 

@@ -680,12 +680,88 @@ def pack_results(c: MapConfig, dest: str | os.PathLike) -> Path:
     return dest
 
 
+MAP_LOCK_REFUSAL = ("{path} is in use by another `pokeworld map`: {holder}. Two maps on one --out would overwrite "
+                    "each other's results.json; wait for that one to finish and run this command again (its runs "
+                    "are merged into the same results.json), or give this one another --out")
+
+
+def carry_over(previous: dict | None, results: dict) -> dict:
+    """``results`` completed with the run records of an earlier ``results.json`` in the same ``out`` that this
+    invocation did not measure (each kept under the experiments that listed it, with the certificates of corpora
+    only it used and the planning table when this invocation did not plan), so a later invocation with other
+    experiments, variants or seeds never drops a finished run's record. Runs measured now replace their earlier
+    records; the carried runs and the command that measured them are named in ``provenance["carried_over"]``."""
+    if not previous:
+        return results
+    out = {**results, "experiments": {k: list(v) for k, v in results["experiments"].items()},
+           "runs": dict(results["runs"]), "certificates": dict(results["certificates"]),
+           "provenance": dict(results["provenance"])}
+    carried: list[str] = []
+    for exp, names in previous.get("experiments", {}).items():
+        now = out["experiments"].setdefault(exp, [])
+        extra = [n for n in names if n not in now and n in previous.get("runs", {})]
+        now += extra
+        for n in extra:
+            if n not in out["runs"]:
+                out["runs"][n] = previous["runs"][n]
+                carried.append(n)
+        if not now:
+            del out["experiments"][exp]
+    if not carried:
+        return results
+    for corpus, cert in previous.get("certificates", {}).items():
+        out["certificates"].setdefault(corpus, cert)
+    if "planning" not in out and "planning" in previous:
+        out["planning"] = previous["planning"]
+    prev = previous.get("provenance", {})
+    # a run carried twice keeps the command that measured it, not the one that last carried it
+    earlier = [{**e, "runs": [n for n in e["runs"] if n in carried]} for e in prev.get("carried_over", [])]
+    already = {n for e in earlier for n in e["runs"]}
+    first = {"runs": [n for n in carried if n not in already], "command": prev.get("command", "?"),
+             "git": prev.get("git", "?")}
+    out["provenance"]["carried_over"] = [e for e in (*earlier, first) if e["runs"]]
+    return out
+
+
+def read_previous_results(path: Path) -> dict | None:
+    """The results.json an earlier invocation left in this ``out`` (None when there is none or it is unreadable:
+    it is written atomically, so an unreadable one was edited by hand and is not merged)."""
+    if not path.exists():
+        return None
+    try:
+        prev = json.loads(path.read_text())
+        if isinstance(prev, dict) and isinstance(prev.get("experiments"), dict) and isinstance(prev.get("runs"), dict):
+            return prev
+    except (ValueError, UnicodeDecodeError):
+        pass
+    print(f"[map] warning: {path} is not a results record pokeworld wrote; it is replaced, not merged")
+    return None
+
+
 def run(c: MapConfig) -> Path:
     """Run every stage of the map and write results.json, results.md and the figure into ``c.out``.
 
     With ``time_budget_min`` the invocation may stop early (progress.json says where); with ``pack``
-    the small results are tarred at the end either way.
+    the small results are tarred at the end either way. The whole invocation holds ``out/.map.lock``: a second
+    map on the same ``out`` is refused with a message naming this one (a killed map's lock is released with its
+    process), and the experiments of an earlier invocation are carried into results.json (:func:`carry_over`).
     """
+    from ..io import dir_lock
+
+    out = Path(c.out)
+    with dir_lock(out, ".map.lock", MAP_LOCK_REFUSAL) as stale:
+        if stale:
+            print(f"[map] the previous holder of {out} ({stale}) is gone; taking over its lock and resuming")
+        # temporary copies a killed map left of its top-level files (results, report, figures): only the lock's
+        # holder writes these, so none of them is in use
+        for tmp in out.glob(".*.tmp-*"):
+            if tmp.is_file():
+                tmp.unlink()
+        return _run_locked(c)
+
+
+def _run_locked(c: MapConfig) -> Path:
+    """The body of :func:`run`, under the out directory's lock."""
     from .. import train
     from . import report
 
@@ -723,6 +799,7 @@ def run(c: MapConfig) -> Path:
         results = report.collect(c, specs, certificates)
         if "planning" in c.experiments:
             results["planning"] = ensure_planning(c)
+        results = carry_over(read_previous_results(out / "results.json"), results)
         write_json(out / "results.json", results)
         report.write_all(c, results)
         table = report.certificate_table(results) + report.factorial_table(results)

@@ -48,6 +48,7 @@ import torch
 from ..config import from_preset, to_dict
 from ..data import Dataset, load, read_manifest
 from ..errors import ConfigError
+from ..faults import crash_point
 from ..io import write_json
 from .prediction import (CONTEXT, HORIZON, position_decoder, glide_comparison, glide_reference,  # noqa: F401
                          glide_test, prediction_quality)
@@ -225,6 +226,7 @@ def run(cfg: MeasureConfig) -> Path:
     model = load_model(run_dir, map_location="cpu")
     res = measure(model, ds, cfg, untrained_like(run_dir, ds) if cfg.untrained else None)
     res.update(key=key, run=run_cfg, data=data)
+    crash_point("measure")
     write_json(out, res)
     print(f"[measure] {run_dir.name}: " + summary_line(res))
     return out

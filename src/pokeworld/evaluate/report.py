@@ -781,8 +781,11 @@ def markdown(results: dict) -> str:
 
 
 def merged_lines(prov: dict) -> list[str]:
-    """What later invocations folded into this record (``scripts/merge_map_results.py``), one line each."""
-    out = []
+    """What earlier invocations left in this record (experiment.carry_over) and what later ones folded into it
+    (``scripts/merge_map_results.py``), one line each."""
+    out = [f"Carried over from an earlier invocation on the same output folder, `{m['command']}` (git {m['git']}): "
+           f"{len(m['runs'])} run{'s' * (len(m['runs']) != 1)} ({', '.join(m['runs'])})." for m in prov.get("carried_over", [])]
+    out += [""] if out else []
     for m in prov.get("merged", []):
         n_rep, n_add = len(m["runs_replaced_reproduced"]), len(m["runs_added"])
         out += [f"Merged in from `{m['command']}` (git {m['git']}), experiments {', '.join(m['experiments'])}: "

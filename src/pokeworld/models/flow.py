@@ -188,7 +188,9 @@ def save_flow(net: FlowNet, path, meta: dict) -> None:
 
 
 def load_flow(path) -> FlowNet:
-    ck = torch.load(path, map_location="cpu", weights_only=False)
+    from ..checkpoint import load
+
+    ck = load(path)
     net = FlowNet(**ck["config"])
     net.load_state_dict(ck["state"])
     net.eval()

@@ -1,0 +1,92 @@
+"""Checkpoint files of a run directory (``ckpt.pt``, ``final.pt``, the flow sensor): written atomically, read
+without executing code.
+
+A run directory may come from someone else (a colleague's runs, a shared cluster folder), and ``torch.load``
+with ``weights_only=False`` unpickles arbitrary objects: a crafted ``ckpt.pt`` runs code on the machine that
+probes or resumes it. Every checkpoint here is therefore read with ``weights_only=True``, which admits tensors
+and plain Python containers and numbers only, and everything a checkpoint holds that is not a tensor is stored
+in those forms: the Python and NumPy RNG states become tuples and lists of ints (:func:`rng_state`).
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import random
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from .errors import DataError
+
+
+class CheckpointError(DataError):
+    """A checkpoint that cannot be read safely: damaged, or holding objects a weights-only load refuses."""
+
+
+def save(obj: Any, path: str | os.PathLike) -> None:
+    """``torch.save`` to a temporary sibling, then rename: a killed writer never leaves a half-written file under
+    ``path`` (readers see the old checkpoint or the new one)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    try:
+        torch.save(obj, tmp)
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def load(path: str | os.PathLike, map_location: str | torch.device = "cpu") -> dict[str, Any]:
+    """Read a checkpoint with ``weights_only=True``; :class:`CheckpointError` naming the file when it needs more
+    (a pickled class or function: possibly code, never something pokeworld writes) or is damaged."""
+    path = Path(path)
+    if not path.is_file():
+        raise CheckpointError(f"checkpoint {path} does not exist")
+    try:
+        ck = torch.load(path, map_location=map_location, weights_only=True)
+    except pickle.UnpicklingError as e:
+        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise CheckpointError(
+            f"refusing to load {path}: it holds objects other than tensors and plain containers ({first}). "
+            "pokeworld never writes such checkpoints; loading it could execute code. If you made it yourself "
+            "with an older pokeworld, re-train the run (or load it by hand with weights_only=False if you trust "
+            "its origin)") from None
+    except (RuntimeError, EOFError, OSError, ValueError) as e:  # truncated zip, bad magic, short read
+        raise CheckpointError(f"cannot read checkpoint {path} ({type(e).__name__}: {e}); it is damaged or not "
+                              "a torch checkpoint") from None
+    if not isinstance(ck, dict):
+        raise CheckpointError(f"checkpoint {path} holds a {type(ck).__name__}, expected a dict")
+    return ck
+
+
+def rng_state() -> dict[str, Any]:
+    """Python, NumPy, torch (and CUDA) RNG states in forms a weights-only load admits."""
+    name, keys, pos, has_gauss, gauss = np.random.get_state()
+    st: dict[str, Any] = {
+        "python": random.getstate(),  # (version, tuple of 625 ints, gauss_next): plain Python already
+        "numpy": {"name": str(name), "keys": [int(k) for k in keys], "pos": int(pos), "has_gauss": int(has_gauss),
+                  "cached_gaussian": float(gauss)},
+        "torch": torch.get_rng_state(),
+    }
+    if torch.cuda.is_available():
+        st["cuda"] = torch.cuda.get_rng_state_all()
+    return st
+
+
+def set_rng_state(st: dict[str, Any]) -> None:
+    """Restore what :func:`rng_state` saved."""
+    version, internal, gauss_next = st["python"]
+    random.setstate((int(version), tuple(int(x) for x in internal), gauss_next))
+    npst = st["numpy"]
+    np.random.set_state((npst["name"], np.asarray(npst["keys"], dtype=np.uint32), npst["pos"], npst["has_gauss"],
+                         npst["cached_gaussian"]))
+    torch.set_rng_state(st["torch"])
+    if "cuda" in st and torch.cuda.is_available():
+        torch.cuda.set_rng_state_all(st["cuda"])
+
+
+__all__ = ["CheckpointError", "save", "load", "rng_state", "set_rng_state"]
