@@ -157,7 +157,7 @@ def test_single_horizon_and_raw_frames_are_downsampled():
 
 
 @pytest.mark.parametrize("kw", [dict(objective="gnll"), dict(objective="recon"), dict(sysid=True),
-                                dict(tokens=True, horizons=(1,))])
+                                dict(tokens=True, horizons=(1,)), dict(tokens=True)])
 def test_control_variants_train_step(kw):
     m = make("VFX", **kw).train()
     b = batch()
@@ -295,3 +295,27 @@ def test_token_state_probe_script_mean_pool_is_the_measured_state(tiny_dataset):
     r2 = {pool: fit_probes(script.pooled(planted[fit], pool), g[fit], {"y": y[fit]}, script.pooled(planted[test], pool),
                            {"y": y[test]}, False, 0)["ridge"]["y"] for pool in script.POOLS}
     assert r2["concat"] > 0.9 and r2["mean"] < 0.1
+
+
+def test_token_models_keep_the_shared_multi_horizon_heads(tmp_path):
+    """Paper §3: every variant shares the Δ ∈ {1, 4, 16} heads; tokens add dense Δ = 1 prediction on top. A token
+    model built by the trainer has them, and each horizon's latent and touch heads receive gradient."""
+    from pokeworld.data import save
+    from pokeworld.train import load_model, make_config, model_kwargs, run, synthetic_dataset
+
+    cfg = make_config("tiny", tokens=True, image_size=32, variant="VFX")
+    assert model_kwargs(cfg, (4, 7, 2))["horizons"] == (1, 4, 16)
+    m = make("VFX", tokens=True, image_size=32).train()
+    loss, terms = m.loss(batch(), sigreg_dirs=8, token_rows=64, token_dirs=8)
+    loss.backward()
+    assert {"pred_1", "pred_4", "pred_16", "touch", "proprio", "sigreg"} <= set(terms)
+    for d in ("1", "4", "16"):
+        for head in (m.latent_heads[d], m.modal_heads["touch"][d]):
+            assert any(p.grad is not None and p.grad.abs().sum() > 0 for p in head.parameters()), d
+    # Δ = 1 is the dense token target: it differs from predicting the token-mean latent
+    z = m.encode(batch()["frames"], batch()["proprio"], batch()["touch"])
+    assert z.shape[2] == m.num_tokens == 4
+    save(synthetic_dataset(num_episodes=6, steps=24, size=32, seed=0), tmp_path / "syn")
+    out = run(make_config("tiny", tokens=True, image_size=32, data=str(tmp_path / "syn"), out=str(tmp_path / "r"),
+                          steps=3))
+    assert load_model(out).horizons == (1, 4, 16)

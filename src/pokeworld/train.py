@@ -86,8 +86,9 @@ class TrainConfig:
     """objective='belief': weight β of the mean-over-steps KL(q(u | window) ‖ p(u | h_t)) against the per-dim
     MSE prediction terms (β = 2σ²/D for a Gaussian likelihood of variance σ² on D latent dims)."""
     tokens: bool = False
-    """Token-based control: spatial tokens from the last CNN map, dense aligned Δ=1 token prediction,
-    token-level SIGReg on subsampled rows. Forces horizons=(1,) for the latent target."""
+    """Token-based control: spatial tokens from the last CNN map, dense aligned Δ=1 token prediction on top of the
+    shared heads (the Δ > 1 latent heads predict the token-mean latent from the token-mean state, the touch /
+    proprio heads keep every horizon), token-level SIGReg on subsampled rows (paper §3, App. B)."""
     sysid_weight: float = 0.0
     """Weight of the system-ID control head (trunk -> whitened (log m, γ, log k)); paper control: 0.5; 0 = off."""
     image_size: int = 64
@@ -500,7 +501,7 @@ def model_kwargs(cfg: TrainConfig, dims: tuple[int, int, int]) -> dict[str, Any]
     return dict(variant=cfg.variant, proprio_dim=dims[0], touch_dim=dims[1], action_dim=dims[2],
                 image_size=cfg.image_size, channels=tuple(cfg.channels), latent_dim=cfg.latent_dim, width=cfg.width,
                 depth=cfg.depth, heads=cfg.heads, dropout=cfg.dropout,
-                horizons=(1,) if cfg.tokens else tuple(cfg.horizons), objective=cfg.objective, tokens=cfg.tokens,
+                horizons=tuple(cfg.horizons), objective=cfg.objective, tokens=cfg.tokens,
                 sysid=cfg.sysid_weight > 0, max_len=max(128, cfg.window), vec_dim=cfg.vec_dim,
                 contact_channel=cfg.contact_channel, pool=cfg.pool, belief_dim=cfg.belief_dim,
                 motion_channel=cfg.motion_channel, gnll_heads=cfg.gnll_heads)
@@ -701,7 +702,7 @@ def _train(cfg: TrainConfig, out: Path, cfg_dict: dict) -> Path:
     dims = (ds.proprio.shape[-1], ds.touch.shape[-1], ds.actions.shape[-1])
     sampler = WindowSampler(ds, train_ep, cfg.image_size, cfg.window, dev, cfg.contact_channel,
                             seed=cfg.seed * 1000 + 1 + rank, with_params=cfg.sysid_weight > 0, non_blocking=fast)
-    train_horizons = (1,) if cfg.tokens else tuple(cfg.horizons)
+    train_horizons = tuple(cfg.horizons)
     stats = data_stats(ds, train_ep)
     del ds
 

@@ -508,11 +508,22 @@ class XJEPA(nn.Module):
         def at_latent(d: int):
             return None if lw is None else lw[:, d:]
 
-        if self.tokens:  # dense, spatially aligned Δ=1 token prediction
-            pred = self._head_out(hs, actions, 1, self.latent_heads["1"])
-            w1 = at_latent(1)
-            terms["pred_1"] = masked_mse(pred[:, :-1], z[:, 1:], None if w1 is None else w1[..., None].expand(z[:, 1:].shape[:-1]))
-            total = total + terms["pred_1"]
+        if self.tokens:
+            # the paper's token variant keeps the shared Δ ∈ {1, 4, 16} heads and adds dense prediction: Δ = 1 is
+            # predicted per token, spatially aligned; the longer horizons predict the token-mean latent from the
+            # token-mean state, as the global model does
+            z_mean, losses = z.mean(2), []
+            for d in valid:
+                if d == 1:
+                    pred = self._head_out(hs, actions, 1, self.latent_heads["1"])
+                    w1 = at_latent(1)
+                    l_d = masked_mse(pred[:, :-1], z[:, 1:],
+                                     None if w1 is None else w1[..., None].expand(z[:, 1:].shape[:-1]))
+                else:
+                    l_d = masked_mse(self.predict(h, actions, d)[:, :L - d], z_mean[:, d:], at_latent(d))
+                terms[f"pred_{d}"] = l_d
+                losses.append(l_d)
+            total = total + torch.stack(losses).mean()
             flat = z.reshape(-1, z.shape[-1])
             terms["sigreg"] = sigreg(flat, token_dirs, sigreg_seed, sigreg_knots, max_rows=token_rows,
                                      directions=sigreg_directions)
