@@ -39,6 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
+from . import certificate_corpus
 from .config import from_preset, to_dict
 from .data import Dataset, load
 from .errors import ConfigError, DataError
@@ -82,6 +83,10 @@ class CertifyConfig:
     """Step between window starts."""
     max_windows: int = 6000
     """Cap on fit windows per kind (random episode-preserving subsample) to bound CPU time."""
+    fit_episodes: int = 0
+    """Fit the estimators on a certificate corpus of this many episodes of the store's own generator on disjoint
+    seeds (``<data>/certificate_corpus/n<fit_episodes>``, generated once; pokeworld.certificate_corpus) instead of the store's
+    probe-fit split (0); scored on the store's probe-test episodes either way."""
     gru_hidden: int = 96
     """GRU width."""
     gru_layers: int = 2
@@ -105,6 +110,9 @@ class CertifyConfig:
             raise ConfigError(f"kinds must be among contact, glide, all; got {self.kinds}")
         if self.window < 3 or self.stride < 1:
             raise ConfigError("window must be >= 3 and stride >= 1")
+        if self.fit_episodes < 0 or self.max_windows < 1:
+            raise ConfigError(f"fit_episodes must be >= 0 and max_windows >= 1, got {self.fit_episodes}, "
+                              f"{self.max_windows}")
         if self.pixel_size < 0 or 0 < self.pixel_size < 8:
             raise ConfigError(f"pixel_size must be 0 (stored size) or >= 8, got {self.pixel_size}")
 
@@ -245,49 +253,72 @@ def fit_targets(make, X_fit: np.ndarray, Y_fit: np.ndarray, groups: np.ndarray, 
                             for j in range(Y_fit.shape[1])])
 
 
-def certify(ds: Dataset, cfg: CertifyConfig) -> dict:
-    """Run every requested estimator; return the certificates dictionary."""
+def observed_state(ds: Dataset, episodes: np.ndarray, pixels: bool, pixel_size: int) -> dict:
+    """Object position and velocity the estimators read: ``state`` (the simulator's labels) and, when
+    ``pixels``, ``pixel`` (:func:`pixel_object_state`, filled for ``episodes`` only)."""
+    state = {"state": (ds.labels["object_pos"], ds.labels["object_vel"])}
+    if pixels:
+        pos = np.zeros_like(ds.labels["object_pos"])
+        vel = np.zeros_like(ds.labels["object_vel"])
+        for i in range(0, episodes.size, 256):
+            chunk = episodes[i:i + 256]
+            pos[chunk], vel[chunk] = pixel_object_state(ds, chunk, size=pixel_size)
+        state["pixel"] = (pos, vel)
+    return state
+
+
+def certify(ds: Dataset, cfg: CertifyConfig, fit_ds: Dataset | None = None) -> dict:
+    """Run every requested estimator; return the certificates dictionary.
+
+    Estimators are fit on ``fit_ds``'s probe-fit episodes (the store's own when None; the first
+    ``cfg.fit_episodes`` of them when set) and scored on ``ds``'s probe-test episodes.
+    """
     missing = [t for t in cfg.targets if t not in ds.params]
     if missing:
         raise DataError(f"targets {missing} are not in this dataset's params ({sorted(ds.params)})")
     for lab in ("contact", "object_pos", "object_vel"):
         if lab not in ds.labels:
             raise DataError(f"certificates need labels/{lab} (a simulator corpus)")
-    fit_eps, test_eps = ds.episodes("probe_fit"), ds.episodes("probe_test")
-    if np.intersect1d(fit_eps, test_eps).size:
+    own = fit_ds is None
+    fit_ds = ds if own else fit_ds
+    fit_eps, test_eps = fit_ds.episodes("probe_fit"), ds.episodes("probe_test")
+    if cfg.fit_episodes:
+        if fit_eps.size < cfg.fit_episodes:
+            raise DataError(f"fit_episodes={cfg.fit_episodes} but the fit corpus holds only {fit_eps.size} "
+                            "probe-fit episodes")
+        fit_eps = fit_eps[:cfg.fit_episodes]
+    if own and np.intersect1d(fit_eps, test_eps).size:
         raise DataError("probe-fit and probe-test episodes overlap")
     rng = np.random.default_rng(cfg.seed)
     dt = ds.manifest.get("config", {}).get("physics", {}).get("dt", 0.05)
-    state = {"state": (ds.labels["object_pos"], ds.labels["object_vel"])}
-    if any("_pixel" in e for e in cfg.estimators):
-        pos = np.zeros_like(ds.labels["object_pos"])
-        vel = np.zeros_like(ds.labels["object_vel"])
-        probe = np.concatenate([fit_eps, test_eps])
-        for i in range(0, probe.size, 256):
-            chunk = probe[i:i + 256]
-            pos[chunk], vel[chunk] = pixel_object_state(ds, chunk, size=cfg.pixel_size)
-        state["pixel"] = (pos, vel)
-    Y_all = np.stack([ds.params[t] for t in cfg.targets], 1).astype(np.float64)
+    pixels = any("_pixel" in e for e in cfg.estimators)
+    if own:  # one pass over the store's probe episodes, as before the certificate corpus existed
+        fit_state = test_state = observed_state(ds, np.concatenate([fit_eps, test_eps]), pixels, cfg.pixel_size)
+    else:
+        fit_state = observed_state(fit_ds, fit_eps, pixels, cfg.pixel_size)
+        test_state = observed_state(ds, test_eps, pixels, cfg.pixel_size)
+    Y_fit_all = np.stack([fit_ds.params[t] for t in cfg.targets], 1).astype(np.float64)
+    Y_test_all = np.stack([ds.params[t] for t in cfg.targets], 1).astype(np.float64)
     results: dict = {"estimators": {}, "counts": {}}
     for kind in cfg.kinds:
-        w_fit = make_windows(ds, fit_eps, cfg.window, cfg.stride).kind(kind).subsample(cfg.max_windows, rng)
+        w_fit = make_windows(fit_ds, fit_eps, cfg.window, cfg.stride).kind(kind).subsample(cfg.max_windows, rng)
         w_test = make_windows(ds, test_eps, cfg.window, cfg.stride).kind(kind)
         results["counts"][kind] = {"fit": len(w_fit), "test": len(w_test)}
         if len(w_fit) < 10 or len(w_test) < 10:
             print(f"[certify] too few {kind} windows ({len(w_fit)} fit / {len(w_test)} test); skipping")
             continue
-        assert not np.intersect1d(w_fit.episode, w_test.episode).size
-        y_fit, y_test = Y_all[w_fit.episode], Y_all[w_test.episode]
+        assert not own or not np.intersect1d(w_fit.episode, w_test.episode).size
+        y_fit, y_test = Y_fit_all[w_fit.episode], Y_test_all[w_test.episode]
         for est in cfg.estimators:
             source = "pixel" if "_pixel" in est else "state"
-            pos, vel = state[source]
+            (pos_fit, vel_fit), (pos, vel) = fit_state[source], test_state[source]
             if est == "linear_logspeed":
-                channel = log_speed_channel(ds)
-                if channel is None or "gamma" not in cfg.targets:
+                channel, fit_channel = log_speed_channel(ds), log_speed_channel(fit_ds)
+                if channel is None or fit_channel is None or "gamma" not in cfg.targets:
                     print(f"[certify] {est}: this store has no log_speed channel (or gamma is not a target); skipping")
                     continue
                 g_idx = cfg.targets.index("gamma")
-                r2 = {"gamma": linear_sequence_r2(w_fit.gather(channel), y_fit[:, g_idx], w_fit.episode,
+                r2 = {"gamma": linear_sequence_r2(w_fit.gather(fit_channel), y_fit[:, g_idx], w_fit.episode,
                                                   w_test.gather(channel), y_test[:, g_idx])}
             elif est.startswith("drag"):
                 if "gamma" not in cfg.targets:
@@ -302,7 +333,7 @@ def certify(ds: Dataset, cfg: CertifyConfig) -> dict:
                 r2 = {"gamma": float(r2_scores(y_test[:, g_idx], pred)[0])}
             else:
                 geometry = est in GEOMETRY
-                X_fit = window_features(ds, w_fit, pos, vel, geometry)
+                X_fit = window_features(fit_ds, w_fit, pos_fit, vel_fit, geometry)
                 X_test = window_features(ds, w_test, pos, vel, geometry)
                 if est.endswith("_notouch"):
                     X_fit, X_test = X_fit[..., NO_TOUCH], X_test[..., NO_TOUCH]
@@ -323,6 +354,10 @@ def certify(ds: Dataset, cfg: CertifyConfig) -> dict:
     results["config"] = to_dict(cfg)
     results["dataset"] = {"path": cfg.data, "content_sha256": ds.manifest.get("content_sha256"),
                           "corpus": ds.manifest.get("corpus")}
+    results["fit_corpus"] = ({"source": "store probe-fit split", "episodes": int(fit_eps.size)} if own else
+                             {"source": "certificate corpus", "episodes": int(fit_eps.size),
+                              "seed": fit_ds.manifest.get("seed"),
+                              "content_sha256": fit_ds.manifest.get("content_sha256")})
     return results
 
 
@@ -430,7 +465,8 @@ def run(cfg: CertifyConfig) -> Path:
             print(format_table(prev))
             print(f"[certify] {out} is up to date; skipping")
             return out
-    results = certify(ds, cfg)
+    fit_ds = certificate_corpus.ensure(ds, cfg.data, cfg.fit_episodes) if cfg.fit_episodes else None
+    results = certify(ds, cfg, fit_ds)
     write_json(out, results)
     print(format_table(results))
     print(f"[certify] wrote {out}")

@@ -34,6 +34,8 @@ COMMANDS: dict[str, Command] = {
     "stats": Command("pokeworld.sim.stats", "StatsConfig", "a corpus's observable statistics beside the paper's",
                      "data"),
     "certify": Command("pokeworld.certify", "CertifyConfig", "recoverability certificates for a corpus", "data"),
+    "certify-curve": Command("pokeworld.certificate_curve", "CurveConfig",
+                             "certificate R² against certificate-fit episodes (where each estimator plateaus)", "data"),
     "train": Command("pokeworld.train", "TrainConfig", "train one X-JEPA variant"),
     "train-stacked": Command("pokeworld.train_stacked", "StackedConfig",
                              "train a grid of runs (variants × seeds × λ) stacked in one process",
