@@ -108,6 +108,9 @@ class MapConfig(LaunchOptions):
     """Cap on certificate fit windows per kind (0 keeps the certify preset's; the demo lowers it to fit its budget)."""
     certify_epochs: int = 0
     """Maximum epochs of the neural certificate estimators (0 keeps the certify preset's)."""
+    certify_fit_episodes: int = -1
+    """Episodes of the certificates' own fit corpus (``pokeworld certify --fit-episodes``; -1 keeps the certify
+    preset's, 0 fits on the corpus's probe-fit split)."""
     certify_separate_targets: bool = True
     """One certificate fit per target (certify's default); the demo fits its three targets jointly to keep
     its budget (on the standard corpus joint fits read at most 0.07 less, docs/design.md "Certificates")."""
@@ -466,6 +469,8 @@ def ensure_certificates(c: MapConfig, corpus: str) -> dict:
     from .. import certify
 
     cost = {k: v for k, v in (("max_windows", c.certify_max_windows), ("epochs", c.certify_epochs)) if v}
+    if c.certify_fit_episodes >= 0:
+        cost["fit_episodes"] = c.certify_fit_episodes
     cost["separate_targets"] = c.certify_separate_targets
     if corpus == "flow":
         # the state-based estimators do not read the appended channels: only the log-speed certificate is new
