@@ -6,7 +6,8 @@ import socket
 import pytest
 import torch
 
-from pokeworld.losses import epps_pulley, expected_null_ep, gaussian_nll, masked_mse, random_directions, sigreg
+from pokeworld.losses import (beta_nll, bounded_logvar, epps_pulley, expected_null_ep, gaussian_nll, head_logvar_nll,
+                              masked_mse, nll_precision, random_directions, sigreg, sigreg_rows_of, subsample_index)
 
 
 def test_sigreg_small_for_gaussian_large_for_collapsed_or_scaled():
@@ -133,3 +134,133 @@ def test_fused_ecf_matches_autograd_through_cos_and_sin():
     c, s = _ecf(x, t64)
     torch.testing.assert_close(c, ref_c)
     torch.testing.assert_close(s, ref_s)
+
+
+# ---------------------------------------------------------------------- SIGReg: per-step or pooled rows
+
+
+def _readings(z, seed=1, dirs=128, rows=None):
+    """(per-step, pooled) SIGReg of (B, L, D) latents as XJEPA.loss computes them."""
+    step = sigreg(sigreg_rows_of(z, "step"), dirs, seed=seed).item()
+    pooled = sigreg(sigreg_rows_of(z, "pooled"), dirs, seed=seed, max_rows=rows).item()
+    return step, pooled
+
+
+def test_sigreg_pool_rows_layout():
+    z = torch.arange(2 * 3 * 4, dtype=torch.float32).reshape(2, 3, 4)
+    assert torch.equal(sigreg_rows_of(z, "step")[1], z[:, 1])  # group t holds the B rows of step t
+    assert torch.equal(sigreg_rows_of(z, "pooled"), z.reshape(6, 4))
+    with pytest.raises(ValueError, match="unknown SIGReg pool"):
+        sigreg_rows_of(z, "window")
+
+
+def test_sigreg_pooled_and_per_step_share_the_null_level_and_pooling_separates_departures():
+    """B = 32 windows × L = 24 steps (the cpu preset). Under the null both readings sit at the N-scaled
+    expectation ∫(1 − φ²)w ≈ 1.05; a departure's excess over it grows with N, so 768 pooled rows see a
+    mild one (scale 1.3) that 32 rows per step barely register."""
+    g = torch.Generator().manual_seed(0)
+    B, L, D = 32, 24, 32
+    reps = [torch.randn(B, L, D, generator=g) for _ in range(4)]
+    mean = lambda f: torch.tensor([_readings(f(z), seed=i) for i, z in enumerate(reps)]).mean(0).tolist()
+    null_step, null_pool = mean(lambda z: z)
+    e0 = expected_null_ep()
+    assert abs(null_step - e0) < 0.15 and abs(null_pool - e0) < 0.3
+    dep_step, dep_pool = mean(lambda z: 1.3 * z)
+    ratio_step, ratio_pool = dep_step / null_step, dep_pool / null_pool
+    # measured: step 1.05 -> 2.44 (×2.3), pooled 1.10 -> 28.8 (×26); the excess (×19.9) scales with N: ×24
+    assert ratio_step < 3.5 and ratio_pool > 15 and ratio_pool > 6 * ratio_step
+    excess = (dep_pool - null_pool) / (dep_step - null_step)
+    assert 12 < excess < 40
+    # collapsed, shifted and anisotropic latents: far above the null in the pooled reading too
+    z = reps[0]
+    for bad in (1e-3 * z, z + 1.0, z * torch.linspace(0.3, 3.0, D)):
+        s, p = _readings(bad)
+        assert p > 20 * null_pool and p > s
+
+
+def test_sigreg_pooled_sees_time_correlated_rows_that_per_step_does_not():
+    """What pooling changes besides N: rows of one window are not independent samples. A latent constant
+    over each window is N(0, I) at every step (per-step statistic at the null), but pooled it is 32 distinct
+    rows counted 24 times, so the statistic is ~24× the null: the pooled regulariser also asks the latents
+    of a window to differ."""
+    g = torch.Generator().manual_seed(2)
+    z = torch.randn(32, 1, 32, generator=g).expand(32, 24, 32)
+    step, pooled = _readings(z)
+    assert abs(step - expected_null_ep()) < 0.3
+    assert 12 < pooled / step < 40
+
+
+def test_sigreg_row_subsample_is_seeded_and_deterministic():
+    a, b, c = subsample_index(768, 100, 5), subsample_index(768, 100, 5), subsample_index(768, 100, 6)
+    assert torch.equal(a, b) and not torch.equal(a, c)
+    assert a.shape == (100,) and a.unique().numel() == 100 and int(a.max()) < 768
+    assert subsample_index(768, 768, 5) is None and subsample_index(768, None, 5) is None
+    z = torch.randn(768, 16)
+    ref = sigreg(z[a], 32, seed=5)
+    assert torch.equal(sigreg(z, 32, seed=5, max_rows=100), ref)  # the subset sigreg draws is subsample_index's
+    assert torch.equal(sigreg(z, 32, seed=5, rows=a), ref)  # and a host-drawn one gives the same statistic
+    assert not torch.equal(sigreg(z, 32, seed=5, rows=c), ref)
+
+
+# ---------------------------------------------------------------------- Gaussian NLL variance options
+
+
+def test_bounded_logvar_caps_precision_and_keeps_a_gradient():
+    raw = torch.tensor([-50.0, -8.0, -3.0, -0.1, 0.0, 0.1, 3.0, 50.0], requires_grad=True)
+    s = bounded_logvar(raw, 2.0)
+    assert float(s.detach().abs().max()) <= 2.0  # tanh rounds to ±1 far out: the bound is reached, not crossed
+    assert float(nll_precision(s.detach()).max()) <= float(torch.exp(torch.tensor(2.0)))
+    torch.testing.assert_close(s[3:6], raw[3:6].detach(), atol=1e-3, rtol=0)  # identity near 0
+    s.sum().backward()
+    # beyond where a hard clamp at ±2 would stop all gradient, the bound still passes one back
+    assert raw.grad[2] > 0.1 and raw.grad[6] > 0.1
+    hard = raw.detach().clone().requires_grad_()
+    hard.clamp(-2, 2).sum().backward()
+    assert hard.grad[2] == 0
+
+
+def test_beta_nll_beta_one_has_the_mse_gradient_on_the_mean_and_beta_zero_is_the_nll():
+    g = torch.Generator().manual_seed(0)
+    y = torch.randn(3, 5, 6, generator=g)
+    logvar = torch.randn(3, 5, 6, generator=g) * 2
+    w = torch.rand(3, 5, generator=g)
+
+    def grad_mean(fn):
+        mu = torch.randn(3, 5, 6, generator=torch.Generator().manual_seed(1)).requires_grad_()
+        fn(mu).backward()
+        return mu.grad
+
+    g_beta1 = grad_mean(lambda mu: beta_nll(mu, logvar, y, w, beta=1.0))
+    g_mse = grad_mean(lambda mu: masked_mse(mu, y, w))
+    torch.testing.assert_close(g_beta1, 0.5 * g_mse)  # σ no longer reweights the mean's errors
+    g_nll = grad_mean(lambda mu: gaussian_nll(mu, logvar, y, w))
+    assert not torch.allclose(g_nll, 0.5 * g_mse, rtol=0.1)  # the plain NLL does reweight them
+    torch.testing.assert_close(grad_mean(lambda mu: beta_nll(mu, logvar, y, w, beta=0.0)), g_nll)
+    mu = torch.zeros_like(y)
+    assert torch.equal(beta_nll(mu, logvar, y, w, beta=0.0), gaussian_nll(mu, logvar, y, w))
+    # the variance's stationary point stays σ² = (y − μ)² for any β
+    s = (y - mu).pow(2).log().requires_grad_()
+    beta_nll(mu, s, y, beta=0.5).backward()
+    assert float(s.grad.abs().max()) < 1e-6
+
+
+def test_per_head_log_variance_converges_to_the_noise_variance():
+    """One learned log-variance per head, fitted with the mean by plain SGD on planted data y = a·x + σ·ε,
+    σ = 0.7: e^s converges to σ² = 0.49 (the NLL's optimum is the head's mean squared error)."""
+    g = torch.Generator().manual_seed(0)
+    x = torch.randn(2048, 4, generator=g)
+    a_true = torch.tensor([1.0, -2.0, 0.5, 0.0])
+    sigma = 0.7
+    y = (x @ a_true)[:, None] + sigma * torch.randn(2048, 1, generator=g)
+    a = torch.zeros(4, requires_grad=True)
+    s = torch.zeros((), requires_grad=True)
+    opt = torch.optim.SGD([a, s], lr=0.5)
+    for _ in range(300):
+        opt.zero_grad()
+        head_logvar_nll((x @ a)[:, None], s, y).backward()
+        opt.step()
+    assert float(s.detach().exp()) == pytest.approx(sigma ** 2, rel=0.05)
+    torch.testing.assert_close(a.detach(), a_true, atol=0.05, rtol=0)
+    # the homoscedastic NLL is the broadcast case of the per-element one
+    torch.testing.assert_close(head_logvar_nll(x, s.detach(), x * 0.5),
+                               gaussian_nll(x, s.detach().expand_as(x), x * 0.5))

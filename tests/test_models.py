@@ -319,3 +319,143 @@ def test_token_models_keep_the_shared_multi_horizon_heads(tmp_path):
     out = run(make_config("tiny", tokens=True, image_size=32, data=str(tmp_path / "syn"), out=str(tmp_path / "r"),
                           steps=3))
     assert load_model(out).horizons == (1, 4, 16)
+
+
+def test_sigreg_pool_step_and_pooled_rows_in_the_loss():
+    """The loss's SIGReg term is the per-step statistic (default: each step's B rows, averaged over time) or,
+    pooled, one statistic over the B·L rows, subsampled to sigreg_rows from the step's seed — the same subset
+    a trainer passes in drawn on the host. Nothing else in the loss changes."""
+    from pokeworld.losses import sigreg, subsample_index
+
+    m, b = make("VFX"), batch()
+    kw = dict(sigreg_dirs=8, sigreg_seed=3)
+    with torch.no_grad():
+        z = m.encode(b["frames"], b["proprio"], b["touch"])
+        _, step = m.loss(b, **kw)
+        _, pooled = m.loss(b, sigreg_pool="pooled", sigreg_rows=20, **kw)
+        _, hosted = m.loss(b, sigreg_pool="pooled", sigreg_rows=20, sigreg_row_index=subsample_index(B * L, 20, 3),
+                           **kw)
+        _, every = m.loss(b, sigreg_pool="pooled", sigreg_rows=4096, **kw)
+        _, ignored = m.loss(b, sigreg_row_index=subsample_index(B * L, 20, 3), **kw)  # per-step: no subset
+    assert torch.equal(step["sigreg"], sigreg(z.transpose(0, 1), 8, seed=3))
+    assert torch.equal(pooled["sigreg"], sigreg(z.reshape(B * L, -1)[subsample_index(B * L, 20, 3)], 8, seed=3))
+    assert torch.equal(hosted["sigreg"], pooled["sigreg"])
+    assert torch.equal(every["sigreg"], sigreg(z.reshape(B * L, -1), 8, seed=3))
+    assert torch.equal(ignored["sigreg"], step["sigreg"])
+    assert len({float(step["sigreg"]), float(pooled["sigreg"]), float(every["sigreg"])}) == 3
+    for k in step:
+        if k != "sigreg":
+            assert torch.equal(step[k], every[k]), k
+
+
+def _plant_logvar_bias(m, value):
+    """Zero the last layer of every gnll head and set its log-variance half's bias to ``value``."""
+    with torch.no_grad():
+        heads = list(m.latent_heads.values()) + [h for mh in m.modal_heads.values() for h in mh.values()]
+        for head in heads:
+            last = head.net[-1]
+            last.weight.zero_()
+            last.bias[last.out_features // 2:] = value
+
+
+def test_gnll_variance_free_is_bit_identical_to_the_clamped_per_element_nll():
+    """'free' (the default) is today's objective: same parameters, and each latent term is gaussian_nll of the
+    head's (mean, log-variance) halves, bit for bit; the proprio/touch terms likewise with gnll_heads='all'."""
+    from pokeworld.losses import gaussian_nll
+
+    b = batch()
+    default, free = make("VFX", objective="gnll", gnll_heads="all"), make("VFX", objective="gnll", gnll_heads="all",
+                                                                          gnll_variance="free")
+    sd, sf = default.state_dict(), free.state_dict()
+    assert sd.keys() == sf.keys() and all(torch.equal(sd[k], sf[k]) for k in sd)
+    assert free.latent_heads["4"].net[-1].out_features == 2 * 16 and free.latent_logvar is None
+    with torch.no_grad():
+        _, terms = free.loss(b, sigreg_dirs=8, touch_contact_weight=1.0)
+        _, terms_default = default.loss(b, sigreg_dirs=8, touch_contact_weight=1.0)
+        z = free.encode(b["frames"], b["proprio"], b["touch"])
+        h = free.trunk(z, b["actions"])
+        for d in free.horizons:
+            mean, lv = free._head_out(h, b["actions"], d, free.latent_heads[str(d)]).chunk(2, -1)
+            assert torch.equal(terms[f"pred_{d}"], gaussian_nll(mean[:, :L - d], lv[:, :L - d], z[:, d:])), d
+        tgt = free.norm("touch", b["touch"])
+        touch = torch.stack([gaussian_nll(*free._head_out(h, b["actions"], d, free.modal_heads["touch"][str(d)])
+                                          [:, :L - d].chunk(2, -1), tgt[:, d:]) for d in free.horizons]).mean()
+    assert torch.equal(terms["touch"], touch)
+    assert terms.keys() == terms_default.keys() and all(torch.equal(terms[k], terms_default[k]) for k in terms)
+    assert "latent_weight" not in terms
+
+
+def test_gnll_variance_bounded_caps_every_precision_at_e_to_the_bound():
+    """A head driven to log-variance −50: the free head's precision runs to the clamp e^8, the bounded head's
+    never exceeds e^2, on the latent and the proprio/touch heads alike."""
+    b = batch()
+    free = make("VFX", objective="gnll", gnll_heads="all")
+    bounded = make("VFX", objective="gnll", gnll_heads="all", gnll_variance="bounded")
+    cap = float(torch.exp(torch.tensor(2.0)))
+    for m in (free, bounded):
+        _plant_logvar_bias(m, -50.0)
+    with torch.no_grad():
+        _, t_free = free.loss(b, sigreg_dirs=8)
+        _, t_bounded = bounded.loss(b, sigreg_dirs=8)
+        h = bounded.trunk(bounded.encode(b["frames"], b["proprio"], b["touch"]), b["actions"])
+        for d in bounded.horizons:
+            _, lv = bounded.predict(h, b["actions"], d, return_logvar=True)
+            _, lv_touch = bounded.forecast(h, b["actions"], d, "touch", return_logvar=True)
+            assert float(torch.exp(-lv).max()) <= cap and float(torch.exp(-lv_touch).max()) <= cap
+    assert float(t_free["latent_precision"]) == pytest.approx(float(torch.exp(torch.tensor(8.0))), rel=1e-5)
+    assert float(t_bounded["latent_precision"]) == pytest.approx(cap, rel=1e-5)
+    # a wider bound lets it go further
+    wide = make("VFX", objective="gnll", gnll_variance="bounded", gnll_logvar_bound=4.0)
+    _plant_logvar_bias(wide, -50.0)
+    with torch.no_grad():
+        assert float(wide.loss(b, sigreg_dirs=8)[1]["latent_precision"]) == pytest.approx(
+            float(torch.exp(torch.tensor(4.0))), rel=1e-5)
+
+
+def test_gnll_variance_beta_scores_beta_nll_and_reports_its_weight():
+    from pokeworld.losses import beta_nll
+
+    b = batch()
+    m = make("VFX", objective="gnll", gnll_variance="beta")
+    _plant_logvar_bias(m, -3.0)  # precision e^3 everywhere
+    with torch.no_grad():
+        _, half = m.loss(b, sigreg_dirs=8, gnll_beta=0.5)
+        _, one = m.loss(b, sigreg_dirs=8, gnll_beta=1.0)
+        z = m.encode(b["frames"], b["proprio"], b["touch"])
+        h = m.trunk(z, b["actions"])
+        mean, lv = m.predict(h, b["actions"], 4, return_logvar=True)
+    assert torch.equal(half["pred_4"], beta_nll(mean[:, :L - 4], lv[:, :L - 4], z[:, 4:], beta=0.5))
+    e = float(torch.exp(torch.tensor(3.0)))
+    assert float(half["latent_precision"]) == pytest.approx(e, rel=1e-5)  # the stated precision e^{-s}
+    assert float(half["latent_weight"]) == pytest.approx(e ** 0.5, rel=1e-5)  # the weight the mean sees
+    assert float(one["latent_weight"]) == pytest.approx(1.0)  # β = 1: the MSE's weight whatever σ
+
+
+def test_gnll_variance_per_head_owns_one_log_variance_per_head():
+    """'per_head': heads output the mean only; one scalar log-variance per horizon (and per proprio/touch head
+    with gnll_heads='all') is what predict/forecast report, the loss trains and the state_dict gains — only
+    with this option."""
+    b = batch()
+    m = make("VFX", objective="gnll", gnll_heads="all", gnll_variance="per_head").train()
+    assert m.latent_heads["4"].net[-1].out_features == 16 and m.modal_heads["touch"]["4"].net[-1].out_features == 7
+    keys = set(m.state_dict())
+    added = {f"latent_logvar.{d}" for d in (1, 4, 16)} | {f"modal_logvar.{mod}.{d}" for mod in ("proprio", "touch")
+                                                          for d in (1, 4, 16)}
+    assert added <= keys
+    for other in (make("VFX", objective="gnll", gnll_heads="all"), make("VFX")):
+        assert not any("logvar" in k for k in other.state_dict())
+    with torch.no_grad():
+        m.latent_logvar["4"].fill_(-float(np.log(50.0)))
+    h = m.trunk(m.encode(b["frames"], b["proprio"], b["touch"]), b["actions"])
+    mean, lv = m.predict(h, b["actions"], 4, return_logvar=True)
+    assert lv.shape == mean.shape and torch.equal(lv, torch.full_like(lv, -float(np.log(50.0))))
+    loss, terms = m.loss(b, sigreg_dirs=8)
+    loss.backward()
+    for p in list(m.latent_logvar.values()) + [p for d in m.modal_logvar.values() for p in d.values()]:
+        assert p.grad is not None and p.grad != 0
+    # mean over horizons of e^{-s}: (50 + 1 + 1) / 3
+    assert float(terms["latent_precision"]) == pytest.approx(52.0 / 3, rel=1e-5)
+    with pytest.raises(ConfigError, match="needs objective='gnll'"):
+        make("VFX", gnll_variance="per_head")
+    with pytest.raises(ConfigError, match="unknown gnll_variance"):
+        make("VFX", objective="gnll", gnll_variance="student")

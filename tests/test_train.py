@@ -150,3 +150,86 @@ def test_sampler_batch_carries_glide_mask(data_dir):
     assert b["glide"].dtype == torch.bool and b["glide"].shape == (16, 18)
     assert torch.equal(b["glide"], b["touch"][..., 6] <= 0.5)
     assert 0 < float(b["glide"].float().mean()) < 1
+
+
+def test_sigreg_pool_and_gnll_variance_options_validate_and_reach_the_loss():
+    from pokeworld.train import loss_kwargs, model_kwargs
+
+    cfg = make_config("tiny")
+    assert (cfg.sigreg_pool, cfg.sigreg_rows, cfg.gnll_variance, cfg.gnll_beta, cfg.gnll_logvar_bound) == (
+        "step", 4096, "free", 0.5, 2.0)
+    kw = loss_kwargs(make_config("tiny", sigreg_pool="pooled", sigreg_rows=768))
+    assert (kw["sigreg_pool"], kw["sigreg_rows"]) == ("pooled", 768)
+    assert loss_kwargs(make_config("tiny", objective="gnll", gnll_variance="beta", gnll_beta=1.0))["gnll_beta"] == 1.0
+    mk = model_kwargs(make_config("tiny", objective="gnll", gnll_variance="bounded", gnll_logvar_bound=3.0), (4, 7, 2))
+    assert (mk["gnll_variance"], mk["gnll_logvar_bound"]) == ("bounded", 3.0)
+    for bad, match in ((dict(sigreg_pool="window"), "unknown sigreg_pool"),
+                       (dict(sigreg_rows=768), "applies to sigreg_pool='pooled' only"),
+                       (dict(sigreg_pool="pooled", sigreg_rows=0), "sigreg_rows must be"),
+                       (dict(sigreg_pool="pooled", tokens=True, image_size=32), "tokens=True always pools"),
+                       (dict(sigreg_pool="pooled", objective="recon"), "no SIGReg"),
+                       (dict(gnll_variance="beta"), "needs objective='gnll'"),
+                       (dict(objective="gnll", gnll_variance="student"), "unknown gnll_variance"),
+                       (dict(objective="gnll", gnll_variance="beta", gnll_beta=1.5), r"gnll_beta must lie in \[0, 1\]"),
+                       (dict(objective="gnll", gnll_beta=0.9), "applies to gnll_variance='beta' only"),
+                       (dict(objective="gnll", gnll_logvar_bound=3.0), "applies to gnll_variance='bounded' only"),
+                       (dict(objective="gnll", gnll_variance="bounded", gnll_logvar_bound=0.0), "positive")):
+        with pytest.raises(ConfigError, match=match):
+            make_config("tiny", **bad)
+
+
+def test_cli_flags_parse_to_the_new_fields():
+    import tyro
+
+    cfg = tyro.cli(TrainConfig, default=make_config("tiny"), args=[
+        "--sigreg-pool", "pooled", "--sigreg-rows", "768", "--objective", "gnll", "--gnll-variance", "beta",
+        "--gnll-beta", "1.0"])
+    assert (cfg.sigreg_pool, cfg.sigreg_rows, cfg.gnll_variance, cfg.gnll_beta) == ("pooled", 768, "beta", 1.0)
+    cfg = tyro.cli(TrainConfig, default=make_config("tiny"), args=[
+        "--objective", "gnll", "--gnll-variance", "bounded", "--gnll-logvar-bound", "3.0"])
+    assert (cfg.gnll_variance, cfg.gnll_logvar_bound) == ("bounded", 3.0)
+
+
+def test_pooled_sigreg_row_subset_is_drawn_on_the_host_from_the_step_seed():
+    from pokeworld.losses import subsample_index
+    from pokeworld.train import sigreg_row_index, sigreg_seed
+
+    cfg = make_config("tiny", sigreg_pool="pooled", sigreg_rows=32)  # 4 windows × 18 steps = 72 rows
+    cpu = torch.device("cpu")
+    idx = sigreg_row_index(cfg, 7, cpu)
+    assert torch.equal(idx, subsample_index(72, 32, sigreg_seed(cfg, 7)))
+    assert torch.equal(idx, sigreg_row_index(cfg, 7, cpu)) and not torch.equal(idx, sigreg_row_index(cfg, 8, cpu))
+    assert sigreg_row_index(make_config("tiny"), 7, cpu) is None  # per-step: no subset
+    assert sigreg_row_index(make_config("tiny", sigreg_pool="pooled", sigreg_rows=72), 7, cpu) is None  # all rows
+
+
+@pytest.mark.parametrize("kw", [dict(sigreg_pool="pooled", sigreg_rows=32),
+                                dict(objective="gnll", gnll_heads="all", gnll_variance="per_head"),
+                                dict(objective="gnll", gnll_variance="bounded"),
+                                dict(objective="gnll", gnll_variance="beta")])
+def test_tiny_runs_with_the_new_options_train_record_and_load(data_dir, tmp_path, kw):
+    out = run(make_config("tiny", data=data_dir, out=str(tmp_path / "r"), steps=4, log_every=2, **kw))
+    rows = [json.loads(x) for x in (out / "metrics.jsonl").read_text().splitlines()]
+    assert np.isfinite(rows[-1]["loss"]) and "sigreg" in rows[-1]
+    if kw.get("objective") == "gnll":  # every variance parameterisation records its latent precision
+        assert rows[-1]["latent_precision"] > 0
+        assert ("latent_weight" in rows[-1]) == (kw["gnll_variance"] == "beta")
+    m = load_model(out)
+    assert m.gnll_variance == kw.get("gnll_variance", "free")
+    assert (m.latent_logvar is not None) == (kw.get("gnll_variance") == "per_head")
+
+
+def test_runs_recorded_before_the_options_resume_unchanged(data_dir, tmp_path):
+    """A config.json written before sigreg_pool / gnll_variance existed lacks them: it means the defaults
+    (per-step SIGReg, free variances), so it resumes without a conflict; asking it for another reading
+    conflicts."""
+    kw = dict(data=data_dir, out=str(tmp_path / "old"), steps=4, objective="gnll")
+    run(make_config("tiny", stop_at=2, **kw))
+    path = tmp_path / "old" / "config.json"
+    old = json.loads(path.read_text())
+    new_fields = ("sigreg_pool", "sigreg_rows", "gnll_variance", "gnll_beta", "gnll_logvar_bound")
+    path.write_text(json.dumps({k: v for k, v in old.items() if k not in new_fields}))
+    for bad in (dict(sigreg_pool="pooled"), dict(gnll_variance="bounded")):
+        with pytest.raises(ConfigError, match="different config"):
+            run(make_config("tiny", **{**kw, **bad}))
+    assert (run(make_config("tiny", **kw)) / "DONE").exists()

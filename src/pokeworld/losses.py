@@ -149,8 +149,22 @@ def random_directions(dim: int, num: int, seed: int, device=None) -> torch.Tenso
     return a.to(device) if device is not None else a
 
 
+def subsample_index(n: int, max_rows: int | None, seed: int) -> torch.Tensor | None:
+    """Row subset of :func:`sigreg`: ``max_rows`` of ``n`` row indices (CPU int64), or None when every row is kept.
+
+    A random permutation from a CPU generator seeded by ``seed`` only (the step's SIGReg seed), so it is the
+    same on every rank (each rank takes those positions of its own rows), after resume, and when a trainer
+    draws it on the host ahead of the step (:func:`pokeworld.train.sigreg_row_index`)."""
+    if max_rows is None or n <= max_rows:
+        return None
+    g = torch.Generator(device="cpu")
+    g.manual_seed((int(seed) * 7919 + 17) % (2 ** 63 - 1))
+    return torch.randperm(n, generator=g)[:max_rows]
+
+
 def sigreg(z: torch.Tensor, num_dirs: int = 1024, seed: int = 0, num_knots: int = 17,
-           t_max: float = 3.0, max_rows: int | None = None, directions: torch.Tensor | None = None) -> torch.Tensor:
+           t_max: float = 3.0, max_rows: int | None = None, directions: torch.Tensor | None = None,
+           rows: torch.Tensor | None = None) -> torch.Tensor:
     """SIGReg loss: mean Epps–Pulley statistic of ``z`` projected on ``num_dirs`` random unit directions.
 
     Args:
@@ -160,21 +174,41 @@ def sigreg(z: torch.Tensor, num_dirs: int = 1024, seed: int = 0, num_knots: int 
         seed: directions seed; pass a function of (run seed, step) so they are resampled every
            step but shared across ranks.
         max_rows: if set and N > max_rows, use a random subset of ``max_rows`` rows (token-level
-           subsampling, 4096 in the paper). The subset uses the same seeded generator.
+           subsampling, 4096 in the paper). The subset uses the same seeded generator
+           (:func:`subsample_index`).
         directions: (D, num_dirs) unit directions to use instead of drawing them from ``seed``; the
            trainer's fast path passes ``random_directions(D, num_dirs, seed)`` uploaded ahead of time.
+        rows: row indices (int64, on ``z``'s device) to use instead of drawing the subset from ``seed``
+           and ``max_rows``; trainers pass ``subsample_index(N, max_rows, seed)`` drawn on the host (the
+           stacked trainer one per member, which an integer seed under ``torch.vmap`` could not give).
     Returns:
         scalar loss (float32, computed outside autocast).
     """
     with torch.autocast(device_type=z.device.type, enabled=False):
         z = z.float()
-        if max_rows is not None and z.shape[-2] > max_rows:
-            g = torch.Generator(device="cpu")
-            g.manual_seed((int(seed) * 7919 + 17) % (2 ** 63 - 1))
-            idx = torch.randperm(z.shape[-2], generator=g)[:max_rows].to(z.device)
-            z = z.index_select(-2, idx)
+        if rows is None:
+            rows = subsample_index(z.shape[-2], max_rows, seed)
+            rows = None if rows is None else rows.to(z.device)
+        if rows is not None:
+            z = z.index_select(-2, rows)
         a = random_directions(z.shape[-1], num_dirs, seed, z.device) if directions is None else directions.float()
         return epps_pulley(z @ a, num_knots, t_max).mean()
+
+
+SIGREG_POOLS = ("step", "pooled")
+"""Which latent rows one SIGReg statistic is computed over (global-latent models): 'step' — per time step over
+the batch, the statistics averaged over time (LeWM's reading); 'pooled' — one statistic over all batch × time
+rows, subsampled to a row budget (the reading of the paper's "4096 subsampled rows"). docs/design.md
+"SIGReg: per-step or pooled rows"."""
+
+
+def sigreg_rows_of(z: torch.Tensor, pool: str) -> torch.Tensor:
+    """The row groups SIGReg sees for (B, L, D) latents: (L, B, D) for 'step', (B·L, D) for 'pooled'."""
+    if pool == "step":
+        return z.transpose(0, 1)
+    if pool == "pooled":
+        return z.reshape(-1, z.shape[-1])
+    raise ValueError(f"unknown SIGReg pool {pool!r}; choose one of {list(SIGREG_POOLS)}")
 
 
 def masked_mse(pred: torch.Tensor, target: torch.Tensor, weight: torch.Tensor | None = None) -> torch.Tensor:
@@ -208,10 +242,63 @@ def gaussian_nll(mean: torch.Tensor, logvar: torch.Tensor, target: torch.Tensor,
 LOGVAR_RANGE = (-8.0, 8.0)
 """Clamp of the belief objective's log-variances, shared by the KL and the reparameterised sample."""
 
+GNLL_VARIANCES = ("free", "bounded", "beta", "per_head")
+"""How the ``gnll`` objective parameterises its variances (docs/design.md "Gaussian NLL: variance
+parameterisation"): 'free' — a per-element, per-frame log-variance head output clamped to
+:data:`LOGVAR_RANGE` (:func:`gaussian_nll`); 'bounded' — the same output squashed smoothly into
+[−b, b] (:func:`bounded_logvar`); 'beta' — free log-variances, the per-element NLL reweighted by
+stop_gradient(σ^{2β}) (:func:`beta_nll`); 'per_head' — one learned log-variance scalar per head
+(:func:`head_logvar_nll`)."""
+
 
 def nll_precision(logvar: torch.Tensor) -> torch.Tensor:
     """Precision e^{-s} with which :func:`gaussian_nll` weighs a squared error (s clamped as there)."""
     return torch.exp(-logvar.float().clamp(*LOGVAR_RANGE))
+
+
+def bounded_logvar(raw: torch.Tensor, bound: float = 2.0) -> torch.Tensor:
+    """Log-variance ``b·tanh(raw / b)`` in (−b, b): the precision never exceeds e^b (e² ≈ 7.4 at b = 2).
+
+    A hard clamp has zero gradient beyond its edge, so a head pushed there stays there whatever the data
+    say; the tanh is the identity near 0 (slope 1 − (s/b)²), so small log-variances are what the free head
+    would output, and its gradient shrinks smoothly towards the bound instead of vanishing at it."""
+    b = float(bound)
+    return b * torch.tanh(raw.float() / b)
+
+
+def beta_nll(mean: torch.Tensor, logvar: torch.Tensor, target: torch.Tensor, weight: torch.Tensor | None = None,
+             beta: float = 0.5, min_logvar: float = LOGVAR_RANGE[0],
+             max_logvar: float = LOGVAR_RANGE[1]) -> torch.Tensor:
+    """β-NLL (Seitzer et al. 2022): the per-element Gaussian NLL times stop_gradient(σ^{2β}), s clamped.
+
+    ``sg(e^{βs}) · 0.5·(e^{-s}(y−μ)² + s)``. Its gradient in μ is ``e^{(β−1)s}(μ−y)``: β = 0 is the
+    plain NLL (precision-weighted), β = 1 the MSE gradient ½·∂(y−μ)² whatever σ is, so a frame the model
+    calls predictable no longer gains weight e^{-s} on its mean; σ itself still gets the NLL's gradient
+    (scaled), so its optimum σ² = E(y−μ)² is unchanged. Shapes as :func:`gaussian_nll`."""
+    s = logvar.float().clamp(min_logvar, max_logvar)
+    nll = 0.5 * (torch.exp(-s) * (target.float() - mean.float()).pow(2) + s)
+    nll = (torch.exp(float(beta) * s).detach() * nll).mean(-1)
+    if weight is None:
+        return nll.mean()
+    weight = weight.float()
+    return (nll * weight).sum() / weight.sum().clamp_min(1e-8)
+
+
+def beta_nll_weight(logvar: torch.Tensor, beta: float) -> torch.Tensor:
+    """Weight e^{(β−1)s} with which :func:`beta_nll` weighs a squared error on the mean (s clamped as there)."""
+    return torch.exp((float(beta) - 1.0) * logvar.float().clamp(*LOGVAR_RANGE))
+
+
+def head_logvar_nll(mean: torch.Tensor, logvar: torch.Tensor, target: torch.Tensor,
+                    weight: torch.Tensor | None = None) -> torch.Tensor:
+    """Homoscedastic Gaussian NLL of one head: a single log-variance s (any shape broadcastable to ``mean``;
+    a 0-d learned scalar per head) shared by every element and frame the head predicts.
+
+    ``0.5·(e^{-s}·mse + s)`` with mse the (weighted) mean squared error, minimised at s = log mse: s tracks
+    the head's own error level, so the head's terms are rescaled against the other heads (horizons,
+    modalities) but no frame or latent dimension is reweighted against another. Clamped as
+    :func:`gaussian_nll`, of which it is the broadcast case."""
+    return gaussian_nll(mean, logvar.expand_as(mean), target, weight)
 
 
 def gaussian_kl(mu_q: torch.Tensor, logvar_q: torch.Tensor, mu_p: torch.Tensor, logvar_p: torch.Tensor,
@@ -282,4 +369,6 @@ def expected_null_ep(num_knots: int = 17, t_max: float = 3.0) -> float:
 
 
 __all__ = ["sigreg", "epps_pulley", "random_directions", "ep_knots", "masked_mse", "gaussian_nll", "gaussian_kl",
-           "glide_weights", "motion_weights", "glide_loss_share", "expected_null_ep"]
+           "glide_weights", "motion_weights", "glide_loss_share", "expected_null_ep", "subsample_index",
+           "sigreg_rows_of", "SIGREG_POOLS", "GNLL_VARIANCES", "bounded_logvar", "beta_nll", "beta_nll_weight",
+           "head_logvar_nll", "nll_precision"]

@@ -41,8 +41,9 @@ from . import checkpoint
 from .config import from_preset, to_dict
 from .errors import ConfigError, DataError
 from .faults import crash_point
-from .losses import random_directions
-from .models.xjepa import GNLL_HEADS, OBJECTIVES, SYSID_PARAMS, XJEPA, area_downsample, check_variant
+from .losses import SIGREG_POOLS, random_directions, subsample_index
+from .models.xjepa import (GNLL_HEADS, OBJECTIVES, SYSID_PARAMS, XJEPA, area_downsample, check_gnll_variance,
+                           check_variant)
 
 
 @dataclass
@@ -80,6 +81,18 @@ class TrainConfig:
     """objective='gnll': which heads are Gaussian NLL — 'latent' (the latent Δ-heads; proprio/touch stay MSE)
     or 'all' (proprio/touch heads also predict a log-variance, so no target gains weight over another through
     its learned precision; docs/model.md "The Gaussian-NLL control")."""
+    gnll_variance: str = "free"
+    """objective='gnll': variance parameterisation of every NLL head (the paper gives none; docs/design.md
+    "Gaussian NLL: variance parameterisation"). 'free' (the runs so far): a per-element, per-frame log-variance
+    output clamped to [−8, 8], so a precision can reach e^8 ≈ 2,981; 'bounded': that output squashed smoothly
+    into (−b, b), b = ``gnll_logvar_bound``, so no precision exceeds e^b; 'beta': β-NLL (Seitzer et al. 2022),
+    each element's NLL times stop_gradient(σ^{2β}), β = ``gnll_beta``; 'per_head': heads output the mean only
+    and each head (horizon; proprio/touch too with gnll_heads='all') learns one log-variance scalar, so heads are
+    rescaled against each other but no frame is reweighted against another (adds parameters)."""
+    gnll_beta: float = 0.5
+    """gnll_variance='beta': β in [0, 1] of β-NLL; 0 is the plain NLL, 1 gives the mean the MSE gradient."""
+    gnll_logvar_bound: float = 2.0
+    """gnll_variance='bounded': bound b of the squashed log-variance b·tanh(s/b) (precision ≤ e^b ≈ 7.4 at 2)."""
     belief_dim: int = 8
     """objective='belief': dimension K of the episode-level latent u."""
     belief_kl_weight: float = 0.01
@@ -116,6 +129,16 @@ class TrainConfig:
     """Random unit directions per step for SIGReg (resampled every step)."""
     sigreg_knots: int = 17
     """Trapezoid knots on [0, 3] for the Epps–Pulley integral."""
+    sigreg_pool: str = "step"
+    """Rows of one SIGReg statistic (global-latent models; docs/design.md "SIGReg: per-step or pooled rows"):
+    'step' (the runs so far, LeWM's reading) — per time step over the batch's rows, averaged over the window;
+    'pooled' — one statistic over all batch × window latents, subsampled to ``sigreg_rows`` (the paper's
+    "4096 subsampled rows"). The statistic is N-scaled: its null level is the same, its excess under a
+    departure from N(0, I) grows with N (window× at equal λ). Under DDP either is the global statistic over
+    all ranks' rows (ECFs all-reduced)."""
+    sigreg_rows: int = 4096
+    """sigreg_pool='pooled': latent rows per step (per rank under DDP) the pooled statistic is computed on, a
+    seeded random subset when batch × window exceeds it (paper: 4096); all rows otherwise."""
     token_rows: int = 4096
     """Token variant: token rows subsampled per step for SIGReg."""
     token_dirs: int = 256
@@ -239,6 +262,26 @@ def validate(cfg: TrainConfig) -> None:
         raise ConfigError(f"unknown gnll_heads {cfg.gnll_heads!r}; choose one of {list(GNLL_HEADS)}")
     if cfg.gnll_heads != "latent" and cfg.objective != "gnll":
         raise ConfigError(f"gnll_heads={cfg.gnll_heads!r} needs objective='gnll'")
+    check_gnll_variance(cfg.gnll_variance, cfg.objective, cfg.gnll_logvar_bound)
+    if not 0.0 <= cfg.gnll_beta <= 1.0:
+        raise ConfigError(f"gnll_beta must lie in [0, 1], got {cfg.gnll_beta}")
+    # an option that the chosen parameterisation ignores would only make the run's config lie about it
+    if cfg.gnll_beta != 0.5 and cfg.gnll_variance != "beta":
+        raise ConfigError(f"gnll_beta={cfg.gnll_beta} applies to gnll_variance='beta' only")
+    if cfg.gnll_logvar_bound != 2.0 and cfg.gnll_variance != "bounded":
+        raise ConfigError(f"gnll_logvar_bound={cfg.gnll_logvar_bound} applies to gnll_variance='bounded' only")
+    if cfg.sigreg_pool not in SIGREG_POOLS:
+        raise ConfigError(f"unknown sigreg_pool {cfg.sigreg_pool!r}; choose one of {list(SIGREG_POOLS)}")
+    if cfg.sigreg_rows < 1:
+        raise ConfigError(f"sigreg_rows must be ≥ 1, got {cfg.sigreg_rows}")
+    if cfg.sigreg_pool != "step":
+        if cfg.tokens:
+            raise ConfigError("sigreg_pool applies to global latents; tokens=True always pools token rows "
+                              "(token_rows)")
+        if cfg.objective == "recon":
+            raise ConfigError("objective='recon' has no SIGReg to pool")
+    elif cfg.sigreg_rows != 4096:
+        raise ConfigError(f"sigreg_rows={cfg.sigreg_rows} applies to sigreg_pool='pooled' only")
     if cfg.image_size % 16 or cfg.image_size < 16:
         raise ConfigError(f"image_size must be a multiple of 16 (4 stride-2 stages), got {cfg.image_size}")
     if len(cfg.channels) != 4:
@@ -288,6 +331,16 @@ def sigreg_directions(cfg: TrainConfig, step: int, dev: torch.device, non_blocki
     return to_device(random_directions(cfg.latent_dim, k, sigreg_seed(cfg, step)), dev, non_blocking)
 
 
+def sigreg_row_index(cfg: TrainConfig, step: int, dev: torch.device, non_blocking: bool = False) -> torch.Tensor | None:
+    """The step's pooled-SIGReg row subset ((sigreg_rows,) int64 indices into the batch × window rows), drawn
+    on the host exactly as :func:`pokeworld.losses.sigreg` draws it from :func:`sigreg_seed`; None when
+    nothing is subsampled (sigreg_pool='step', or batch × window ≤ sigreg_rows)."""
+    if cfg.sigreg_pool != "pooled" or cfg.tokens:
+        return None
+    idx = subsample_index(cfg.batch_size * cfg.window, cfg.sigreg_rows, sigreg_seed(cfg, step))
+    return None if idx is None else to_device(idx, dev, non_blocking)
+
+
 def decay_split(named_ndims) -> tuple[list[str], list[str]]:
     """Parameter names with weight decay (matrices and kernels) and without (biases, norms, positional
     embeddings), from ``(name, ndim)`` pairs in order. The single rule, so stacked training maps optimizer
@@ -314,7 +367,8 @@ def loss_kwargs(cfg: TrainConfig) -> dict[str, Any]:
                 token_rows=cfg.token_rows, token_dirs=cfg.token_dirs, touch_contact_weight=cfg.touch_contact_weight,
                 proprio_weight=cfg.proprio_weight, touch_weight=cfg.touch_weight, sysid_weight=cfg.sysid_weight,
                 glide_loss_weight=cfg.glide_loss_weight, belief_kl_weight=cfg.belief_kl_weight,
-                motion_loss_weight=cfg.motion_loss_weight)
+                motion_loss_weight=cfg.motion_loss_weight, sigreg_pool=cfg.sigreg_pool, sigreg_rows=cfg.sigreg_rows,
+                gnll_beta=cfg.gnll_beta)
 
 
 def train_step(model: torch.nn.Module, opt: torch.optim.Optimizer, cfg: TrainConfig, batch: dict, step: int,
@@ -326,8 +380,11 @@ def train_step(model: torch.nn.Module, opt: torch.optim.Optimizer, cfg: TrainCon
     detached loss and the loss terms, with ``grad_norm`` when clipping is on; nothing is read on the host.
     """
     dirs = sigreg_directions(cfg, step, dev, non_blocking=fast)
+    rows = sigreg_row_index(cfg, step, dev, non_blocking=fast)
+    extra = {} if rows is None else {"sigreg_row_index": rows}  # the subset uploaded ahead, like the directions
     with torch.autocast(dev.type, dtype=torch.bfloat16, enabled=amp):
-        loss, terms = (model if loss_fn is None else loss_fn)(batch, sigreg_seed=sigreg_seed(cfg, step), sigreg_directions=dirs, **loss_kw)
+        loss, terms = (model if loss_fn is None else loss_fn)(batch, sigreg_seed=sigreg_seed(cfg, step),
+                                                              sigreg_directions=dirs, **extra, **loss_kw)
     opt.zero_grad(set_to_none=True)
     loss.backward()
     if cfg.grad_clip > 0:
@@ -504,7 +561,8 @@ def model_kwargs(cfg: TrainConfig, dims: tuple[int, int, int]) -> dict[str, Any]
                 horizons=tuple(cfg.horizons), objective=cfg.objective, tokens=cfg.tokens,
                 sysid=cfg.sysid_weight > 0, max_len=max(128, cfg.window), vec_dim=cfg.vec_dim,
                 contact_channel=cfg.contact_channel, pool=cfg.pool, belief_dim=cfg.belief_dim,
-                motion_channel=cfg.motion_channel, gnll_heads=cfg.gnll_heads)
+                motion_channel=cfg.motion_channel, gnll_heads=cfg.gnll_heads, gnll_variance=cfg.gnll_variance,
+                gnll_logvar_bound=cfg.gnll_logvar_bound)
 
 
 def lr_lambda(step: int, warmup: int, total: int) -> float:
@@ -819,4 +877,4 @@ def _train(cfg: TrainConfig, out: Path, cfg_dict: dict) -> Path:
 
 __all__ = ["TrainConfig", "PRESETS", "make_config", "validate", "run", "load_model", "WindowSampler",
            "data_stats", "synthetic_dataset", "model_kwargs", "lr_lambda", "use_fast_path", "make_optimizer",
-           "loss_kwargs", "sigreg_directions", "sigreg_seed", "to_device", "wall_clock"]
+           "loss_kwargs", "sigreg_directions", "sigreg_row_index", "sigreg_seed", "to_device", "wall_clock"]

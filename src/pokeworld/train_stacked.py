@@ -10,9 +10,10 @@ stacking measured slower than separate models (docs/model.md). Every member keep
 * its own initialisation (the same ``torch.manual_seed(seed)`` before construction), its own window
   stream (a generator seeded as the separate run's sampler, drawn in the same order; one copy of the
   data serves all members: a step gathers an (M, B) index block at once), its own SIGReg directions
-  (drawn from its seed and the step), its own BatchNorm running statistics (stacked buffers, updated
-  in place by vmap's batch-norm rule), its own loss weights (λ, proprio/touch/sysid weights, the touch
-  contact weight, passed as per-member tensors);
+  and, with ``sigreg_pool='pooled'``, its own row subset (both drawn on the host from its seed and the
+  step, as ``train.train_step`` draws them, and passed in per member), its own BatchNorm running
+  statistics (stacked buffers, updated in place by vmap's batch-norm rule), its own loss weights (λ,
+  proprio/touch/sysid weights, the touch contact weight, passed as per-member tensors);
 * one AdamW over the stacked parameters (elementwise, so the same update as M optimisers) with
   gradient-norm clipping per member (the norm of each member's gradient, not of the stack's);
 * a run directory with the files ``train.run`` writes (``config.json`` = that member's
@@ -308,7 +309,7 @@ class _Group:
         batch = self.sample(c0.batch_size)
         dirs = self.directions(step)
         with torch.autocast(self.dev.type, dtype=torch.bfloat16, enabled=self.use_amp):
-            loss, terms = self.vloss(self.params, self.buffers, batch, dirs, self.member_kw)
+            loss, terms = self.vloss(self.params, self.buffers, batch, dirs, self.step_kw(step))
         self.opt.zero_grad(set_to_none=True)
         loss.sum().backward()  # members share no parameters: each gets its own loss's gradient
         if c0.grad_clip > 0:
@@ -329,6 +330,16 @@ class _Group:
     def directions(self, step: int) -> torch.Tensor:
         dirs = torch.stack([T.sigreg_directions(c, step, torch.device("cpu")) for c in self.cfgs])
         return T.to_device(dirs, self.dev, self.fast)
+
+    def step_kw(self, step: int) -> dict[str, torch.Tensor]:
+        """The per-member loss tensors of ``step``: the fixed ones, plus (M, sigreg_rows) pooled-SIGReg row
+        subsets when the group subsamples. Inside vmap the loss sees no per-member integer seed, so a subset
+        drawn there from ``sigreg_seed`` would be one subset for every member and step; drawn here, member i's
+        is the one its separate run draws."""
+        rows = [T.sigreg_row_index(c, step, torch.device("cpu")) for c in self.cfgs]
+        if rows[0] is None:  # same pool, rows, batch and window across the group: all None or none
+            return self.member_kw
+        return {**self.member_kw, "sigreg_row_index": T.to_device(torch.stack(rows), self.dev, self.fast)}
 
     def clip_(self, max_norm: float) -> torch.Tensor:
         """Per-member gradient-norm clipping as ``clip_grad_norm_`` on each member; returns the (M,) norms."""

@@ -11,7 +11,8 @@ dataset arrays.
 Variants (inputs × targets, paper Table "targets"); see :data:`VARIANTS`.
 Objectives: ``latent`` (MSE to jointly learned encoder targets, no stop-gradient),
 ``gnll`` (latent heads also output a log-variance; Gaussian NLL; with ``gnll_heads='all'`` the
-proprio/touch heads too, so every target keeps its relative weight), ``recon`` (a shared
+proprio/touch heads too, so every target keeps its relative weight; ``gnll_variance`` picks the variance
+parameterisation, :data:`~pokeworld.losses.GNLL_VARIANCES`), ``recon`` (a shared
 deconvolutional decoder reconstructs future frames instead of latent targets; SIGReg off),
 ``belief`` (an episode-level latent u: amortised posterior q(u | whole window), learned causal prior
 p(u | trunk state h_t), every head reads h_t + W·u; MSE + β·KL(q ‖ p_t), an ELBO; docs/model.md "belief").
@@ -29,8 +30,9 @@ import torch.nn.functional as F
 from torch import nn
 
 from ..errors import ConfigError
-from ..losses import (LOGVAR_RANGE, gaussian_kl, gaussian_nll, glide_loss_share, glide_weights, masked_mse,
-                      motion_weights, nll_precision, sigreg)
+from ..losses import (GNLL_VARIANCES, LOGVAR_RANGE, beta_nll, beta_nll_weight, bounded_logvar,
+                      gaussian_kl, gaussian_nll, glide_loss_share, glide_weights, head_logvar_nll, masked_mse,
+                      motion_weights, nll_precision, sigreg, sigreg_rows_of)
 from .encoders import FusedEncoder
 from .predictor import CausalPredictor, KVCache
 
@@ -51,6 +53,17 @@ SYSID_PARAMS = ("log_m", "gamma", "log_k")
 def check_variant(variant: str) -> None:
     if variant not in VARIANTS:
         raise ConfigError(f"unknown variant {variant!r}; choose one of {list(VARIANTS)}")
+
+
+def check_gnll_variance(variance: str, objective: str, bound: float) -> None:
+    """ConfigError unless ``variance`` is one of :data:`~pokeworld.losses.GNLL_VARIANCES`, non-'free' ones come
+    with objective='gnll', and the 'bounded' log-variance bound is positive and finite."""
+    if variance not in GNLL_VARIANCES:
+        raise ConfigError(f"unknown gnll_variance {variance!r}; choose one of {list(GNLL_VARIANCES)}")
+    if variance != "free" and objective != "gnll":
+        raise ConfigError(f"gnll_variance={variance!r} needs objective='gnll'")
+    if not (0.0 < float(bound) < float("inf")):
+        raise ConfigError(f"gnll_logvar_bound must be positive and finite, got {bound}")
 
 
 def area_downsample(frames: torch.Tensor, size: int) -> torch.Tensor:
@@ -143,7 +156,7 @@ class XJEPA(nn.Module):
                  horizons: tuple[int, ...] = (1, 4, 16), objective: str = "latent", tokens: bool = False,
                  sysid: bool = False, max_len: int = 128, vec_dim: int = 64, contact_channel: int = 6,
                  recon_positions: int = 8, pool: bool = False, belief_dim: int = 8, motion_channel: bool = True,
-                 gnll_heads: str = "latent"):
+                 gnll_heads: str = "latent", gnll_variance: str = "free", gnll_logvar_bound: float = 2.0):
         super().__init__()
         check_variant(variant)
         if objective not in OBJECTIVES:
@@ -157,6 +170,7 @@ class XJEPA(nn.Module):
             raise ConfigError(f"unknown gnll_heads {gnll_heads!r}; choose one of {list(GNLL_HEADS)}")
         if gnll_heads != "latent" and objective != "gnll":
             raise ConfigError(f"gnll_heads={gnll_heads!r} needs objective='gnll'")
+        check_gnll_variance(gnll_variance, objective, gnll_logvar_bound)
         if objective == "belief" and belief_dim < 1:
             raise ConfigError(f"belief_dim must be ≥ 1 for objective='belief', got {belief_dim}")
         self.config: dict[str, Any] = dict(
@@ -164,9 +178,15 @@ class XJEPA(nn.Module):
             image_size=image_size, channels=tuple(channels), latent_dim=latent_dim, width=width, depth=depth,
             heads=heads, dropout=dropout, horizons=horizons, objective=objective, tokens=tokens, sysid=sysid,
             max_len=max_len, vec_dim=vec_dim, contact_channel=contact_channel, recon_positions=recon_positions,
-            pool=pool, belief_dim=belief_dim, motion_channel=motion_channel, gnll_heads=gnll_heads)
+            pool=pool, belief_dim=belief_dim, motion_channel=motion_channel, gnll_heads=gnll_heads,
+            gnll_variance=gnll_variance, gnll_logvar_bound=gnll_logvar_bound)
         self.motion_channel = motion_channel
         self.modal_gnll = objective == "gnll" and gnll_heads == "all"  # proprio/touch heads output (mean, log σ²)
+        self.gnll_variance, self.gnll_logvar_bound = gnll_variance, float(gnll_logvar_bound)
+        # 'per_head': the heads output the mean only and each owns one log-variance scalar (parameters that
+        # exist only with this option, so every other model keeps its state_dict)
+        per_head = objective == "gnll" and gnll_variance == "per_head"
+        lv_out = 2 if objective == "gnll" and not per_head else 1
         self.variant, self.horizons, self.latent_dim, self.width = variant, horizons, latent_dim, width
         self.inputs, self.targets = VARIANTS[variant]
         self.objective, self.tokens, self.image_size = objective, tokens, image_size
@@ -180,14 +200,21 @@ class XJEPA(nn.Module):
         self.num_tokens = self.encoder.num_tokens if tokens else 1
         self.predictor = CausalPredictor(latent_dim, action_dim, width, depth, heads, dropout, max_len,
                                          self.num_tokens)
-        out = latent_dim * (2 if objective == "gnll" else 1)
-        self.latent_heads = nn.ModuleDict({str(d): DeltaHead(width, d * action_dim, out) for d in horizons})
+        self.latent_heads = nn.ModuleDict({str(d): DeltaHead(width, d * action_dim, latent_dim * lv_out)
+                                           for d in horizons})
         self.modal_heads = nn.ModuleDict()
         for m in ("proprio", "touch"):
             if m in self.targets:
                 self.modal_heads[m] = nn.ModuleDict(
-                    {str(d): DeltaHead(width, d * action_dim, self.dims[m] * (2 if self.modal_gnll else 1))
+                    {str(d): DeltaHead(width, d * action_dim, self.dims[m] * (lv_out if self.modal_gnll else 1))
                      for d in horizons})
+        self.latent_logvar = self.modal_logvar = None
+        if per_head:  # log σ² = 0 at init: the NLL starts as ½·MSE, near where the free heads' initial outputs sit
+            self.latent_logvar = nn.ParameterDict({str(d): nn.Parameter(torch.zeros(())) for d in horizons})
+            if self.modal_gnll:
+                self.modal_logvar = nn.ModuleDict({m: nn.ParameterDict({str(d): nn.Parameter(torch.zeros(()))
+                                                                        for d in horizons})
+                                                   for m in self.modal_heads})
         self.sysid_head = (nn.Sequential(nn.Linear(width, width), nn.GELU(), nn.Linear(width, len(SYSID_PARAMS)))
                            if sysid else None)
         self.belief = (BeliefModule(latent_dim, action_dim, width, belief_dim) if objective == "belief" else None)
@@ -346,9 +373,30 @@ class XJEPA(nn.Module):
         self._check_delta(delta)
         out = self._head_out(h, actions, delta, self.latent_heads[str(delta)])
         if self.objective == "gnll":
-            mean, logvar = out.chunk(2, -1)
+            mean, logvar = self._mean_logvar(out, self.latent_logvar, delta)
             return (mean, logvar) if return_logvar else mean
         return (out, None) if return_logvar else out
+
+    def _mean_logvar(self, out: torch.Tensor, head_logvars, delta: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """A gnll head's output -> (mean, the log-variance the NLL uses), per ``gnll_variance``: 'free' / 'beta'
+        the raw second half, 'bounded' that half squashed into (−b, b), 'per_head' the head's scalar broadcast
+        to the mean's shape (so every reader of log-variances sees the variance the loss used)."""
+        if self.gnll_variance == "per_head":
+            return out, head_logvars[str(delta)].expand_as(out)
+        mean, logvar = out.chunk(2, -1)
+        if self.gnll_variance == "bounded":
+            logvar = bounded_logvar(logvar, self.gnll_logvar_bound)
+        return mean, logvar
+
+    def _nll(self, mean: torch.Tensor, logvar: torch.Tensor, target: torch.Tensor, weight: torch.Tensor | None,
+             beta: float) -> torch.Tensor:
+        """The gnll objective's per-head term for this model's ``gnll_variance`` (log-variances from
+        :meth:`_mean_logvar`)."""
+        if self.gnll_variance == "beta":
+            return beta_nll(mean, logvar, target, weight, beta)
+        if self.gnll_variance == "per_head":
+            return head_logvar_nll(mean, logvar, target, weight)
+        return gaussian_nll(mean, logvar, target, weight)
 
     def forecast(self, h: torch.Tensor, actions, delta: int, modality: str, raw: bool = True,
                  return_logvar: bool = False):
@@ -360,7 +408,8 @@ class XJEPA(nn.Module):
         y = self._head_out(h, actions, delta, self.modal_heads[modality][str(delta)])
         logvar = None
         if self.modal_gnll:
-            y, logvar = y.chunk(2, -1)
+            y, logvar = self._mean_logvar(y, None if self.modal_logvar is None else self.modal_logvar[modality],
+                                          delta)
         y = self.denorm(modality, y) if raw else y
         return (y, logvar) if return_logvar else y
 
@@ -437,7 +486,9 @@ class XJEPA(nn.Module):
              sigreg_seed: int = 0, sigreg_knots: int = 17, token_rows: int = 4096, token_dirs: int = 256,
              touch_contact_weight: float = 4.0, proprio_weight: float = 1.0, touch_weight: float = 1.0,
              sysid_weight: float = 0.5, glide_loss_weight: float = 1.0, belief_kl_weight: float = 0.01,
-             motion_loss_weight: float = 0.0, sigreg_directions: torch.Tensor | None = None) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+             motion_loss_weight: float = 0.0, sigreg_directions: torch.Tensor | None = None,
+             sigreg_pool: str = "step", sigreg_rows: int = 4096, sigreg_row_index: torch.Tensor | None = None,
+             gnll_beta: float = 0.5) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """Training loss on a batch of windows.
 
         Args:
@@ -457,6 +508,14 @@ class XJEPA(nn.Module):
                 same ones on the host and uploads them without a sync.
             belief_kl_weight: β of the ``belief`` objective: the loss adds β · mean_t KL(q(u | window) ‖
                 p(u | h_t)), reported as ``kl`` (and ``kl_last``, the KL at the window's last step).
+            sigreg_pool: global-latent SIGReg rows (:data:`~pokeworld.losses.SIGREG_POOLS`): 'step' = one
+                statistic per time step over the B batch rows, averaged over time; 'pooled' = one statistic over
+                the B·L rows, subsampled to ``sigreg_rows`` (from ``sigreg_seed``, or ``sigreg_row_index`` when
+                given: the trainers draw it on the host). Not used by the token path (always pooled over
+                ``token_rows``) or ``recon`` (no SIGReg).
+            gnll_beta: β of ``gnll_variance='beta'`` (β-NLL); the effective weight on latent errors is then also
+                reported as ``latent_weight`` (mean e^{(β−1)s}; the other variants' weight is
+                ``latent_precision``).
         Returns:
             (total loss, {term name: detached scalar}).
         """
@@ -529,12 +588,16 @@ class XJEPA(nn.Module):
                                      directions=sigreg_directions)
         elif self.objective in ("latent", "gnll", "belief"):
             losses, precisions = [], []
+            weights = []
             for d in valid:
                 mean, logvar = self.predict(h, actions, d, return_logvar=True)
                 if self.objective == "gnll":
-                    l_d = gaussian_nll(mean[:, :L - d], logvar[:, :L - d], z[:, d:], at_latent(d))
+                    l_d = self._nll(mean[:, :L - d], logvar[:, :L - d], z[:, d:], at_latent(d), gnll_beta)
                     # the NLL weighs a latent error by exp(-s): its mean is the latent terms' effective weight
+                    # (β-NLL multiplies it by sg(e^{βs}); that product is reported as latent_weight)
                     precisions.append(nll_precision(logvar.detach()).mean())
+                    if self.gnll_variance == "beta":
+                        weights.append(beta_nll_weight(logvar.detach(), gnll_beta).mean())
                 else:
                     l_d = masked_mse(mean[:, :L - d], z[:, d:], at_latent(d))
                 terms[f"pred_{d}"] = l_d
@@ -542,9 +605,15 @@ class XJEPA(nn.Module):
             total = total + torch.stack(losses).mean()
             if precisions:
                 terms["latent_precision"] = torch.stack(precisions).mean()
-            # per time step over the batch (LeWM), then averaged over time and directions
-            terms["sigreg"] = sigreg(z.transpose(0, 1), sigreg_dirs, sigreg_seed, sigreg_knots,
-                                     directions=sigreg_directions)
+            if weights:
+                terms["latent_weight"] = torch.stack(weights).mean()
+            # 'step': per time step over the batch (LeWM), then averaged over time and directions; 'pooled': one
+            # statistic over the batch × time rows (subsampled), so its N — and the statistic's excess over the
+            # null under any departure from N(0, I) — is L times the per-step one (docs/design.md)
+            terms["sigreg"] = sigreg(sigreg_rows_of(z, sigreg_pool), sigreg_dirs, sigreg_seed, sigreg_knots,
+                                     max_rows=sigreg_rows if sigreg_pool == "pooled" else None,
+                                     directions=sigreg_directions,
+                                     rows=sigreg_row_index if sigreg_pool == "pooled" else None)
         else:  # recon: shared decoder on per-horizon adapters; SIGReg omitted (pixels anchor the latent)
             img = area_downsample(frames, self.image_size).float() / 255.0
             losses = []
@@ -580,7 +649,7 @@ class XJEPA(nn.Module):
                 if logvar is None:
                     losses.append(masked_mse(pred[:, :L - d], target[:, d:], weight))
                 else:
-                    losses.append(gaussian_nll(pred[:, :L - d], logvar[:, :L - d], target[:, d:], weight))
+                    losses.append(self._nll(pred[:, :L - d], logvar[:, :L - d], target[:, d:], weight, gnll_beta))
             terms[m] = torch.stack(losses).mean()
             total = total + w * terms[m]
 
