@@ -167,3 +167,24 @@ def test_map_budget_knobs_reach_generation_training_and_measurement(tmp_path):
     m = json.loads((run / "measure.json").read_text())
     assert set(m["probes"]["ridge"]) == {"contact"} and 10 <= m["probes"]["counts"]["contact"]["fit"] <= 40
     assert json.loads((run / "config.json").read_text())["steps"] == 4
+
+
+def test_map_wide_sigreg_pool_and_gnll_variance_rename_only_the_runs_they_apply_to():
+    base = experiment.make_config("cpu", experiments=("lambda", "controls"), seeds=(0,))
+    c = experiment.make_config("cpu", experiments=("lambda", "controls"), seeds=(0,), sigreg_pool="pooled",
+                               gnll_variance="bounded")
+    names = {s.name: s for s in experiment.all_specs(c)}
+    old = {s.name for s in experiment.all_specs(base)}
+    assert "VFX-h1-4-16-lam0.3-standard-sigreg_poolpooled-s0" in names
+    assert "VFX-h1-4-16-lam0.02-standard-gnll_variancebounded-objectivegnll-sigreg_poolpooled-s0" in names
+    # token and reconstruction runs have no global SIGReg to pool: unchanged, shared with the default map
+    for s in names.values():
+        if s.train.get("tokens") or s.train.get("objective") == "recon":
+            assert s.name in old and "sigreg_pool" not in s.train
+        else:
+            assert s.train["sigreg_pool"] == "pooled" and s.name not in old
+    assert set(experiment.spec_experiments(c)["lambda"]) <= set(names)
+    with pytest.raises(ConfigError, match="sigreg_pool"):
+        experiment.make_config("cpu", sigreg_pool="sometimes")
+    with pytest.raises(ConfigError, match="gnll_variance"):
+        experiment.make_config("cpu", gnll_variance="wild")

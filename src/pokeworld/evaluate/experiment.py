@@ -83,6 +83,12 @@ class MapConfig(LaunchOptions):
     """Variants trained single-horizon (Δ = 1 only) in the lazy-equilibrium experiment."""
     sigreg_weight: float = 0.02
     """Operating-point SIGReg weight for every other experiment."""
+    sigreg_pool: str = "step"
+    """SIGReg rows of every global-latent run (``pokeworld train --sigreg-pool``): 'step' or 'pooled'; runs it
+    does not apply to (token, reconstruction) keep theirs. A non-default value is part of each run's name."""
+    gnll_variance: str = "free"
+    """Variance parameterisation of every Gaussian-NLL run (``pokeworld train --gnll-variance``: free, bounded,
+    beta, per_head); part of those runs' names when not 'free'."""
     train_preset: str = ""
     """Training preset of every run (empty: ``preset``); the demo trains with ``pokeworld train``'s ``demo``
     preset (the cpu model at batch 8 with 64-wide vector encoders) and measures as ``preset``."""
@@ -163,6 +169,12 @@ class MapConfig(LaunchOptions):
 
         if self.train_preset and self.train_preset not in TRAIN_PRESETS:
             raise ConfigError(f"unknown train_preset {self.train_preset!r}; choose one of {sorted(TRAIN_PRESETS)}")
+        from ..losses import SIGREG_POOLS
+        from ..models.xjepa import check_gnll_variance
+
+        if self.sigreg_pool not in SIGREG_POOLS:
+            raise ConfigError(f"unknown sigreg_pool {self.sigreg_pool!r}; choose one of {list(SIGREG_POOLS)}")
+        check_gnll_variance(self.gnll_variance, "gnll", 2.0)
         if self.time_budget_min < 0 or self.time_reserve_min < 0:
             raise ConfigError("time_budget_min and time_reserve_min must be non-negative")
         if 0 < self.time_budget_min <= self.time_reserve_min:
@@ -401,17 +413,38 @@ CORPUS_TARGETS = {"bias0.5": ("bias_x", "bias_y"), "bias1.5": ("bias_x", "bias_y
                   "gain": ("gain",)}
 
 
+def with_map_training(c: MapConfig, spec: RunSpec) -> RunSpec:
+    """``spec`` with the map-wide training choices (``sigreg_pool``, ``gnll_variance``) applied where they apply;
+    a changed run is renamed through :func:`_spec`, so it never shares a directory with the default run."""
+    t = spec.train
+    extra = {}
+    if c.sigreg_pool != "step" and not t.get("tokens") and t.get("objective", "latent") != "recon":
+        extra["sigreg_pool"] = c.sigreg_pool
+    if c.gnll_variance != "free" and t.get("objective") == "gnll":
+        extra["gnll_variance"] = c.gnll_variance
+    if not extra:
+        return spec
+    rest = {k: v for k, v in t.items() if k not in ("variant", "horizons", "sigreg_weight", "seed")}
+    return _spec(spec.experiment, t["variant"], t["seed"], t["sigreg_weight"], t["horizons"], spec.corpus,
+                 spec.measure_corpus, spec.measure, **rest, **extra)
+
+
+def experiment_specs(c: MapConfig, exp: str) -> list[RunSpec]:
+    """The runs of experiment ``exp`` under ``c`` (its own specs with the map-wide training choices)."""
+    return [with_map_training(c, s) for s in EXPERIMENTS[exp](c)]
+
+
 def all_specs(c: MapConfig) -> list[RunSpec]:
     seen: dict[str, RunSpec] = {}
     for exp in c.experiments:
-        for spec in EXPERIMENTS[exp](c):
+        for spec in experiment_specs(c, exp):
             seen.setdefault(spec.name, spec)  # a run shared by two experiments trains once
     return list(seen.values())
 
 
 def spec_experiments(c: MapConfig) -> dict[str, list[str]]:
     """experiment -> run names (including runs shared with other experiments)."""
-    return {exp: [s.name for s in EXPERIMENTS[exp](c)] for exp in c.experiments}
+    return {exp: [s.name for s in experiment_specs(c, exp)] for exp in c.experiments}
 
 
 # --------------------------------------------------------------------------- stages
@@ -504,7 +537,7 @@ def ensure_planning(c: MapConfig) -> dict:
 
     pcfg = plan.make_config(c.preset, out=str(planning_dir(c)), seed=c.data_seed)
     runs: dict[str, list[str]] = {}
-    for spec in exp_planning(c):
+    for spec in experiment_specs(c, "planning"):
         runs.setdefault(spec.train["variant"], []).append(str(Path(c.out) / "runs" / spec.name))
     key = {"config": to_dict(pcfg), "runs": {v: [[Path(d).name, (Path(d) / "DONE").stat().st_mtime_ns]
                                                   for d in dirs] for v, dirs in runs.items()}}
