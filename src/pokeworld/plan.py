@@ -7,12 +7,16 @@ probe fit on the model's encoder latents (probe-fit episodes), and the score
 is the decoded distance to the goal (Δ=16, plus half the Δ=4 distance).
 Replanning every 4 steps; the same planner, budget and environment for every
 representation, plus a random controller.
+
+Beside reach and improvement, every model gets a rank test (:func:`rank_test`): on a fixed set of candidate
+programs from the episodes' fixed starts, how well its planning cost orders them like the true simulator's
+cost (Spearman ρ and top-k overlap; :mod:`pokeworld.evaluate.ranking`). The planner only uses that order.
 """
 
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -21,11 +25,20 @@ import torch
 from .config import from_preset, to_dict
 from .data import load
 from .errors import ConfigError
+from .evaluate.ranking import agreement
 from .io import atomic_path, write_json
 from .paper_values import PLANNING
 from .sim import PhysicsConfig, PokeWorldSim
+from .sim.policy import KNOT_SD, PROGRAM, programs
 
-PROGRAM = 16
+COST_TERMS = ((16, 1.0), (4, 0.5))
+"""The planning cost: Σ weight · ‖object position Δ steps into the program − goal‖ over (Δ, weight)."""
+OBJECT_BOX, GOAL_BOX = (0.25, 0.75), (0.15, 0.85)
+"""Where episodes start the object and where goals may lie (goals clear of the walls by more than the object's
+radius, so every goal region can be reached)."""
+MAX_GOAL_DISTANCE = 0.65
+"""Largest ``goal_distance``: beyond it start/goal pairs crowd into opposite corners (2.5 % of uniform draws fit
+the boxes at 0.65, 14 % at 0.55, 0.2 % at 0.75)."""
 
 
 @dataclass
@@ -54,6 +67,11 @@ class PlanConfig:
     """Observations of history fed to the model."""
     goal_radius: float = 0.1
     """A success is the object's centre entering this radius around the goal."""
+    goal_distance: float = 0.55
+    """Initial object-goal distance of every episode (the paper's example episode starts 0.55 from the goal;
+    docs/design.md, "Planning: open-loop behaviour data and the rank test")."""
+    rank_topk: int = 8
+    """k of the rank test's top-k overlap (of ``population`` candidates per start; chance k / population)."""
     seed: int = 0
     """Seed of starts, goals and CEM noise."""
 
@@ -62,21 +80,19 @@ class PlanConfig:
             raise ConfigError("need 1 <= elites <= population")
         if self.replan < 1 or self.replan > PROGRAM:
             raise ConfigError(f"replan must be in [1, {PROGRAM}]")
+        if not 0 < self.goal_distance <= MAX_GOAL_DISTANCE:
+            raise ConfigError(f"goal_distance must be in (0, {MAX_GOAL_DISTANCE}] (objects start in {OBJECT_BOX}², "
+                              f"goals lie in {GOAL_BOX}²), got {self.goal_distance}")
+        if not 1 <= self.rank_topk <= self.population:
+            raise ConfigError(f"rank_topk must be in [1, population={self.population}], got {self.rank_topk}")
 
 
-PRESETS = {"tiny": {"episodes": 3, "steps": 8, "population": 8, "elites": 2, "iterations": 1},
+PRESETS = {"tiny": {"episodes": 3, "steps": 8, "population": 8, "elites": 2, "iterations": 1, "rank_topk": 2},
            "cpu": {}, "paper": {"episodes": 100, "population": 128, "iterations": 4}}
 
 
 def make_config(preset: str = "cpu", **overrides) -> PlanConfig:
     return from_preset(PlanConfig, PRESETS, preset, **overrides)
-
-
-def programs(knots: np.ndarray) -> np.ndarray:
-    """(..., 4) knots -> (..., 16, 2) actions interpolated from knot 1 to knot 2, clipped to [-1, 1]."""
-    w = np.linspace(0.0, 1.0, PROGRAM)[:, None]
-    a = knots[..., None, 0:2] * (1 - w) + knots[..., None, 2:4] * w
-    return np.clip(a, -1.0, 1.0)
 
 
 class LatentScorer:
@@ -115,33 +131,101 @@ class LatentScorer:
         h16 = torch.cat([h, h.new_zeros(E * P, PROGRAM - 1, h.shape[-1])], 1)
         acts = cand.reshape(E * P, PROGRAM, 2).astype(np.float32)
         out = 0.0
-        for delta, weight in ((16, 1.0), (4, 0.5)):
+        for delta, weight in COST_TERMS:
             zh = m.predict(h16, acts, delta)[:, 0].float().numpy()
             pos = self.decoder.predict(zh).reshape(E, P, 2)
             out = out + weight * np.linalg.norm(pos - goal[:, None], axis=-1)
         return out
 
 
+class SimulatorScorer:
+    """Scores action programs by the planning cost of the true outcome: copies of the live simulator's state and
+    hidden parameters are rolled through every candidate (the oracle a model's scores are ranked against)."""
+
+    def __init__(self, sim: PokeWorldSim):
+        self.sim = sim
+
+    def rollout(self, cand: np.ndarray) -> np.ndarray:
+        """cand (E, P, 16, 2) -> (E, P, 17, 2): the object's true positions before and after every action."""
+        sim, (E, P) = self.sim, cand.shape[:2]
+        # the dynamics read only state, parameters and actions (noise enters the touch sensor alone), so a copy
+        # rolls out exactly as the live simulator would; its frames are never drawn, so keep them tiny
+        b = PokeWorldSim(E * P, replace(sim.cfg, image_size=8), seed=0)
+        b.state[:], b.params[:] = np.repeat(sim.state, P, 0), np.repeat(sim.params, P, 0)
+        acts = cand.reshape(E * P, PROGRAM, 2)
+        pos = [b.state[:, 4:6].copy()]
+        for t in range(PROGRAM):
+            b.step(acts[:, t], render=False)
+            pos.append(b.state[:, 4:6].copy())
+        return np.stack(pos, 1).reshape(E, P, PROGRAM + 1, 2)
+
+    def score(self, hist: dict, cand: np.ndarray, goal: np.ndarray) -> np.ndarray:
+        """cand (E, P, 16, 2), goal (E, 2) -> (E, P) planning cost; ``hist`` is unused (the state is known)."""
+        return cost(self.rollout(cand), goal)
+
+
+def cost(path: np.ndarray, goal: np.ndarray) -> np.ndarray:
+    """Object positions (E, P, 17, 2) along candidate programs -> (E, P) planning cost (COST_TERMS)."""
+    return sum(w * np.linalg.norm(path[:, :, d] - goal[:, None], axis=-1) for d, w in COST_TERMS)
+
+
 def episode_setup(cfg: PlanConfig) -> dict:
+    """Starts and goals: finger anywhere clear of the walls, the object 0.25 or more from it, the goal exactly
+    ``goal_distance`` from the object in a random direction. Object and direction are redrawn together until
+    the goal lies inside GOAL_BOX: clipping it there instead would shorten the distance."""
     rng = np.random.default_rng(cfg.seed)
     n = cfg.episodes
     fp = rng.uniform(0.15, 0.85, (n, 2))
-    op = rng.uniform(0.25, 0.75, (n, 2))
-    for _ in range(100):
-        bad = np.linalg.norm(op - fp, axis=1) < 0.25
+    op = rng.uniform(*OBJECT_BOX, (n, 2))
+    goal = np.full((n, 2), np.nan)
+    for _ in range(1000):
+        bad = ~np.all((goal >= GOAL_BOX[0]) & (goal <= GOAL_BOX[1]), 1) | (np.linalg.norm(op - fp, axis=1) < 0.25)
         if not bad.any():
             break
-        op[bad] = rng.uniform(0.25, 0.75, (int(bad.sum()), 2))
-    ang = rng.uniform(0, 2 * np.pi, n)
-    goal = np.clip(op + 0.4 * np.stack([np.cos(ang), np.sin(ang)], 1), 0.15, 0.85)
+        m = int(bad.sum())
+        op[bad] = rng.uniform(*OBJECT_BOX, (m, 2))
+        ang = rng.uniform(0, 2 * np.pi, m)
+        goal[bad] = op[bad] + cfg.goal_distance * np.stack([np.cos(ang), np.sin(ang)], 1)
+    else:
+        raise ConfigError(f"no start/goal pair {cfg.goal_distance} apart found for {int(bad.sum())} episodes")
     return {"finger_pos": fp, "object_pos": op, "goal": goal, "sim_seed": int(rng.integers(2**31))}
+
+
+def start_sim(cfg: PlanConfig, setup: dict) -> tuple[PokeWorldSim, dict]:
+    """The planning environment at the episodes' starts (the same hidden parameters for every controller)."""
+    sim = PokeWorldSim(cfg.episodes, PhysicsConfig(), seed=setup["sim_seed"])
+    return sim, sim.reset(finger_pos=setup["finger_pos"], object_pos=setup["object_pos"])
+
+
+def rank_candidates(cfg: PlanConfig) -> np.ndarray:
+    """(episodes, population, 16, 2): the rank test's fixed candidates, drawn like the CEM's first proposal at
+    every replan (knots ~ N(0, KNOT_SD²)) from a stream of their own, so every controller ranks the same ones."""
+    rng = np.random.default_rng([cfg.seed, 2])
+    return programs(rng.normal(0.0, KNOT_SD, (cfg.episodes, cfg.population, 4)))
+
+
+def rank_test(cfg: PlanConfig, setup: dict, scorer) -> dict:
+    """How well ``scorer`` orders the fixed candidates from every episode's start like the true simulator.
+
+    The model sees what the planner sees at its first replan (one observation, no past actions). Returns
+    :func:`pokeworld.evaluate.ranking.agreement` plus ``moved``: the share of candidates whose true rollout moves
+    the object (the rest tie at the start distance, which bounds how much of the order is decidable).
+    """
+    sim, obs = start_sim(cfg, setup)
+    hist = {"frames": obs["vision"][:, None], "proprio": obs["proprio"][:, None], "touch": obs["touch"][:, None],
+            "actions": np.zeros((cfg.episodes, 0, 2), np.float32)}
+    cand, goal = rank_candidates(cfg), setup["goal"]
+    path = SimulatorScorer(sim).rollout(cand)
+    truth = cost(path, goal)
+    model = np.asarray(scorer.score(hist, cand, goal), float)
+    moved = (path != path[:, :, :1]).any(-1).any(-1)  # an untouched object at rest stays exactly where it was
+    return agreement(model, truth, cfg.rank_topk) | {"moved": float(moved.mean())}
 
 
 def control(cfg: PlanConfig, setup: dict, scorer: LatentScorer | None) -> dict:
     """Run every episode with CEM on ``scorer`` (random actions when None); returns distances over time."""
     n = cfg.episodes
-    sim = PokeWorldSim(n, PhysicsConfig(), seed=setup["sim_seed"])
-    obs = sim.reset(finger_pos=setup["finger_pos"], object_pos=setup["object_pos"])
+    sim, obs = start_sim(cfg, setup)
     rng = np.random.default_rng(cfg.seed + 1)
     goal = setup["goal"]
     hist = {"frames": [obs["vision"]], "proprio": [obs["proprio"]], "touch": [obs["touch"]], "actions": []}
@@ -158,7 +242,7 @@ def control(cfg: PlanConfig, setup: dict, scorer: LatentScorer | None) -> dict:
                 h = {key: np.stack(v[-c:], 1) for key, v in hist.items() if key != "actions"}
                 past = hist["actions"][-(h["frames"].shape[1] - 1):] if h["frames"].shape[1] > 1 else []
                 h["actions"] = np.stack(past, 1) if len(past) else np.zeros((n, 0, 2), np.float32)
-                mu, sd = np.zeros((n, 4)), np.full((n, 4), 0.8)
+                mu, sd = np.zeros((n, 4)), np.full((n, 4), KNOT_SD)
                 for _ in range(cfg.iterations):
                     knots = mu[:, None] + sd[:, None] * rng.normal(size=(n, cfg.population, 4))
                     cand = programs(knots)
@@ -190,6 +274,8 @@ def control(cfg: PlanConfig, setup: dict, scorer: LatentScorer | None) -> dict:
 
 METRICS = ("reach", "median_improvement", "mean_improvement", "object_moved")
 """Per-controller planning metrics (:func:`control`); the paper reports the first two."""
+RANK_METRICS = ("spearman", "topk_overlap", "topk_chance", "moved")
+"""Per-model rank-test metrics (:func:`rank_test`); None for the random controller, which scores nothing."""
 
 PAPER = PLANNING
 """Paper Table "planning": controller -> (goal-region reach, median distance improvement)."""
@@ -198,23 +284,27 @@ PAPER = PLANNING
 def plan_runs(cfg: PlanConfig, runs: dict[str, list[str]], data: str = "") -> dict:
     """Plan with every run and with the random controller on one shared start/goal set.
 
-    ``runs`` maps a controller label (e.g. a variant) to its run directories (seeds); a label's reach and
-    median improvement are the means over its runs (per-run values under ``per_run``). Returns
-    ``{"summary": {label: {"reach", "median_improvement", "per_run"}}, "episodes": {label: control output of
-    its first run}, "setup": episode_setup(cfg)}``; ``data`` overrides each run's decoder-fit corpus.
+    ``runs`` maps a controller label (e.g. a variant) to its run directories (seeds); a label's metrics are the
+    means over its runs (per-run values under ``per_run``): METRICS from planning and RANK_METRICS from the rank
+    test of the same scorer (:func:`rank_test`). Returns ``{"summary": {label: {*METRICS, *RANK_METRICS,
+    "per_run"}}, "episodes": {label: control output of its first run}, "setup": episode_setup(cfg)}``; ``data``
+    overrides each run's decoder-fit corpus.
     """
     setup = episode_setup(cfg)
     episodes = {"random": control(cfg, setup, None)}
-    summary = {"random": {k: episodes["random"][k] for k in METRICS} | {"per_run": {}}}
+    summary = {"random": {k: episodes["random"][k] for k in METRICS} | dict.fromkeys(RANK_METRICS) | {"per_run": {}}}
     for label, dirs in runs.items():
         per = {}
         for r in dirs:
-            res = control(cfg, setup, LatentScorer(r, data or cfg.data))
+            scorer = LatentScorer(r, data or cfg.data)
+            res = control(cfg, setup, scorer)
+            rank = rank_test(cfg, setup, scorer)
             episodes.setdefault(label, res)
-            per[Path(r).name] = {k: res[k] for k in METRICS}
+            per[Path(r).name] = {k: res[k] for k in METRICS} | {k: rank[k] for k in RANK_METRICS}
             print(f"[plan] {label} ({Path(r).name}): reach {res['reach']:.0%}, "
-                  f"median improvement {res['median_improvement']:+.3f}")
-        summary[label] = {k: float(np.mean([v[k] for v in per.values()])) for k in METRICS}
+                  f"median improvement {res['median_improvement']:+.3f}, rank ρ {rank['spearman']:+.2f}, "
+                  f"top-{cfg.rank_topk} overlap {rank['topk_overlap']:.2f} (chance {rank['topk_chance']:.2f})")
+        summary[label] = {k: float(np.mean([v[k] for v in per.values()])) for k in (*METRICS, *RANK_METRICS)}
         summary[label]["per_run"] = per
     return {"summary": summary, "episodes": episodes, "setup": setup}
 
@@ -278,15 +368,19 @@ def write_outputs(planned: dict, out: Path, goal_radius: float) -> list[Path]:
 
 
 def table_lines(summary: dict) -> list[str]:
-    """Markdown rows: controller, reach and median improvement, ours beside the paper's."""
+    """Markdown rows: controller, reach and median improvement, ours beside the paper's, then the rank test."""
     lines = ["| controller | goal-region reach (ours / paper) | median distance improvement (ours / paper) | "
-             "mean improvement | object moved |", "|---|---|---|---|---|"]
+             "mean improvement | object moved | rank ρ (model vs simulator) | top-k overlap (chance) |",
+             "|---|---|---|---|---|---|---|"]
     for k, v in summary.items():
         p = PAPER.get(k)
         extra = " | ".join("—" if v.get(m) is None else (f"{v[m]:+.3f}" if m == "mean_improvement" else f"{v[m]:.0%}")
                            for m in ("mean_improvement", "object_moved"))
+        # summaries written before the rank test have no rank keys; the random controller has them as None
+        rank = ("— | —" if v.get("spearman") is None else
+                f"{v['spearman']:+.2f} | {v['topk_overlap']:.2f} ({v['topk_chance']:.2f})")
         lines.append(f"| {k} | {v['reach']:.0%} / {f'{p[0]:.0%}' if p else '—'} | "
-                     f"{v['median_improvement']:+.3f} / {f'{p[1]:.2f}' if p else '—'} | {extra} |")
+                     f"{v['median_improvement']:+.3f} / {f'{p[1]:.2f}' if p else '—'} | {extra} | {rank} |")
     return lines
 
 

@@ -32,7 +32,8 @@ class GenerateConfig:
     split_fractions: tuple[float, float, float] = (0.6, 0.2, 0.2)
     """Fractions of episodes in train / probe-fit / probe-test (disjoint)."""
     corpus: str = "standard"
-    """Named corpus variant applied on top (see CORPORA): standard, contact_poor, frame_averaged, bias0.5, bias1.5, bias2.5, gain."""
+    """Named corpus variant applied on top (see CORPORA): standard, contact_poor, frame_averaged, bias0.5, bias1.5,
+    bias2.5, gain, open_loop."""
     batch_envs: int = 1024
     """Episodes simulated simultaneously."""
     overwrite: bool = False
@@ -64,6 +65,9 @@ CORPORA: dict[str, dict] = {
     "bias1.5": {"ranges": {"bias": 1.5}},
     "bias2.5": {"ranges": {"bias": 2.5}},
     "gain": {"ranges": {"gain": (0.85, 1.15)}},
+    # the standard corpus with a fifth of its program slots running the planner's own two-knot programs open-loop
+    # (docs/design.md, "Planning: open-loop behaviour data and the rank test")
+    "open_loop": {"policy": {"open_loop_share": 0.2}},
 }
 
 PRESETS: dict[str, dict] = {
@@ -83,10 +87,18 @@ def resolved(cfg: GenerateConfig) -> GenerateConfig:
 
 
 def content_config(cfg: GenerateConfig) -> dict:
-    """The resolved config minus fields that do not affect the arrays (output path, overwrite)."""
+    """The resolved config minus fields that do not affect the arrays (output path, overwrite).
+
+    Without open-loop slots (``policy.open_loop_share`` 0) both open-loop fields are left out too: nothing is
+    drawn for them, so the arrays are those of the generator before the fields existed, and stores written then
+    must stay current rather than be refused as built from another config.
+    """
     d = to_dict(resolved(cfg))
     for k in ("out", "overwrite"):
         d.pop(k)
+    if d["policy"]["open_loop_share"] == 0:
+        for k in ("open_loop_share", "open_loop_aim"):
+            del d["policy"][k]
     return d
 
 

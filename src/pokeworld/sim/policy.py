@@ -2,7 +2,11 @@
 
 Vectorised over episodes. A fraction of episodes are *glide* episodes in which
 the finger avoids the object after it has been launched, giving contact-free
-decays (the contact-poor corpus sets this fraction to 0.95).
+decays (the contact-poor corpus sets this fraction to 0.95). Optionally a share
+of the 16-step program slots of every other episode is *open-loop*: one random
+two-knot action program, the planner's own action family (:func:`programs`),
+executed without re-aiming, so the corpus holds programs that miss as well as
+programs that hit.
 """
 
 from __future__ import annotations
@@ -14,6 +18,22 @@ import numpy as np
 from ..errors import ConfigError
 
 PURSUIT, STRIKE, DRIFT, AVOID = 0, 1, 2, 3
+
+PROGRAM = 16
+"""Actions in one two-knot action program: the planner's horizon (its Δ=16 head) and an open-loop slot's length."""
+KNOT_SD = 0.8
+"""Std of a random knot coordinate: the CEM planner's first proposal and the open-loop slots' spread."""
+
+
+def programs(knots: np.ndarray) -> np.ndarray:
+    """(..., 4) knots -> (..., 16, 2) actions interpolated from knot 1 to knot 2, clipped to [-1, 1].
+
+    The one definition of the smooth two-knot action family, shared by the CEM planner (pokeworld.plan) and the
+    open-loop behaviour slots, so the programs a model is trained on and those it must rank cannot drift apart.
+    """
+    w = np.linspace(0.0, 1.0, PROGRAM)[:, None]
+    a = knots[..., None, 0:2] * (1 - w) + knots[..., None, 2:4] * w
+    return np.clip(a, -1.0, 1.0)
 
 
 @dataclass(frozen=True)
@@ -47,16 +67,28 @@ class PolicyConfig:
     """Launch speed range (arena units/s)."""
     glide_fraction: float = 0.0
     """Fraction of episodes that are contact-free glides (object launched, finger avoids it)."""
+    open_loop_share: float = 0.0
+    """Probability that a program slot (steps 16j..16j+15) of a non-glide episode executes one random two-knot
+    program (:func:`programs`, no action noise, no re-aiming) instead of the closed-loop modes. 0 draws nothing,
+    so corpora stay byte-identical to those made before the field existed (docs/design.md, "Planning: open-loop
+    behaviour data and the rank test")."""
+    open_loop_aim: float = 0.89
+    """Mean of both knots of an open-loop program along the finger-to-object direction at the slot's start
+    (spread KNOT_SD per coordinate around it); 0 gives exactly the planner's first CEM proposal, N(0, KNOT_SD²).
+    Aimed programs still miss often, and keep ``static16`` in band at a share of 0.2 where unaimed ones do not."""
 
     def __post_init__(self) -> None:
         if len(self.mode_weights) != 3 or min(self.mode_weights) < 0 or sum(self.mode_weights) <= 0:
             raise ConfigError(f"mode_weights must be three non-negative numbers, got {self.mode_weights}")
-        for name in ("switch_prob", "launch_fraction", "glide_fraction"):
+        for name in ("switch_prob", "launch_fraction", "glide_fraction", "open_loop_share"):
             v = getattr(self, name)
             if not 0 <= v <= 1:
                 raise ConfigError(f"PolicyConfig.{name} must be in [0, 1], got {v}")
         if self.retreat_steps[0] < 1 or self.retreat_steps[1] < self.retreat_steps[0]:
             raise ConfigError(f"retreat_steps must be 1 <= lo <= hi, got {self.retreat_steps}")
+        if not 0 <= self.open_loop_aim <= 1:
+            raise ConfigError(f"PolicyConfig.open_loop_aim must be in [0, 1] (an action magnitude), "
+                              f"got {self.open_loop_aim}")
 
 
 class MixedPolicy:
@@ -68,6 +100,9 @@ class MixedPolicy:
         self._p = w / w.sum()
         self.mode = np.zeros(num_envs, int)
         self.glide = np.zeros(num_envs, bool)
+        self.open_loop = np.zeros(num_envs, bool)  # this slot runs a program
+        self.knots = np.zeros((num_envs, 4))  # the slot's program knots (where open_loop)
+        self.t = 0  # steps since reset: program slots start at multiples of PROGRAM
         self.ou = np.zeros((num_envs, 2))
         self.retreat = np.zeros(num_envs, int)
 
@@ -78,6 +113,8 @@ class MixedPolicy:
         self.mode = np.where(self.glide, AVOID, rng.choice(3, n, p=self._p))
         self.ou = rng.normal(0, 0.3, (n, 2))
         self.retreat = np.zeros(n, int)
+        self.open_loop = np.zeros(n, bool)
+        self.t = 0
         launch = self.glide | (rng.random(n) < c.launch_fraction)
         ang = rng.uniform(0, 2 * np.pi, n)
         speed = rng.uniform(*c.launch_speed, n)
@@ -114,4 +151,16 @@ class MixedPolicy:
         a[avoid] = 0.5 * self.ou[avoid]
         a[near] = -0.8 * u[near]
         a += c.action_noise * rng.normal(size=(n, 2))
-        return np.clip(a, -1.0, 1.0)
+        a = np.clip(a, -1.0, 1.0)
+        # open-loop slots draw last and only when asked for, so the closed-loop stream of a corpus without them is
+        # unchanged; the closed-loop state above keeps evolving underneath and takes over when the slot ends
+        step = self.t % PROGRAM
+        self.t += 1
+        if c.open_loop_share > 0 and step == 0:
+            self.open_loop = ~self.glide & (rng.random(n) < c.open_loop_share)
+            k = int(self.open_loop.sum())
+            aim = c.open_loop_aim * np.concatenate([u, u], 1)[self.open_loop]
+            self.knots[self.open_loop] = aim + rng.normal(0.0, KNOT_SD, (k, 4))
+        if self.open_loop.any():  # the program exactly, as the planner executes it
+            a[self.open_loop] = programs(self.knots[self.open_loop])[:, step]
+        return a
