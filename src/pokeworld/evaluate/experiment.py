@@ -73,6 +73,10 @@ class MapConfig(LaunchOptions):
     planning_variants: tuple[str, ...] = ("V", "VX_t", "VX_p", "VFX")
     """Variants planned with in the planning experiment (their factorial runs, seeds ``seeds``; paper Table
     "planning"), beside a random controller."""
+    planning_corpus: str = "standard"
+    """Training corpus of the planning experiment's runs: 'standard' (the factorial's own runs) or 'open_loop'
+    (the standard behaviour with 20 % of 16-step slots spent on the planner's own open-loop programs,
+    docs/design.md "Planning: open-loop behaviour data"); probes read the standard corpus either way."""
     belief_histories: tuple[str, ...] = ("window", "episode")
     """History lengths of the ``belief`` experiment: 'window' (the standard training windows) and/or 'episode'
     (whole 64-step episodes, trained at the batch size that keeps the standard runs' frames per step)."""
@@ -156,6 +160,8 @@ class MapConfig(LaunchOptions):
             raise ConfigError(f"unknown variants {sorted(badv)}; choose from {list(VARIANTS)}")
         if not self.belief_histories or set(self.belief_histories) - {"window", "episode"}:
             raise ConfigError(f"belief_histories must name 'window' and/or 'episode', got {self.belief_histories}")
+        if self.planning_corpus not in ("standard", "open_loop"):
+            raise ConfigError(f"planning_corpus must be standard or open_loop, got {self.planning_corpus!r}")
         if self.split_fractions and (len(self.split_fractions) != 3 or min(self.split_fractions) <= 0):
             raise ConfigError(f"split_fractions must be three positive shares (train, probe-fit, probe-test), "
                               f"got {self.split_fractions}")
@@ -353,7 +359,8 @@ def realised_glide_share(results: dict, run: dict) -> float | None:
 def exp_planning(c: MapConfig) -> list[RunSpec]:
     """Closed-loop planning (App. C): the factorial's own multi-horizon runs (same names, so a map that runs the
     factorial trains each once); the planner itself runs after training (:func:`ensure_planning`)."""
-    return [_spec("factorial", v, s, c.sigreg_weight) for v in c.planning_variants for s in c.seeds]
+    return [_spec("factorial", v, s, c.sigreg_weight, corpus=c.planning_corpus) for v in c.planning_variants
+            for s in c.seeds]
 
 
 def exp_coordinate(c: MapConfig) -> list[RunSpec]:
@@ -549,7 +556,8 @@ def ensure_planning(c: MapConfig) -> dict:
             print(f"[map] {path} is up to date; skipping planning")
             return prev["result"]
     out.mkdir(parents=True, exist_ok=True)
-    planned = plan.plan_runs(pcfg, runs, data=str(corpus_dir(c, "standard")))
+    # the position decoder is fit on the corpus the planned runs were trained on
+    planned = plan.plan_runs(pcfg, runs, data=str(corpus_dir(c, c.planning_corpus)))
     figs = plan.write_outputs(planned, out, pcfg.goal_radius)
     result = {"config": to_dict(pcfg), "summary": planned["summary"], "runs": runs,
               "figure": [str(p.relative_to(Path(c.out))) for p in figs]}
