@@ -361,3 +361,57 @@ def test_sideways_camera_is_rotated_then_bottom_cropped():
     assert out.shape == (18, 18)
     assert out[-5:].mean() > 150 and out[:5].mean() < 50  # bottom square kept, bright band at its bottom
     assert rh20t.CAMERA_ROTATION[(7, "f0271510")] == 270
+
+
+def test_external_role_falls_back_to_any_other_external_camera_but_never_to_a_wrist_camera(tmp_path):
+    fx = make_fixture_root(tmp_path / "raw", cfg=7, n_tasks=2, scenes_per_task=2, defects=())
+    cfg_dir, names, roles = fx["cfg_dir"], sorted(fx["good"]), rh20t.CAMERA_ROLES[7]
+    far0, unlisted = roles["far"][0], "999000111222"
+    cfg = make_config("tiny", root=str(tmp_path / "raw"), out=str(tmp_path / "far"))
+    before = rh20t.process_scene(rh20t.scan(cfg_dir)[0], cfg)
+    assert rh20t.scan(cfg_dir)[0].name == names[0]
+    renames = {names[0]: (far0, unlisted),  # a third-person camera under a serial no role lists
+               names[1]: (far0, roles["back"][0]),  # only a camera of another external role
+               names[2]: (far0, roles["close"][1]),  # only wrist cameras: nothing external to fall back to
+               names[3]: (roles["close"][0], "888000111222")}  # the wrist camera under an unlisted serial
+    for name, (old, new) in renames.items():
+        (cfg_dir / name / f"cam_{old}").rename(cfg_dir / name / f"cam_{new}")
+    after = rh20t.process_scene(rh20t.scan(cfg_dir)[0], cfg)
+    for k in before:  # the renamed folder's data is used unchanged
+        if k not in ("serials", "info"):
+            np.testing.assert_array_equal(after[k], before[k])
+    cam = json.loads(str(after["info"]))["cameras"][0]
+    assert cam == {"role": "far", "serial": unlisted, "rank": len(roles["far"]), "fallback": True,
+                   "fallback_kind": "other_external", "rotation": 0}
+
+    ds = data.load(run(cfg))
+    rep = json.loads((tmp_path / "far" / "conversion_report.json").read_text())
+    rows = {r["name"]: r for r in ds.manifest["scenes"]}
+    assert rows[names[0]]["serials"] == [unlisted] and rows[names[1]]["serials"] == [roles["back"][0]]
+    assert rows[names[1]]["cameras"][0]["fallback_kind"] == "other_external"
+    assert rows[names[3]]["cameras"][0] == {"role": "far", "serial": far0, "rank": 0, "fallback": False,
+                                            "fallback_kind": None, "rotation": 0}
+    assert rep["skip_counts"] == {"missing_camera": 1} and rep["skipped"][0]["scene"] == names[2]
+    assert "no other external camera" in rep["skipped"][0]["message"]
+    assert rep["camera_other_external_scenes"] == 2 and rep["camera_fallback_scenes"] == 2
+    assert rep["camera_counts"]["far"] == {far0: 1, unlisted: 1, roles["back"][0]: 1}
+
+    # an explicit serial never falls back
+    rep = json.loads((run(make_config("tiny", root=cfg.root, out=str(tmp_path / "explicit"), camera_serials=(far0,)))
+                      / "conversion_report.json").read_text())
+    assert rep["skip_counts"] == {"missing_camera": 3} and rep["camera_other_external_scenes"] == 0
+    # the wrist role falls back along its own list only, never to an external or unlisted camera
+    rep = json.loads((run(make_config("tiny", root=cfg.root, out=str(tmp_path / "close"), camera="close"))
+                      / "conversion_report.json").read_text())
+    assert rep["skip_counts"] == {"missing_camera": 1} and rep["skipped"][0]["scene"] == names[3]
+    assert rep["camera_other_external_scenes"] == 0
+
+
+def test_other_external_serials_order_and_wrist_exclusion():
+    roles = rh20t.CAMERA_ROLES[7]
+    present = {"zzz9", "aaa1", roles["back"][1], roles["side"][2], roles["close"][0], roles["far"][1],
+               "104422070042"}  # the last: cfg2's / cfg5's wrist camera, a wrist camera in any cfg
+    assert rh20t.other_external_serials(present, "far", 7) == [roles["side"][2], roles["back"][1], "aaa1", "zzz9"]
+    assert rh20t.other_external_serials(present, "side", 7) == [roles["far"][1], roles["back"][1], "aaa1", "zzz9"]
+    external = {s for r in rh20t.CAMERA_ROLES.values() for k in rh20t.EXTERNAL_ROLES for s in r[k]}
+    assert not external & rh20t.IN_HAND_SERIALS  # no serial is both a wrist and an external camera

@@ -16,8 +16,11 @@ Pipeline, one scene at a time (docs/rh20t.md lists every format fact and choice)
    splits, per-column 0.1/99.9-percentile clipping + whitening with train-only statistics,
    labels (raw force, contact onset, TCP pose), then :func:`pokeworld.data.save`.
 
+Pickled ``.npy`` files are read by :mod:`pokeworld.real.safe_pickle`'s restricted unpickler (a pickle naming
+anything but numpy arrays and python containers skips the scene as ``unsafe_pickle`` before it runs).
 Isolated bad records (NaN, overflowed ~1e36, all-zero TCP, out-of-range values) are dropped and
-counted; a camera role falls back along its ordered serial list; a missing base-frame F/T file is
+counted; a camera role falls back along its ordered serial list, then (external roles only) to another
+external camera present in the scene; a missing base-frame F/T file is
 replaced by the camera-frame one rotated through the calibration. Any other defect of one scene
 (missing stream / calibration / camera, an unusable stream, empty or truncated video, unknown
 configuration...) skips that scene with a reason code that is counted in
@@ -59,9 +62,12 @@ from ..config import from_preset, to_dict
 from ..data import Dataset, save, store_is_current
 from ..errors import ConfigError, DataError
 from ..io import atomic_path, write_json
+from .safe_pickle import UnsafePickleError, load_npy, load_npy_item
 
-PIPELINE_VERSION = 2
-"""Bumped whenever per-scene processing changes, so stale scene caches are never reused."""
+PIPELINE_VERSION = 3
+"""Bumped whenever per-scene processing changes, so stale scene caches are never reused. 3: a scene without any
+of its role's serials falls back to another external camera (cached ``missing_camera`` skips are stale), camera
+rows carry ``fallback_kind``, pickles are read by the restricted unpickler (``unsafe_pickle``)."""
 
 ROBOTS: dict[int, str] = {1: "flexiv", 2: "flexiv", 3: "ur5", 4: "ur5", 5: "franka", 6: "kuka", 7: "kuka"}
 """RH20T robot configurations (rh20t_api configs/configs.json, ``conf_num`` -> ``robot``)."""
@@ -142,6 +148,8 @@ SKIP_REASONS = {
     "camera_frame_ft": "force_torque_base.npy absent; the camera-frame force_torque.npy is present but could not be "
                        "rotated into the base frame (ft_camera_fallback off, or calibration extrinsics / tcp absent)",
     "bad_stream": "a stream file cannot be unpickled or has the wrong structure / shape",
+    "unsafe_pickle": "a pickled .npy file (stream, camera timestamps or calibration) references a global the "
+                     "restricted unpickler does not admit (e.g. os.system); refused before anything in it ran",
     "nan_stream": "more than max_bad_record_fraction of a stream's records are non-finite (isolated ones are dropped "
                   "and counted instead)",
     "zero_tcp": "more than max_bad_record_fraction of the TCP records are all zeros (pose not logged)",
@@ -329,13 +337,15 @@ def scan(root: str | os.PathLike) -> list[SceneRef]:
 
 
 def load_pickled_dict(path: Path, what: str) -> Any:
-    """``np.load(path, allow_pickle=True).item()`` with RH20T-specific errors (RH20T stores dicts this way)."""
+    """The dict pickled in an RH20T ``.npy`` file (a 0-d object array), read by the restricted unpickler of
+    :mod:`pokeworld.real.safe_pickle`: the safe ``np.load(path, allow_pickle=True).item()``."""
     if not path.exists():
         raise SceneSkip("missing_stream", f"{what} file {path} is absent")
     try:
-        obj = np.load(path, allow_pickle=True)
-        obj = obj.item() if isinstance(obj, np.ndarray) and obj.dtype == object and obj.shape == () else obj
-    except Exception as e:  # pickle / zip / value errors all mean a damaged file
+        obj = load_npy_item(path)
+    except UnsafePickleError as e:
+        raise SceneSkip("unsafe_pickle", f"{path}: {e}") from None
+    except Exception as e:  # pickle / header / value errors all mean a damaged file
         raise SceneSkip("bad_stream", f"cannot read {path}: {type(e).__name__}: {e}") from None
     if not isinstance(obj, dict):
         raise SceneSkip("bad_stream", f"{path} holds {type(obj).__name__}, expected a pickled dict")
@@ -370,13 +380,15 @@ def read_records(obj: dict, key: str, dim: int, what: str,
                 v = np.asarray(it[key], dtype=np.float64).reshape(-1)
                 ts.append(int(it["timestamp"]))
                 vals.append(v if m is None or v.shape != (dim,) else m @ v)
-    except (KeyError, TypeError, ValueError) as e:
+        ts_arr = np.asarray(ts, np.int64)
+    # OverflowError: an infinite timestamp (int(inf)) or one beyond int64
+    except (KeyError, TypeError, ValueError, OverflowError) as e:
         raise SceneSkip("bad_stream", f"{what}: expected {{serial: [{{'timestamp', '{key}'}}]}} "
                                       f"({type(e).__name__}: {e})") from None
     bad = [v.shape for v in vals if v.shape != (dim,)]
     if bad:
         raise SceneSkip("bad_stream", f"{what}['{key}'] must have {dim} values, got shape {bad[0]}")
-    return np.asarray(ts, np.int64), np.asarray(vals, np.float64).reshape(-1, dim)
+    return ts_arr, np.asarray(vals, np.float64).reshape(-1, dim)
 
 
 def read_gripper(obj: dict, field: str) -> tuple[np.ndarray, np.ndarray]:
@@ -387,10 +399,11 @@ def read_gripper(obj: dict, field: str) -> tuple[np.ndarray, np.ndarray]:
             for t, rec in per_ts.items():
                 ts.append(int(t))
                 vals.append(float(np.asarray(rec[field], dtype=np.float64).reshape(-1)[0]))
-    except (KeyError, TypeError, ValueError, IndexError, AttributeError) as e:
+        ts_arr = np.asarray(ts, np.int64)
+    except (KeyError, TypeError, ValueError, IndexError, AttributeError, OverflowError) as e:
         raise SceneSkip("bad_stream", f"gripper.npy: expected {{serial: {{ts: {{'{field}': [width_mm, ...]}}}}}} "
                                       f"({type(e).__name__}: {e})") from None
-    return np.asarray(ts, np.int64), np.asarray(vals, np.float64).reshape(-1, 1)
+    return ts_arr, np.asarray(vals, np.float64).reshape(-1, 1)
 
 
 BAD_RECORD_KINDS = ("non_finite", "zero", "overflow", "out_of_range", "bad_quaternion")
@@ -504,10 +517,11 @@ def base_to_camera_rotations(calib_dir: Path, cfg_num: int) -> dict[str, np.ndar
         raise SceneSkip("camera_frame_ft", f"force_torque_base.npy absent and calibration {calib_dir} lacks "
                                            "extrinsics.npy / tcp.npy to rotate the camera-frame force_torque.npy")
     try:
-        ext = np.load(ext_path, allow_pickle=True)
-        ext = ext.item() if ext.dtype == object and ext.shape == () else ext
+        ext = load_npy_item(ext_path)
         mats = {str(k): np.asarray(v, np.float64).reshape(-1, 4, 4)[0][:3, :3] for k, v in dict(ext).items()}
-        r_tcp = calib_tcp_rotation(np.load(tcp_path, allow_pickle=True), cfg_num)
+        r_tcp = calib_tcp_rotation(load_npy(tcp_path), cfg_num)
+    except UnsafePickleError as e:
+        raise SceneSkip("unsafe_pickle", f"calibration {calib_dir}: {e}") from None
     except Exception as e:  # damaged calibration files
         raise SceneSkip("camera_frame_ft", f"cannot read calibration {calib_dir}: {type(e).__name__}: {e}") from None
     anchor = IN_HAND_CALIB[cfg_num][0]
@@ -630,7 +644,11 @@ def read_camera(cam_dir: Path, t_grid: np.ndarray, cfg: ConvertConfig, out_hw: t
         meta = load_pickled_dict(tsf, "camera timestamps.npy")
         if "color" not in meta:
             raise SceneSkip("bad_stream", f"{tsf} has no 'color' key (keys: {sorted(meta)})")
-        ts = np.asarray(meta["color"], np.int64).reshape(-1)
+        try:
+            ts = np.asarray(meta["color"], np.int64).reshape(-1)
+        except (TypeError, ValueError, OverflowError) as e:
+            raise SceneSkip("bad_stream", f"{tsf} 'color' is not a list of integer timestamps "
+                                          f"({type(e).__name__}: {e})") from None
         if ts.size == 0:
             raise SceneSkip("empty_video", f"{tsf} lists no color frames")
         if not np.all((ts > 1e12) & (ts < 1e13)) or np.any(np.diff(ts) <= 0):
@@ -652,17 +670,32 @@ def read_camera(cam_dir: Path, t_grid: np.ndarray, cfg: ConvertConfig, out_hw: t
             raise SceneSkip("bad_timestamps", f"{jpg_dir} image names are not 13-digit millisecond timestamps")
         if t_grid is None:
             return ts, np.zeros((0, *out_hw), np.uint8)
-        import cv2
-
         idx = _nearest(ts, t_grid, cfg.frame_tolerance_s, cam_dir.name)
         cache: dict[int, np.ndarray] = {}
         for i in np.unique(idx):
-            img = cv2.imread(str(files[int(ts[i])]), cv2.IMREAD_GRAYSCALE)
-            if img is None:
-                raise SceneSkip("unreadable_video", f"cannot decode image {files[int(ts[i])]}")
+            img = _read_gray_image(files[int(ts[i])])
             cache[int(i)] = _crop_resize(img, cfg.crop, out_hw, rotate)
         return ts, np.stack([cache[int(i)] for i in idx])
     raise SceneSkip("missing_stream", f"{cam_dir} has neither color.mp4 nor a color/ image folder")
+
+
+def _read_gray_image(path: Path) -> np.ndarray:
+    """Decode one extracted frame to grayscale; a truncated file skips the scene.
+
+    OpenCV decodes a JPEG cut short without an error (libjpeg only warns and fills the missing rows with gray),
+    so a frame must end with its end-of-image marker (JPEG ``FFD9``, PNG ``IEND`` chunk) before it is decoded.
+    """
+    import cv2
+
+    data = path.read_bytes()
+    end = data.rstrip(b"\x00")  # zero padding after the end marker is harmless
+    complete = end.endswith(b"IEND\xaeB`\x82") if path.suffix.lower() == ".png" else end.endswith(b"\xff\xd9")
+    if not complete:
+        raise SceneSkip("unreadable_video", f"image {path} is truncated (no end-of-image marker, {len(data)} bytes)")
+    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE)
+    if img is None:
+        raise SceneSkip("unreadable_video", f"cannot decode image {path}")
+    return img
 
 
 def _nearest(ts: np.ndarray, t_grid: np.ndarray, tol_s: float, what: str) -> np.ndarray:
@@ -710,9 +743,37 @@ def _decode_mp4(path: Path, n_expected: int, wanted: np.ndarray, crop, out_hw,
     return out
 
 
-def camera_serials(scene_dir: Path, cfg: ConvertConfig) -> list[tuple[str, str, int]]:
-    """(role, serial, rank) of the camera(s) used for ``cfg.camera`` in this scene; rank 0 is the role's first
-    choice, rank > 0 a fallback down the role's list (-1: an explicit ``camera_serials`` override)."""
+IN_HAND_SERIALS: frozenset[str] = frozenset(
+    [s for v in IN_HAND_CALIB.values() for s in v] + [s for r in CAMERA_ROLES.values() for s in r["close"]])
+"""Every wrist (in-hand) camera serial of any configuration; never used as an external camera. The union over
+cfgs, not the scene's cfg alone: the same physical cameras move between configurations (104422070042 is cfg2's
+and cfg5's wrist camera), and a wrist view in place of a third-person one would silently change the viewpoint."""
+
+EXTERNAL_ROLES = ("far", "side", "back")
+
+
+def other_external_serials(present: set[str], role: str, cfg_num: int) -> list[str]:
+    """External (non-wrist) camera serials present in a scene that are not on ``role``'s own list, in fallback
+    order: serials listed under the cfg's other external roles first (role order far, side, back; list order
+    within a role), then unlisted serials in sorted order."""
+    roles = CAMERA_ROLES[cfg_num]
+    own = set(roles[role])
+    listed = [s for r in EXTERNAL_ROLES if r != role for s in roles[r]]
+    order = list(dict.fromkeys(s for s in listed if s in present))
+    order += sorted(present - set(order))
+    return [s for s in order if s not in own and s not in IN_HAND_SERIALS]
+
+
+def camera_serials(scene_dir: Path, cfg: ConvertConfig) -> list[tuple[str, str, int, str | None]]:
+    """(role, serial, rank, fallback_kind) of the camera(s) used for ``cfg.camera`` in this scene.
+
+    rank 0 is the role's first choice; ``0 < rank < len(list)`` a fallback down the role's own list
+    (fallback_kind ``role_list``); an external role (far, side, back) none of whose serials is present falls back
+    to another external camera of the scene (:func:`other_external_serials`, fallback_kind ``other_external``,
+    rank ``len(list) + i``), so a recording is not dropped because its third-person camera has an unlisted serial.
+    The wrist role (close) never falls back to an external camera; an explicit ``camera_serials`` override never
+    falls back (rank -1). fallback_kind is None when no fallback was needed.
+    """
     present = {d.name[4:] for d in scene_dir.iterdir() if d.is_dir() and d.name.startswith("cam_")}
     roles = ["far", "close"] if cfg.camera == "two_view" else [cfg.camera]
     if cfg.camera_serials:
@@ -720,14 +781,20 @@ def camera_serials(scene_dir: Path, cfg: ConvertConfig) -> list[tuple[str, str, 
         missing = [s for s in chosen if s not in present]
         if missing:
             raise SceneSkip("missing_camera", f"camera folder(s) cam_{missing[0]} absent (present: {sorted(present)})")
-        return [(r, s, -1) for r, s in zip(roles, chosen)]
+        return [(r, s, -1, None) for r, s in zip(roles, chosen)]
     out = []
     for role in roles:
         cands = CAMERA_ROLES[cfg.cfg][role]
         rank = next((i for i, s in enumerate(cands) if s in present), None)
-        if rank is None:
-            raise SceneSkip("missing_camera", f"no '{role}' camera (serials {list(cands)}) among {sorted(present)}")
-        out.append((role, cands[rank], rank))
+        if rank is not None:
+            out.append((role, cands[rank], rank, "role_list" if rank else None))
+            continue
+        others = other_external_serials(present, role, cfg.cfg) if role in EXTERNAL_ROLES else []
+        if not others:
+            kind = "external" if role in EXTERNAL_ROLES else "wrist"
+            raise SceneSkip("missing_camera", f"no '{role}' camera (serials {list(cands)}) and no other {kind} "
+                                              f"camera among {sorted(present)}")
+        out.append((role, others[0], len(cands), "other_external"))
     return out
 
 
@@ -763,7 +830,8 @@ def process_scene(ref: SceneRef, cfg: ConvertConfig) -> dict[str, np.ndarray]:
     try:
         meta = json.loads(mpath.read_text())
         rating = int(meta["rating"])
-    except (json.JSONDecodeError, KeyError, TypeError, ValueError, UnicodeDecodeError) as e:
+    # OverflowError: json reads Infinity as a float, and int(inf) overflows
+    except (json.JSONDecodeError, KeyError, TypeError, ValueError, UnicodeDecodeError, OverflowError) as e:
         raise SceneSkip("bad_metadata", f"{mpath}: {type(e).__name__}: {e}") from None
     if rating < cfg.min_rating:
         raise SceneSkip("low_rating", f"rating {rating} < min_rating {cfg.min_rating}")
@@ -822,8 +890,8 @@ def process_scene(ref: SceneRef, cfg: ConvertConfig) -> dict[str, np.ndarray]:
     quat /= np.linalg.norm(quat, axis=1, keepdims=True)
     ft_g = interp_columns(t_grid, ft_ts, ft)
     grip_m = interp_columns(t_grid, gr_ts, grip)[:, 0] / 1000.0
-    info = {"cameras": [{"role": r, "serial": sn, "rank": k, "fallback": k > 0,
-                         "rotation": CAMERA_ROTATION.get((cfg.cfg, sn), 0)} for r, sn, k in cams],
+    info = {"cameras": [{"role": r, "serial": sn, "rank": k, "fallback": k > 0, "fallback_kind": kind,
+                         "rotation": CAMERA_ROTATION.get((cfg.cfg, sn), 0)} for r, sn, k, kind in cams],
             "dropped_records": dropped, "ft_source": ft_source}
     return {
         "frames": frames.astype(np.uint8), "pos": pos, "quat": quat, "ft": ft_g, "grip": grip_m,
@@ -1146,6 +1214,8 @@ def run(cfg: ConvertConfig) -> Path:
         "subset": subset, "scenes_converted": len(rows),
         "camera_counts": {role: dict(sorted(v.items())) for role, v in sorted(camera_counts.items())},
         "camera_fallback_scenes": sum(any(c["fallback"] for c in r["cameras"]) for r in rows),
+        "camera_other_external_scenes": sum(any(c.get("fallback_kind") == "other_external" for c in r["cameras"])
+                                            for r in rows),
         "ft_source_counts": dict(sorted(ft_sources.items())),
         "scenes_with_dropped_records": sum(bool(r["dropped_records"]) for r in rows),
         "dropped_records": {k: dict(sorted(v.items())) for k, v in sorted(dropped_total.items())},

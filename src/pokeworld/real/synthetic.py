@@ -388,7 +388,7 @@ def write_scene(cfg_dir: Path, truth_dir: Path, plan: ScenePlan, cfg: SynthConfi
     serial = {"far": roles["far"][1 if plan.defect == "far_fallback" else 0], "close": roles["close"][0]}
     cams = ["far", "close"] if plan.defect != "missing_camera" else ["close"]
     if plan.defect == "missing_camera":  # a side camera instead of any front one
-        cams_extra = {"side": roles["side"][0]}
+        cams_extra = {}  # only the wrist camera: no external camera to fall back to
     else:
         cams_extra = {}
 
