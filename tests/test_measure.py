@@ -275,3 +275,25 @@ def test_mlp_probes_leave_every_other_number_unchanged(tiny_dataset):
     assert with_mlp["probes"]["ridge"] == plain["probes"]["ridge"]
     for k in ("probes_action_conditioned", "prediction", "untrained"):
         assert with_mlp[k] == plain[k], k
+
+
+def test_token_models_with_multi_horizon_heads_are_scored_by_their_direct_head(tiny_dataset):
+    """A token model keeps the Δ = 16 head: its direct prediction runs the token trunk on every token and is
+    decoded like any other latent; equal to predicting by hand from the same windows."""
+    from pokeworld.evaluate.prediction import position_decoder, prediction_quality
+    from pokeworld.evaluate.state import EpisodeLatents, padded_actions
+
+    ds = tiny_dataset
+    torch.manual_seed(0)
+    m = XJEPA(**{**TINY_MODEL, "image_size": 32, "horizons": (1, 4, 16), "tokens": True}).eval()
+    fit, test = ds.episodes("probe_fit"), ds.episodes("probe_test")
+    lat_fit, lat_test = EpisodeLatents(m, ds, fit, 8), EpisodeLatents(m, ds, test, 8)
+    res = prediction_quality(m, ds, lat_fit, lat_test, 0, glide=False)
+    assert "direct16" in res and "rollout16" not in res and np.isfinite(res["direct16"])
+    w = make_windows(ds, test, 24, 4)
+    dec = position_decoder(ds, lat_fit, fit, np.random.default_rng(0))
+    with torch.no_grad():
+        h = m.trunk(torch.as_tensor(lat_test.gather(w, trunk=True)), w.gather(padded_actions(ds)))
+        zh = m.predict(h, w.gather(padded_actions(ds)), 16)[:, 7].numpy()
+    truth = w.gather(ds.labels["object_pos"])[:, -1]
+    assert res["direct16"] == pytest.approx(float(np.linalg.norm(dec.predict(zh) - truth, axis=-1).mean()), rel=1e-4)

@@ -67,9 +67,12 @@ def prediction_quality(model, ds: Dataset, lat_fit: EpisodeLatents, lat_test: Ep
            "probe_error": err(truth_decoded, truth)}
     direct = None
     if H in model.horizons:
+        # the trunk reads its own input (every token of a token model); the direct head predicts the latent the
+        # decoder reads (the token mean), from the token-mean state
+        z_in = lat_test.gather(w, trunk=True)
         preds = []
         for i in range(0, len(w), 512):
-            zt = torch.as_tensor(z[i:i + 512])
+            zt = torch.as_tensor(z_in[i:i + 512])
             h = model.trunk(zt, acts[i:i + 512])
             zh = model.predict(h, acts[i:i + 512], H)
             preds.append(zh[:, context - 1].float().cpu().numpy())
