@@ -119,8 +119,12 @@ class CertifyConfig:
 
 PRESETS = {
     "tiny": {"epochs": 4, "patience": 2, "max_windows": 400, "gru_hidden": 32},
-    "cpu": {},
-    "paper": {"max_windows": 100000, "epochs": 300, "patience": 20},
+    # the gate's instruments (GRU oracle, linear floor, drag) on contact windows, fit on a 1,920-episode
+    # certificate corpus with every window kept: where the GRU oracle's γ stops being fit-set limited
+    # (docs/results/certificate_fit_curve_cpu.md); the other estimators are one --estimators away
+    "cpu": {"fit_episodes": 1920, "max_windows": 30000, "estimators": ("gru", "linear", "drag"),
+            "kinds": ("contact",)},
+    "paper": {"fit_episodes": 3840, "max_windows": 100000, "epochs": 300, "patience": 20},
 }
 
 

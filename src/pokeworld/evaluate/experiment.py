@@ -213,6 +213,9 @@ DEMO = {  # the newcomer's first run: four variants, one seed; 8 min 55 s measur
     # linear floor and the drag estimator, on contact windows, with a smaller fit set and fewer epochs
     "certify_estimators": ("gru", "gru_geom", "linear", "drag"), "certify_kinds": ("contact",),
     "certify_max_windows": 3000, "certify_epochs": 60, "certify_separate_targets": False,
+    # ... on the corpus's own probe-fit split: a certificate corpus would add its generation to the demo's budget
+    # and its 3,000-window cap would leave it fit-set limited all the same
+    "certify_fit_episodes": 0,
 }
 
 
