@@ -617,12 +617,16 @@ def planning_table(results: dict) -> list[str]:
     from ..plan import table_lines
 
     cfg = pl["config"]
+    corpus = results.get("map_config", {}).get("planning_corpus", "standard")
+    trained = ("the factorial's runs" if corpus == "standard" else
+               f"runs trained on the `{corpus}` corpus (docs/design.md, \"Planning: open-loop behaviour data\")")
     return ["## Closed-loop planning (push-to-goal; same planner, budget, starts and goals for every controller)", "",
             f"CEM over two-knot action programs scored by the direct Δ=4/16 heads, {cfg['episodes']} held-out "
             f"episodes of {cfg['steps']} steps, replanning every {cfg['replan']} steps, population {cfg['population']}"
             f" × {cfg['iterations']} iterations; reach = the object's centre enters the goal radius "
             f"{cfg['goal_radius']:g}; improvement = initial minus final object-goal distance (median over episodes). "
-            "Representations are the factorial's runs (mean over seeds; per seed in results.json). Figure: "
+            f"Representations are {trained} (mean over seeds; per seed in results.json); rank ρ and top-k overlap: "
+            "how each model orders the CEM's candidate programs against the true simulator. Figure: "
             + ", ".join(f"`{f}`" for f in pl.get("figure", [])[:1]) + ".", "",
             *table_lines(pl["summary"]), ""]
 
