@@ -77,3 +77,11 @@ def test_certificate_corpus_needs_a_generated_store_and_enough_episodes(store, t
         certify.certify(ds, certify.make_config("tiny", estimators=("linear",), fit_episodes=80), fit)
     with pytest.raises(ConfigError, match="fit_episodes"):
         certify.make_config("tiny", fit_episodes=-1)
+
+
+def test_plateau_is_where_more_episodes_stop_helping():
+    from pokeworld.certificate_curve import plateau
+
+    assert plateau([(240, 0.80), (480, 0.84), (960, 0.85), (1920, 0.85)], 0.02) == 480
+    assert plateau([(240, 0.05), (480, 0.44), (960, 0.67), (1920, 0.81), (3840, 0.89)], 0.02) is None  # rising
+    assert plateau([(240, 0.84), (480, 0.83)], 0.02) == 240

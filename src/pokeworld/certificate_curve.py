@@ -55,10 +55,12 @@ def make_config(preset: str = "cpu", **overrides) -> CurveConfig:
     return from_preset(CurveConfig, PRESETS, preset, **overrides)
 
 
-def plateau(points: list[tuple[int, float]], tol: float) -> int:
-    """The first size whose R² is within ``tol`` of the last (largest) size's: where more data stops helping."""
+def plateau(points: list[tuple[int, float]], tol: float) -> int | None:
+    """The first size whose R² is within ``tol`` of the largest size's (where more data stops helping), or None
+    when only the largest size is: the curve is still rising at the end of the range."""
     last = points[-1][1]
-    return next(n for n, r2 in points if r2 >= last - tol)
+    first = next(n for n, r2 in points if r2 >= last - tol)
+    return None if first == points[-1][0] and len(points) > 1 else first
 
 
 def run(cfg: CurveConfig) -> Path:
@@ -105,7 +107,7 @@ def markdown(record: dict) -> str:
             for t, c in targets.items():
                 vals = dict(c["points"])
                 lines.append(f"| {est} | {kind} | {t} | " + " | ".join(
-                    f"{vals[n]:+.2f}" if n in vals else "—" for n in sizes) + f" | {c['plateau_episodes']} |")
+                    f"{vals[n]:+.2f}" if n in vals else "—" for n in sizes) + f" | {c['plateau_episodes'] or 'still rising'} |")
     return "\n".join(lines)
 
 
