@@ -19,9 +19,10 @@ pytestmark = pytest.mark.slow
 ARGS = ["--preset", "tiny", "--workers", "1", "--variants", "V"]
 
 
-def _map(out, *extra, kill_at="", wait=True):
-    env = {**os.environ, "POKEWORLD_KILL_AT": kill_at} if kill_at else {
-        k: v for k, v in os.environ.items() if k != "POKEWORLD_KILL_AT"}
+def _map(out, *extra, kill_at="", pause_at="", wait=True):
+    env = {k: v for k, v in os.environ.items() if k not in ("POKEWORLD_KILL_AT", "POKEWORLD_PAUSE_AT")}
+    env.update({"POKEWORLD_KILL_AT": kill_at} if kill_at else {})
+    env.update({"POKEWORLD_PAUSE_AT": pause_at} if pause_at else {})
     cmd = [sys.executable, "-m", "pokeworld.cli", "map", str(out), *ARGS, *extra]
     proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     if not wait:
@@ -67,7 +68,7 @@ def test_a_killed_map_resumes_to_the_same_results(reference, tmp_path, kill_at):
 def test_two_maps_on_one_out_refuse_then_merge(reference, tmp_path):
     out = tmp_path / "map"
     shutil.copytree(reference / "data", out / "data")
-    first = _map(out, wait=False)
+    first = _map(out, pause_at="train_step:10", wait=False)  # holds the folder while the second one starts
     lock = out / ".map.lock"
     deadline = time.time() + 120
     while not (lock.exists() and lock.read_text().strip()) and time.time() < deadline:
