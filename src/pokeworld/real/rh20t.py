@@ -338,7 +338,7 @@ def scan(root: str | os.PathLike) -> list[SceneRef]:
 
 def load_pickled_dict(path: Path, what: str) -> Any:
     """The dict pickled in an RH20T ``.npy`` file (a 0-d object array), read by the restricted unpickler of
-    :mod:`pokeworld.real.safe_pickle`: the safe ``np.load(path, allow_pickle=True).item()``."""
+    :mod:`pokeworld.real.safe_pickle` (never numpy's unrestricted pickle loading)."""
     if not path.exists():
         raise SceneSkip("missing_stream", f"{what} file {path} is absent")
     try:

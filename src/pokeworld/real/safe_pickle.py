@@ -1,7 +1,7 @@
 """Load ``.npy`` files, including pickled object arrays, without letting the file run code.
 
 RH20T stores its streams and calibration as python dicts saved with ``np.save`` (0-d object arrays), which
-``np.load(..., allow_pickle=True)`` unpickles with the full :mod:`pickle` machinery: a file whose pickle names
+numpy's own loader, once pickles are allowed, unpickles with the full :mod:`pickle` machinery: a file whose pickle names
 ``os.system`` (or any other callable) runs it while loading. This loader parses the ``.npy`` header with
 :mod:`numpy.lib.format` and
 
@@ -137,7 +137,7 @@ def load_npy(path: str | Path) -> np.ndarray:
 
     Raises :class:`UnsafePickleError` for a refused pickle; ``ValueError`` / ``EOFError`` /
     ``pickle.UnpicklingError`` and friends for a file that is not a well-formed ``.npy`` (a bare pickle without
-    the ``.npy`` magic, which ``np.load(allow_pickle=True)`` would unpickle, is refused as not an ``.npy``).
+    the ``.npy`` magic, which numpy's pickle-allowing loader would unpickle, is refused as not an ``.npy``).
     """
     path = Path(path)
     with open(path, "rb") as fp:
@@ -154,7 +154,7 @@ def load_npy(path: str | Path) -> np.ndarray:
 
 def load_npy_item(path: str | Path) -> Any:
     """:func:`load_npy`, with a 0-d object array (how ``np.save`` stores a python object) unwrapped to the object:
-    the safe equivalent of ``np.load(path, allow_pickle=True).item()`` for RH20T's pickled dicts."""
+    the safe way to read RH20T's pickled dicts (0-d object arrays)."""
     arr = load_npy(path)
     return arr.item() if arr.dtype == object and arr.shape == () else arr
 
