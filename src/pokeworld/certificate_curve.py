@@ -8,11 +8,11 @@ is nested: a larger fit set contains every smaller one. Scores are on the store'
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 from . import certificate_corpus, certify
-from .config import from_preset
+from .config import from_preset, to_dict
 from .data import load
 from .errors import ConfigError
 from .io import write_json
@@ -88,7 +88,7 @@ def run(cfg: CurveConfig) -> Path:
                     "points": pts, "plateau_episodes": plateau(pts, cfg.plateau_tol)}
     largest = points[str(max(cfg.sizes))]["estimators"]
     gate = certify.gate(certify.certificate_table(largest, ("log_m", "gamma", "log_k")), largest)
-    record = {"config": {**vars(replace(cfg)), "sizes": list(cfg.sizes)}, "points": points, "curves": curves,
+    record = {"config": to_dict(cfg), "points": points, "curves": curves,
               "gate_at_largest": gate, "fit_corpus_seed": fit_ds.manifest.get("seed"),
               "dataset": {"path": cfg.data, "content_sha256": ds.manifest.get("content_sha256")}}
     out = Path(cfg.out) if cfg.out else Path(cfg.data) / "certificate_fit_curve.json"

@@ -2,7 +2,7 @@
 without executing code.
 
 A run directory may come from someone else (a colleague's runs, a shared cluster folder), and ``torch.load``
-with ``weights_only=False`` unpickles arbitrary objects: a crafted ``ckpt.pt`` runs code on the machine that
+without ``weights_only`` unpickles arbitrary objects: a crafted ``ckpt.pt`` runs code on the machine that
 probes or resumes it. Every checkpoint here is therefore read with ``weights_only=True``, which admits tensors
 and plain Python containers and numbers only, and everything a checkpoint holds that is not a tensor is stored
 in those forms: the Python and NumPy RNG states become tuples and lists of ints (:func:`rng_state`).
@@ -20,6 +20,7 @@ import numpy as np
 import torch
 
 from .errors import DataError
+from .io import atomic_path
 
 
 class CheckpointError(DataError):
@@ -29,15 +30,8 @@ class CheckpointError(DataError):
 def save(obj: Any, path: str | os.PathLike) -> None:
     """``torch.save`` to a temporary sibling, then rename: a killed writer never leaves a half-written file under
     ``path`` (readers see the old checkpoint or the new one)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
+    with atomic_path(path) as tmp:
         torch.save(obj, tmp)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
 
 
 def load(path: str | os.PathLike, map_location: str | torch.device = "cpu") -> dict[str, Any]:
@@ -53,7 +47,7 @@ def load(path: str | os.PathLike, map_location: str | torch.device = "cpu") -> d
         raise CheckpointError(
             f"refusing to load {path}: it holds objects other than tensors and plain containers ({first}). "
             "pokeworld never writes such checkpoints; loading it could execute code. If you made it yourself "
-            "with an older pokeworld, re-train the run (or load it by hand with weights_only=False if you trust "
+            "with an older pokeworld, re-train the run (pokeworld will not unpickle arbitrary objects, whatever "
             "its origin)") from None
     except (RuntimeError, EOFError, OSError, ValueError) as e:  # truncated zip, bad magic, short read
         raise CheckpointError(f"cannot read checkpoint {path} ({type(e).__name__}: {e}); it is damaged or not "

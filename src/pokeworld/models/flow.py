@@ -181,10 +181,9 @@ def log_speed(velocity: np.ndarray, floor: float = 0.01) -> np.ndarray:
 
 
 def save_flow(net: FlowNet, path, meta: dict) -> None:
-    from ..io import atomic_path
+    from ..checkpoint import save
 
-    with atomic_path(path) as tmp:
-        torch.save({"state": net.state_dict(), "config": net.config, "meta": meta}, tmp)
+    save({"state": net.state_dict(), "config": net.config, "meta": meta}, path)
 
 
 def load_flow(path) -> FlowNet:
