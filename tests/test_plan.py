@@ -182,3 +182,20 @@ def test_plan_runs_reports_the_rank_test_per_model_and_in_the_table(monkeypatch,
     assert s["good"]["per_run"]["good"]["spearman"] == pytest.approx(1.0)
     table = "\n".join(plan.table_lines(s))
     assert "| +1.00 | 1.00 (0.25) |" in table and "| -1.00 | 0.00 (0.25) |" in table and "| — | — |" in table
+
+
+def test_the_simulator_controller_is_the_planners_ceiling(tmp_path):
+    """--simulator-controller plans with the true simulator's scores (perfect ranking): on the same starts it must
+    reach goals that random does not, and `pokeworld plan` runs with it alone."""
+    from pokeworld import plan
+
+    cfg = make_config("tiny", episodes=12, steps=48, population=32, elites=4, iterations=2, simulator_controller=True,
+                      out=str(tmp_path / "p"))
+    summary = plan.plan_runs(cfg, {})["summary"]
+    assert set(summary) == {"random", "simulator"}
+    assert summary["simulator"]["reach"] >= 0.5 and summary["random"]["reach"] <= 0.2
+    assert summary["simulator"]["spearman"] is None  # no rank test of the simulator against itself
+    plan.run(cfg)
+    assert "| simulator |" in (tmp_path / "p" / "plan.md").read_text()
+    with pytest.raises(ConfigError, match="--runs"):
+        plan.run(make_config("tiny", out=str(tmp_path / "q")))

@@ -72,6 +72,9 @@ class PlanConfig:
     docs/design.md, "Planning: open-loop behaviour data and the rank test")."""
     rank_topk: int = 8
     """k of the rank test's top-k overlap (of ``population`` candidates per start; chance k / population)."""
+    simulator_controller: bool = False
+    """Also plan with the true simulator as the scorer (:class:`SimulatorScorer`): the same CEM with candidates
+    ranked perfectly, the planner's ceiling on these starts. Runs may then be empty."""
     seed: int = 0
     """Seed of starts, goals and CEM noise."""
 
@@ -222,10 +225,13 @@ def rank_test(cfg: PlanConfig, setup: dict, scorer) -> dict:
     return agreement(model, truth, cfg.rank_topk) | {"moved": float(moved.mean())}
 
 
-def control(cfg: PlanConfig, setup: dict, scorer: LatentScorer | None) -> dict:
-    """Run every episode with CEM on ``scorer`` (random actions when None); returns distances over time."""
+def control(cfg: PlanConfig, setup: dict, scorer: LatentScorer | None, simulator: bool = False) -> dict:
+    """Run every episode with CEM on ``scorer`` (random actions when None; the live simulator's own
+    :class:`SimulatorScorer` when ``simulator``); returns distances over time."""
     n = cfg.episodes
     sim, obs = start_sim(cfg, setup)
+    if simulator:
+        scorer = SimulatorScorer(sim)
     rng = np.random.default_rng(cfg.seed + 1)
     goal = setup["goal"]
     hist = {"frames": [obs["vision"]], "proprio": [obs["proprio"]], "touch": [obs["touch"]], "actions": []}
@@ -293,6 +299,12 @@ def plan_runs(cfg: PlanConfig, runs: dict[str, list[str]], data: str = "") -> di
     setup = episode_setup(cfg)
     episodes = {"random": control(cfg, setup, None)}
     summary = {"random": {k: episodes["random"][k] for k in METRICS} | dict.fromkeys(RANK_METRICS) | {"per_run": {}}}
+    if cfg.simulator_controller:  # the ceiling: its rank test would be the simulator against itself, so none
+        episodes["simulator"] = control(cfg, setup, None, simulator=True)
+        summary["simulator"] = ({k: episodes["simulator"][k] for k in METRICS} | dict.fromkeys(RANK_METRICS)
+                                | {"per_run": {}})
+        print(f"[plan] simulator: reach {summary['simulator']['reach']:.0%}, "
+              f"median improvement {summary['simulator']['median_improvement']:+.3f}")
     for label, dirs in runs.items():
         per = {}
         for r in dirs:
@@ -327,7 +339,8 @@ def figure(planned: dict, out: Path, goal_radius: float, left: str | None = None
     import matplotlib.pyplot as plt
 
     eps = planned["episodes"]
-    labels = [k for k in eps if k != "random"] or ["random"]
+    labels = ([k for k in eps if k not in ("random", "simulator")] or [k for k in eps if k != "random"]
+              or ["random"])
     left, right = left or labels[0], right or labels[-1]
     i = showcase_episode(eps, left, right)
     goal = planned["setup"]["goal"][i]
@@ -385,8 +398,8 @@ def table_lines(summary: dict) -> list[str]:
 
 
 def run(cfg: PlanConfig) -> Path:
-    if not cfg.runs:
-        raise ConfigError("give at least one trained run directory with --runs")
+    if not cfg.runs and not cfg.simulator_controller:
+        raise ConfigError("give at least one trained run directory with --runs (or plan with --simulator-controller)")
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
     planned = plan_runs(cfg, {Path(r).name: [r] for r in cfg.runs})
