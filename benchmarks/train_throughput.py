@@ -97,7 +97,10 @@ def write_results(path: str, device: torch.device, results: list[dict]) -> None:
     """The benchmark's JSON record: machine metadata and one row per timed configuration."""
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"meta": meta(device), "results": results}, indent=2) + "\n")
+    m = meta(device)
+    name = m["gpu"] or f"cpu ({m['cpu_count']} cores)"
+    rows = [{"device_name": name, **r} for r in results]  # each row says where it was measured
+    out.write_text(json.dumps({"meta": m, "results": rows}, indent=2) + "\n")
     print(f"wrote {out}")
 
 

@@ -188,3 +188,31 @@ def test_map_wide_sigreg_pool_and_gnll_variance_rename_only_the_runs_they_apply_
         experiment.make_config("cpu", sigreg_pool="sometimes")
     with pytest.raises(ConfigError, match="gnll_variance"):
         experiment.make_config("cpu", gnll_variance="wild")
+
+
+@pytest.mark.slow
+def test_stacked_map_trains_its_runs_as_one_group_and_measures_each(tmp_path, capsys):
+    """The GPU options (stack, certify_alongside) on the tiny map: the runs train as one stacked group, the
+    certificates computed in the background process equal those computed in this one."""
+    import shutil
+
+    out = tmp_path / "map"
+    c = experiment.make_config("tiny", out=str(out), workers=1, stack=True, certify_alongside=True)
+    experiment.run(c)
+    log = capsys.readouterr().out
+    assert "2 runs as 1 stacked group(s) of [2] members" in log and "background process" in log
+    res = json.loads((out / "results.json").read_text())
+    assert set(res["runs"]) == {"V-h1-4-16-lam0.02-standard-s0", "VX_t-h1-4-16-lam0.02-standard-s0"}
+    for name, r in res["runs"].items():
+        rows = [json.loads(x) for x in (out / "runs" / name / "metrics.jsonl").read_text().splitlines()]
+        assert rows[-1]["stacked_members"] == 2  # trained in the group, not alone
+        assert "log_k" in r["probes"]["ridge"]["contact"]
+    fresh = tmp_path / "fresh"
+    shutil.copytree(out / "data" / "standard", fresh / "data" / "standard")
+    (fresh / "data" / "standard" / "certificates.json").unlink()
+    here = experiment.ensure_certificates(experiment.make_config("tiny", out=str(fresh)), "standard")
+    assert res["certificates"]["standard"]["certificate"] == here["certificate"]
+    experiment.run(c)  # finished: nothing is trained again
+    assert "stacked group" not in capsys.readouterr().out
+    with pytest.raises(ConfigError, match="launcher local"):
+        experiment.make_config("tiny", stack=True, launcher="submitit-local")

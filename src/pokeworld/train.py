@@ -204,7 +204,8 @@ class TrainConfig:
 
 
 #: Field overrides per preset (costs as in ``cli.PRESET_COSTS``).
-#: ``paper`` = App. B; needs a GPU: 0.040 s/step on one H100 (plain path) ≈ 13 min per 20k-step model.
+#: ``paper`` = App. B; needs a GPU: on one H100 0.041 s/step on the fast path (≈ 14 min per 20k-step model), 0.030
+#: compiled, 0.027 s per model-step for six models stacked (docs/model.md "Fast path", "Several models").
 #: ``cpu``: 32×32 frames, narrower CNN/predictor, batch 32, 256 SIGReg directions, 4,000 steps (stiffness
 #: enters the VFX latent only after ~2,000 steps at this size, docs/model.md); ≈ 0.26 s/step on one
 #: core, ≈ 20 min per model with two models side by side on 2 cores. ``tiny``: unit tests, seconds.

@@ -45,13 +45,13 @@ import contextlib
 import json
 import random
 import time
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
 import torch
+from torch.nn.attention import SDPBackend, sdpa_kernel
 
 from . import train as T
 from . import checkpoint
@@ -59,10 +59,6 @@ from .config import from_preset, to_dict
 from .errors import ConfigError
 from .models.xjepa import VARIANTS, XJEPA
 
-# On CPU, vmap runs the CPU flash-attention kernel once per member (no batching rule); that is the
-# same kernel the separate run calls, so it is kept, and the warning about it is silenced (CUDA's
-# flash / memory-efficient / cuDNN attention kernels have batching rules).
-warnings.filterwarnings("ignore", message=r".*batching rule for aten::_scaled_dot_product_flash_attention_for_cpu")
 
 #: TrainConfig fields that may differ between members of one stacked group (everything else is shared).
 PER_MEMBER_FIELDS = ("seed", "out", "sigreg_weight", "touch_contact_weight", "proprio_weight", "touch_weight",
@@ -159,11 +155,20 @@ def superset_variant(variants: Sequence[str]) -> str:
     return min(fits, key=lambda v: len(VARIANTS[v][0]) + len(VARIANTS[v][1]))
 
 
+#: TrainConfig flags no stacked group supports, and why.
+UNSTACKABLE = (("ddp", "train multi-GPU runs with `pokeworld train --ddp`"),
+               ("tokens", "the token SIGReg draws its row subset from a per-run integer seed"),
+               ("compile", "torch.compile of a vmapped loss is not supported here"),
+               ("channels_last", "stacked conv weights have no channels-last layout"))
+
+
+def stackable(cfg: T.TrainConfig) -> bool:
+    """Whether ``cfg`` can train as a member of a stacked group (else it trains alone with ``train.run``)."""
+    return not any(getattr(cfg, name) for name, _ in UNSTACKABLE)
+
+
 def _check_stackable(cfg: T.TrainConfig) -> None:
-    for name, why in (("ddp", "train multi-GPU runs with `pokeworld train --ddp`"),
-                      ("tokens", "the token SIGReg draws its row subset from a per-run integer seed"),
-                      ("compile", "torch.compile of a vmapped loss is not supported here"),
-                      ("channels_last", "stacked conv weights have no channels-last layout")):
+    for name, why in UNSTACKABLE:
         if getattr(cfg, name):
             raise ConfigError(f"stacked training does not support {name}=True ({why}); {cfg.out}")
 
@@ -297,8 +302,12 @@ class _Group:
         def member_loss(p, b, batch, dirs, mkw):
             from torch.func import functional_call
 
-            return functional_call(self.base, (p, b), (batch,),
-                                   dict(sigreg_directions=dirs, **mkw, **self.shared_kw))
+            # the math attention kernel: CUDA's fused kernels batch under vmap in the forward, but the
+            # memory-efficient backward rejects the batched logsumexp's strides ("LSE is not correctly aligned
+            # (strideH)", seen on an H100 with torch 2.11); the CPU flash kernel has no batching rule at all
+            with sdpa_kernel(SDPBackend.MATH):
+                return functional_call(self.base, (p, b), (batch,),
+                                       dict(sigreg_directions=dirs, **mkw, **self.shared_kw))
 
         self.vloss = torch.vmap(member_loss, randomness="different")
         self.use_amp = c0.amp and dev.type == "cuda" and torch.cuda.is_bf16_supported()

@@ -60,8 +60,8 @@ class MapConfig(LaunchOptions):
     """Output directory: data/, runs/, results.json, tables and figures land here."""
     preset: str = "cpu"
     """Preset used for every stage (generate, certify, train, measure): tiny (seconds, tests), cpu (2 CPU
-    cores, ≈ 20 min per 4,000-step model, two side by side) or paper (GPU, ≈ 13 min per 20k-step model on
-    one H100 with the plain training path); see ``pokeworld --help``."""
+    cores, ≈ 20 min per 4,000-step model, two side by side) or paper (GPU, ≈ 14 min per 20k-step model on
+    one H100, 0.027 s per model-step with ``stack``); see ``pokeworld --help``."""
     experiments: tuple[str, ...] = ("factorial", "lazy", "lambda", "coverage", "frame_averaged")
     """Named experiments to run (see EXPERIMENTS)."""
     variants: tuple[str, ...] = VARIANT_ORDER
@@ -140,6 +140,17 @@ class MapConfig(LaunchOptions):
     time_reserve_min: float = 1.0
     """Minutes of ``time_budget_min`` kept for checkpointing, measuring a run that just finished,
     the report and the pack; no stage starts inside it."""
+    stack: bool = False
+    """Train the runs that can share a step as stacked ensembles in this process (``pokeworld.train_stacked``:
+    one vmapped step for every member of a group, the factorial's six variants in one VFX-shaped group; a GPU
+    lever, slower than separate runs on a CPU), then measure each run as usual; runs that cannot stack (tokens)
+    train alone. Each member's run directory is the one ``train.run`` would write. Local launcher only."""
+    certify_alongside: bool = False
+    """Compute the certificates in a background process while the runs train, instead of before training: on a GPU
+    machine training leaves the CPU cores idle. Certification is not interrupted by ``time_budget_min``: the map
+    waits for it after training stops. The certificates are the same either way (same configs, same seeds)."""
+    stack_max_members: int = 0
+    """With ``stack``: most members per stacked group (0 = no limit; lower it when a group does not fit in memory)."""
     pack: str = ""
     """Write the small results to this .tar.gz (paths relative to ``out``): every run's config.json,
     metrics.jsonl and measure*.json, each corpus's certificates.json and manifest.json, map_config.json,
@@ -186,6 +197,10 @@ class MapConfig(LaunchOptions):
         if 0 < self.time_budget_min <= self.time_reserve_min:
             raise ConfigError(f"time_budget_min ({self.time_budget_min}) must exceed time_reserve_min "
                               f"({self.time_reserve_min}), or nothing can be trained")
+        if self.stack and self.launcher != "local":
+            raise ConfigError("stack trains in the map's own process: use it with --launcher local")
+        if self.stack_max_members < 0:
+            raise ConfigError(f"stack_max_members must be ≥ 0, got {self.stack_max_members}")
         if self.pack and not self.pack.endswith((".tar.gz", ".tgz")):
             raise ConfigError(f"pack must name a .tar.gz file, got {self.pack!r}")
 
@@ -532,6 +547,16 @@ def ensure_certificates(c: MapConfig, corpus: str) -> dict:
     return json.loads(Path(path).read_text())
 
 
+def certify_corpora(c: MapConfig, corpora: list[str], threads: int = 0) -> dict[str, dict]:
+    """:func:`ensure_certificates` of each corpus in order, on ``threads`` CPU threads (0: torch's default); top-level
+    because ``certify_alongside`` runs it in a spawned process."""
+    if threads:
+        import torch
+
+        torch.set_num_threads(threads)
+    return {corpus: ensure_certificates(c, corpus) for corpus in corpora}
+
+
 def planning_dir(c: MapConfig) -> Path:
     return Path(c.out) / "planning"
 
@@ -599,14 +624,39 @@ def execute(job: dict) -> dict:
         return {"name": job["name"], "status": "pending"}
     if job.get("threads"):
         torch.set_num_threads(job["threads"])
-    tcfg = train.make_config(job["train_preset"], **job["train"], deadline=deadline)
+    tcfg = job_train_config(job)
     run_dir = train.run(tcfg)
     if not (run_dir / "DONE").exists() or _past(deadline):
         return {"name": job["name"], "status": "partial"}
+    # the thread count training sets (CPU reductions round by it): a run measured in a later invocation, whose
+    # training was skipped, then reads the same numbers as one measured right after training
+    torch.set_num_threads(tcfg.threads or train.auto_threads())
     mcfg = measure.make_config(job["preset"], run_dir=job["train"]["out"], data=job["measure_data"],
                                mlp=job["mlp"], untrained=job["untrained"], **job.get("measure", {}))
     path = measure.run(mcfg)
     return {"name": job["name"], "status": "finished", "measure": str(path)}
+
+
+def job_train_config(job: dict):
+    """The TrainConfig a map job trains (with its deadline): the same for a separate and a stacked run."""
+    from .. import train
+
+    return train.make_config(job["train_preset"], **job["train"], deadline=job.get("deadline", 0.0))
+
+
+def train_stacked_jobs(c: MapConfig, jobs: list[dict]) -> None:
+    """``stack``: train every unfinished job that can stack with :func:`pokeworld.train_stacked.run` (grouped by
+    what fixes the step's shapes; members resume together from a common checkpoint step), before :func:`launch`
+    measures them (and trains alone the jobs that cannot stack). Stops at the jobs' deadline like ``train.run``."""
+    from .. import train_stacked
+
+    cfgs = [job_train_config(j) for j in jobs]
+    todo = [cfg for cfg in cfgs if train_stacked.stackable(cfg) and not (Path(cfg.out) / "DONE").exists()]
+    if not todo:
+        return
+    groups = train_stacked.plan_groups(todo, mix_variants=True, max_members=c.stack_max_members)
+    print(f"[map] training {len(todo)} runs as {len(groups)} stacked group(s) of {[len(g) for g in groups]} members")
+    train_stacked.run(todo, mix_variants=True, max_members=c.stack_max_members)
 
 
 def _jobs(c: MapConfig, specs: list[RunSpec], threads: int, deadline: float = 0.0) -> list[dict]:
@@ -823,25 +873,43 @@ def _run_locked(c: MapConfig) -> Path:
     specs = all_specs(c)
     corpora = sorted({s.corpus for s in specs} | {s.measure_corpus for s in specs} | {"standard"})
     certificates: dict[str, dict] = {}
-    prepared = True  # every corpus and certificate in place: training may start, the report needs them all
+    prepared = True  # every corpus (and, unless certify_alongside, certificate) in place: training may start
     for corpus in corpora:
         if _past(deadline):
             prepared = False
             break
         ensure_corpus(c, corpus)
-    for corpus in sorted(corpora, key=lambda k: k == "flow"):  # flow's certificates build on the standard's
-        if not prepared or corpus == "contact_poor":
-            continue
-        if _past(deadline):
-            prepared = False
-            continue
-        certificates[corpus] = ensure_certificates(c, corpus)
+    certify_order = [k for k in sorted(corpora, key=lambda k: k == "flow") if k != "contact_poor"]  # flow's build on the standard's
+    background = None
+    if prepared and c.certify_alongside:
+        # certificates are CPU work, training on a GPU leaves the cores idle: one spawned process computes them while
+        # the runs train (spawned, not forked, so it inherits no CUDA state)
+        ctx = __import__("multiprocessing").get_context("spawn")
+        background = cf.ProcessPoolExecutor(max_workers=1, mp_context=ctx)
+        # two cores stay with the training process, whose GPU step is bound by its host-side launches
+        pending = background.submit(certify_corpora, c, certify_order, max(1, _cores() - 2))
+        print(f"[map] certifying {certify_order} in a background process while the runs train")
+    else:
+        for corpus in certify_order:
+            if not prepared:
+                break
+            if _past(deadline):
+                prepared = False
+                break
+            certificates[corpus] = ensure_certificates(c, corpus)
     if prepared:
         workers = c.workers or _default_workers(len(specs))
         threads = max(1, _cores() // workers) if (c.launcher == "local" and workers > 1) else 0
         print(f"[map] {len(specs)} runs, launcher={c.launcher}, workers={workers}"
               + (f", training until {c.time_budget_min - c.time_reserve_min:g} min" if deadline else ""))
-        launch(c, _jobs(c, specs, threads, deadline))
+        jobs = _jobs(c, specs, threads, deadline)
+        if c.stack:
+            train_stacked_jobs(c, jobs)
+        launch(c, jobs)
+    if background is not None:
+        with background:
+            print("[map] waiting for the background certificates")
+            certificates = pending.result()
     prog = write_progress(c, specs, started)
     planning_late = "planning" in c.experiments and _past(deadline)  # planning takes minutes: never start it late
     if prog["complete"] and prepared and not planning_late:

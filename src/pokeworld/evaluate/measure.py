@@ -54,8 +54,8 @@ from .prediction import (CONTEXT, HORIZON, position_decoder, glide_comparison, g
                          glide_test, prediction_quality)
 from .probes import (KINDS, PARAM_TARGETS, STATE_TARGETS, fit_predict, fit_probes, probe_latents,  # noqa: F401
                      probe_model, probe_targets, probe_windows)
-from .state import (EpisodeLatents, _trunk_at, encode_episodes, neutral_last, padded_actions,  # noqa: F401
-                    window_states)
+from .state import (EpisodeLatents, _trunk_at, as_model_input, encode_episodes, model_device, neutral_last,  # noqa: F401
+                    padded_actions, window_states)
 
 READOUT = {
     "probes": "state at the window's last observation with the action after it replaced by the neutral "
@@ -98,11 +98,16 @@ class MeasureConfig:
     """Context observations before the 16-step predictions and the glide test (paper: 8)."""
     overwrite: bool = False
     """Recompute even if measure.json is up to date."""
+    device: str = "auto"
+    """Where the model runs while its states are read: 'auto' (cuda when available, else cpu), 'cpu', 'cuda' or
+    'cuda:N'. The probes are fit on the CPU either way; GPU and CPU states differ by float rounding only, so the
+    device is not part of the measurement's key (a measurement made on either is up to date for both)."""
 
     def __post_init__(self) -> None:
         bad = (set(self.kinds) | set(self.action_conditioned_kinds)) - set(KINDS)
         if bad:
             raise ConfigError(f"unknown window kinds {sorted(bad)}; choose from {list(KINDS)}")
+        measure_device(self.device)  # a clear error now rather than inside torch later
         if self.context < 1 or self.window < 2:
             raise ConfigError(f"context must be ≥ 1 and window ≥ 2, got context={self.context}, window={self.window}")
 
@@ -118,7 +123,7 @@ def belief_states(model, lat: EpisodeLatents, w, acts: np.ndarray, which: str, b
     z, a = lat.gather(w), neutral_last(w.gather(acts))
     out = []
     for i in range(0, len(z), batch):
-        zt, at = torch.as_tensor(z[i:i + batch]), a[i:i + batch]
+        zt, at = as_model_input(model, z[i:i + batch]), a[i:i + batch]
         mu = model.prior(zt, at)[0][:, -1] if which == "prior" else model.posterior(zt, at)[0]
         out.append(mu.float().cpu().numpy())
     return np.concatenate(out)
@@ -173,7 +178,7 @@ def untrained_copy(trained, seed: int = 12345):
         torch.manual_seed(seed)
         fresh = XJEPA(**trained.config)
     fresh.load_state_dict(stats, strict=False)
-    return fresh.eval()
+    return fresh.to(model_device(trained)).eval()  # initialised on the CPU, so a GPU measurement gets the same weights
 
 
 def untrained_like(run_dir: Path, ds: Dataset | None = None, seed: int = 12345):
@@ -214,6 +219,7 @@ def run(cfg: MeasureConfig) -> Path:
     cfg_key = to_dict(cfg)
     if cfg.context == CONTEXT:  # added later: left out at its default so earlier measurements stay up to date
         del cfg_key["context"]
+    del cfg_key["device"]  # where the states were computed, not what was measured
     key = {"config": cfg_key, "data_sha256": read_manifest(data).get("content_sha256"),
            "final_mtime": (run_dir / "DONE").stat().st_mtime_ns}
     if out.exists() and not cfg.overwrite:
@@ -223,13 +229,24 @@ def run(cfg: MeasureConfig) -> Path:
             return out
     ds = load(data)
     torch.set_num_threads(max(1, torch.get_num_threads()))
-    model = load_model(run_dir, map_location="cpu")
-    res = measure(model, ds, cfg, untrained_like(run_dir, ds) if cfg.untrained else None)
+    model = load_model(run_dir, map_location=measure_device(cfg.device))
+    res = measure(model, ds, cfg, untrained_copy(model) if cfg.untrained else None)
     res.update(key=key, run=run_cfg, data=data)
     crash_point("measure")
     write_json(out, res)
     print(f"[measure] {run_dir.name}: " + summary_line(res))
     return out
+
+
+def measure_device(name: str) -> torch.device:
+    """The device of ``MeasureConfig.device`` ('auto': cuda when available)."""
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if not (name == "cpu" or name == "cuda" or (name.startswith("cuda:") and name[5:].isdigit())):
+        raise ConfigError(f"measure device must be auto, cpu, cuda or cuda:N, got {name!r}")
+    if name != "cpu" and not torch.cuda.is_available():
+        raise ConfigError(f"measure device {name!r} asked for, but this machine has no CUDA device")
+    return torch.device(name)
 
 
 def summary_line(res: dict) -> str:

@@ -14,7 +14,7 @@ import torch
 from ..data import Dataset
 from ..regressors import RidgeCV
 from ..windows import make_windows, wall_contact
-from .state import EpisodeLatents, padded_actions
+from .state import EpisodeLatents, as_model_input, padded_actions
 
 CONTEXT, HORIZON = 8, 16
 
@@ -72,7 +72,7 @@ def prediction_quality(model, ds: Dataset, lat_fit: EpisodeLatents, lat_test: Ep
         z_in = lat_test.gather(w, trunk=True)
         preds = []
         for i in range(0, len(w), 512):
-            zt = torch.as_tensor(z_in[i:i + 512])
+            zt = as_model_input(model, z_in[i:i + 512])
             h = model.trunk(zt, acts[i:i + 512])
             zh = model.predict(h, acts[i:i + 512], H)
             preds.append(zh[:, context - 1].float().cpu().numpy())
@@ -81,7 +81,7 @@ def prediction_quality(model, ds: Dataset, lat_fit: EpisodeLatents, lat_test: Ep
     if 1 in model.horizons and not model.tokens:
         rolls = []
         for i in range(0, len(w), 512):
-            r = model.rollout(torch.as_tensor(z[i:i + 512, :context]), acts[i:i + 512], H)
+            r = model.rollout(as_model_input(model, z[i:i + 512, :context]), acts[i:i + 512], H)
             rolls.append(r.float().cpu().numpy())
         roll = np.concatenate(rolls)
         out[f"rollout{H}"] = err(dec.predict(roll[:, -1]), truth)

@@ -14,6 +14,21 @@ import torch
 from ..data import Dataset
 
 
+def model_device(model) -> torch.device:
+    """The device a model's tensors live on (measurement runs the model there, the probes on the CPU); the CPU for
+    a model that holds none (a planted or wrapped model)."""
+    for tensors in (getattr(model, "parameters", None), getattr(model, "buffers", None)):
+        t = next(iter(tensors()), None) if callable(tensors) else None
+        if t is not None:
+            return t.device
+    return torch.device("cpu")
+
+
+def as_model_input(model, x) -> torch.Tensor:
+    """An array of latents as a tensor on the model's device (the model moves frames and actions itself)."""
+    return torch.as_tensor(x, device=model_device(model))
+
+
 @torch.no_grad()
 def encode_episodes(model, ds: Dataset, episodes: np.ndarray, batch: int = 64, keep_tokens: bool = False) -> np.ndarray:
     """Encoder latents for whole episodes: (E', T+1, D) float32; token models give the mean over tokens, or
@@ -35,7 +50,7 @@ def _trunk_at(model, z_win: np.ndarray, a_win: np.ndarray, index: int, batch: in
     trunk = model.trunk_tokens if per_token else model.trunk
     out = []
     for i in range(0, len(z_win), batch):
-        zt = torch.as_tensor(z_win[i:i + batch])
+        zt = as_model_input(model, z_win[i:i + batch])
         h = trunk(zt, a_win[i:i + batch])
         out.append(h[:, index].float().cpu().numpy())
     return np.concatenate(out)

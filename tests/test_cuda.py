@@ -1,0 +1,94 @@
+"""The training paths on a CUDA device (skipped without one; run on a GPU machine with ``pytest tests/test_cuda.py``).
+
+CI has no GPU, so these are the checks that the CPU suite cannot make: the fast path (pinned non-blocking
+uploads, fused AdamW, bf16 autocast) trains, resumes and is read back on the CPU; stacked members on the GPU
+equal their separate GPU runs; the compiled loss trains; a GPU-trained run is measured. The tolerances allow
+for bf16 autocast and non-deterministic cuDNN kernels, not for a wrong batch or a wrong update.
+"""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from pokeworld import train, train_stacked
+from pokeworld.data import save
+
+pytestmark = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
+
+# 32 px keeps the CNN alive (at tiny's 16 px its GroupNorm zeroes the CNN gradient); dropout 0 so that
+# stacked and separate runs, and resumed and uninterrupted ones, see the same masks (none)
+BASE = dict(image_size=32, dropout=0.0, device="cuda", steps=8, log_every=2, ckpt_every=2)
+
+
+@pytest.fixture(scope="module")
+def data_dir(tmp_path_factory):
+    ds = train.synthetic_dataset(num_episodes=12, steps=24, size=32, seed=0)
+    ds.touch[..., :6] += np.random.default_rng(1).normal(0, 0.1, ds.touch[..., :6].shape).astype(np.float32)
+    d = tmp_path_factory.mktemp("cuda") / "syn"
+    save(ds, d)
+    return str(d)
+
+
+def _rows(d):
+    return [json.loads(x) for x in (d / "metrics.jsonl").read_text().splitlines()]
+
+
+def _close_runs(a, b, rel):
+    ra, rb = _rows(a), _rows(b)
+    assert [r["step"] for r in ra] == [r["step"] for r in rb]
+    for x, y in zip(ra[1:], rb[1:]):
+        assert np.isfinite(x["loss"]) and y["loss"] == pytest.approx(x["loss"], rel=rel)
+
+
+def test_fast_path_trains_resumes_and_loads_on_the_cpu(data_dir, tmp_path):
+    kw = dict(data=data_dir, variant="VFX", **BASE)
+    a = train.run(train.make_config("tiny", out=str(tmp_path / "a"), **kw))
+    cfg = train.make_config("tiny", out=str(tmp_path / "b"), stop_at=4, **kw)
+    assert train.use_fast_path(cfg, torch.device("cuda"))
+    train.run(cfg)
+    assert not (tmp_path / "b" / "DONE").exists()
+    b = train.run(train.make_config("tiny", out=str(tmp_path / "b"), **kw))
+    _close_runs(a, b, rel=2e-2)
+    rows = _rows(a)
+    assert rows[-1]["loss"] < rows[1]["loss"]
+    model = train.load_model(a, map_location="cpu")  # a GPU checkpoint is read on a machine without one
+    assert next(model.parameters()).device.type == "cpu"
+
+
+def test_fast_path_equals_the_plain_path_on_cuda(data_dir, tmp_path):
+    kw = dict(data=data_dir, variant="VX_t", **BASE)
+    plain = train.run(train.make_config("tiny", out=str(tmp_path / "plain"), fast="off", **kw))
+    fast = train.run(train.make_config("tiny", out=str(tmp_path / "fast"), fast="on", **kw))
+    _close_runs(plain, fast, rel=2e-2)
+
+
+def test_stacked_members_equal_their_separate_runs_on_cuda(data_dir, tmp_path):
+    members = [dict(variant="VFX", seed=0, sigreg_weight=0.02), dict(variant="V", seed=1)]
+    sep = [train.run(train.make_config("tiny", data=data_dir, out=str(tmp_path / f"s{i}"), **BASE, **m))
+           for i, m in enumerate(members)]
+    cfgs = [train.make_config("tiny", data=data_dir, out=str(tmp_path / f"k{i}"), **BASE, **m)
+            for i, m in enumerate(members)]
+    stk = train_stacked.run(cfgs)
+    for s, k in zip(sep, stk):
+        assert (k / "DONE").exists()
+        _close_runs(s, k, rel=2e-2)
+
+
+def test_compiled_loss_trains_on_cuda(data_dir, tmp_path):
+    out = train.run(train.make_config("tiny", data=data_dir, out=str(tmp_path / "c"), variant="VFX", compile=True,
+                                      **BASE))
+    rows = _rows(out)
+    assert (out / "DONE").exists() and all(np.isfinite(r["loss"]) for r in rows[1:])
+
+
+def test_a_gpu_trained_run_is_measured(data_dir, tmp_path, tiny_dataset):
+    from pokeworld.evaluate import measure
+
+    d = tmp_path / "sim"
+    save(tiny_dataset, d)
+    kw = {**BASE, "image_size": 16}  # the tiny corpus's frames
+    run_dir = train.run(train.make_config("tiny", data=str(d), out=str(tmp_path / "m"), variant="VFX", **kw))
+    res = json.loads(measure.run(measure.make_config("tiny", run_dir=str(run_dir))).read_text())
+    assert "ridge" in res["probes"] and np.isfinite(res["prediction"]["direct16"])
