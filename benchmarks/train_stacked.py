@@ -5,7 +5,7 @@ Usage:  python benchmarks/train_stacked.py [--presets paper] [--members 1 2 4 6]
 
 For each preset and member count M, times full optimisation steps of
 
-* ``stacked``: one ``pokeworld.train_stacked`` group of M members (window sampling of an (M, B) index
+* ``stacked``: one ``pokeworld.train.stacked`` group of M members (window sampling of an (M, B) index
   block, one vmapped forward/backward, per-member clipping, one AdamW), and
 * ``sequential``: the M members as separate models, one plain ``train.run``-style step each (the
   cost of training them one after another, or interleaved, in one process),
@@ -35,7 +35,7 @@ from pokeworld.models import XJEPA  # noqa: E402
 from pokeworld.models.xjepa import VARIANTS  # noqa: E402
 from pokeworld.train import (PRESETS, WindowSampler, auto_threads, data_stats, loss_kwargs, make_config,  # noqa: E402
                              make_optimizer, model_kwargs, synthetic_dataset, train_step, use_fast_path)
-from pokeworld.train_stacked import _Group, superset_variant  # noqa: E402
+from pokeworld.train.stacked import StackedGroup, superset_variant  # noqa: E402
 
 
 def _sync(device: torch.device) -> None:
@@ -66,7 +66,7 @@ def bench_stacked(cfgs, ds, device: torch.device, steps: int) -> dict:
     fast = use_fast_path(cfgs[0], device)
     if device.type == "cuda":
         torch.cuda.reset_peak_memory_stats()
-    g = _Group(cfgs, device, fast, ds=ds)
+    g = StackedGroup(cfgs, device, fast, ds=ds)
     acc = torch.zeros(g.M, device=device)
 
     def step(i):

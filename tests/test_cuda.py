@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 import torch
 
-from pokeworld import train, train_stacked
+from pokeworld import train
+from pokeworld.train import stacked as train_stacked
 from pokeworld.data import save
 
 pytestmark = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")

@@ -10,7 +10,8 @@ import json
 import pytest
 import torch
 
-from pokeworld import train
+from pokeworld import clock, train
+from pokeworld.train import loop
 from pokeworld.data import save
 from pokeworld.errors import ConfigError
 from pokeworld.models import XJEPA
@@ -95,8 +96,8 @@ def test_fast_and_plain_training_runs_agree_and_sync_only_at_log_steps(data_dir,
     kw = dict(data=data_dir, steps=10, variant="VFX", **LIVE_CNN)
     a = run(make_config("tiny", out=str(tmp_path / "plain"), fast="off", **kw))
     checks = []
-    orig = train._check_finite
-    monkeypatch.setattr(train, "_check_finite", lambda *args: (checks.append(args[2]), orig(*args))[1])
+    orig = loop.check_finite
+    monkeypatch.setattr(loop, "check_finite", lambda *args: (checks.append(args[2]), orig(*args))[1])
     b = run(make_config("tiny", out=str(tmp_path / "fast"), fast="on", channels_last=True, **kw))
     assert checks == [5, 10]  # log_every = ckpt_every = 5 in the tiny preset: no per-step host sync
     ra, rb = _rows(a), _rows(b)
@@ -174,7 +175,7 @@ class FakeClock:
             return orig(model, *a, **kw)
 
         monkeypatch.setattr(XJEPA, "loss", loss)
-        monkeypatch.setattr(train, "wall_clock", lambda: self.t)
+        monkeypatch.setattr(clock, "wall_clock", lambda: self.t)
 
 
 def test_deadline_checkpoints_partway_and_resume_matches_uninterrupted(data_dir, tmp_path, monkeypatch):

@@ -86,7 +86,7 @@ def test_submitit_local_launcher_runs_jobs(tmp_path):
 def test_time_budget_stops_partway_resumes_and_packs(tmp_path, monkeypatch, capsys):
     import tarfile
 
-    from pokeworld import train
+    from pokeworld import clock as wall
     from pokeworld.models import XJEPA
 
     clock = {"t": 1e9}  # fake wall clock: every training step takes one minute
@@ -97,7 +97,7 @@ def test_time_budget_stops_partway_resumes_and_packs(tmp_path, monkeypatch, caps
         return orig(model, *a, **kw)
 
     monkeypatch.setattr(XJEPA, "loss", slow_loss)
-    monkeypatch.setattr(train, "wall_clock", lambda: clock["t"])
+    monkeypatch.setattr(wall, "wall_clock", lambda: clock["t"])
     out = tmp_path / "map"
     first, second = "V-h1-4-16-lam0.02-standard-s0", "VX_t-h1-4-16-lam0.02-standard-s0"
     # 15 min with no reserve: the first run's 10 steps fit, the second stops after 5 of its 10

@@ -1,4 +1,4 @@
-"""Stacked training (pokeworld.train_stacked) with pooled SIGReg and the Gaussian-NLL variance options: one
+"""Stacked training (pokeworld.train.stacked) with pooled SIGReg and the Gaussian-NLL variance options: one
 vmapped step equals the members' separate steps."""
 
 from pathlib import Path
@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from pokeworld import train
-from pokeworld.train_stacked import _Group
+from pokeworld.train.stacked import StackedGroup
 
 
 def _dataset():
@@ -29,7 +29,7 @@ def test_one_stacked_step_equals_the_separate_steps_with_the_new_options(kw):
                dict(variant="VX_t", seed=2)]
     cfgs = [train.make_config("tiny", data="unused", out=f"/nonexistent/m{i}", image_size=32, dropout=0.0, **m, **kw)
             for i, m in enumerate(members)]
-    g = _Group(cfgs, torch.device("cpu"), fast=False, ds=ds)
+    g = StackedGroup(cfgs, torch.device("cpu"), fast=False, ds=ds)
     step = 3
     batch, dirs, skw = g.sample(cfgs[0].batch_size), g.directions(step), g.step_kw(step)
     pooled = kw.get("sigreg_pool") == "pooled"
@@ -60,7 +60,7 @@ def test_stacked_pooled_run_trains_and_matches_its_separate_run_terms(tmp_path):
     run's (dropout 0, so the runs agree to float rounding)."""
     import json
 
-    from pokeworld import train_stacked
+    from pokeworld.train import stacked as train_stacked
     from pokeworld.data import save
 
     save(_dataset(), tmp_path / "syn")

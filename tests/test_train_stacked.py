@@ -1,4 +1,4 @@
-"""Stacked ensembles (pokeworld.train_stacked): M runs in one vmapped step equal M separate runs."""
+"""Stacked ensembles (pokeworld.train.stacked): M runs in one vmapped step equal M separate runs."""
 
 import json
 from pathlib import Path
@@ -7,11 +7,12 @@ import numpy as np
 import pytest
 import torch
 
-from pokeworld import train, train_stacked
+from pokeworld import train
+from pokeworld.train import stacked as train_stacked
 from pokeworld.data import save
 from pokeworld.errors import ConfigError
 from pokeworld.models import XJEPA
-from pokeworld.train_stacked import embed_state, plan_groups, superset_variant
+from pokeworld.train.stacked import embed_state, plan_groups, superset_variant
 
 # 32 px keeps the CNN alive (at tiny's 16 px its GroupNorm zeroes the CNN gradient, see test_fast_path);
 # dropout 0 because stacked members draw their own masks, not their separate runs' masks
@@ -93,11 +94,11 @@ def _assert_same_run(a, b, rtol=1e-4, atol=1e-5):
 
 def test_one_stacked_step_equals_the_separate_steps():
     """Same windows, same loss and the same gradients on the same batch (the issue's numerics check)."""
-    from pokeworld.train_stacked import _Group
+    from pokeworld.train.stacked import StackedGroup
 
     ds = _dataset()
     cfgs = _cfgs("unused", Path("/nonexistent"))
-    g = _Group(cfgs, torch.device("cpu"), fast=False, ds=ds)
+    g = StackedGroup(cfgs, torch.device("cpu"), fast=False, ds=ds)
     assert g.super_variant == "VFX" and set(g.member_kw) == {"sigreg_weight", "proprio_weight", "touch_weight"}
     batch, dirs = g.sample(cfgs[0].batch_size), g.directions(3)
     loss, terms = g.vloss(g.params, g.buffers, batch, dirs, g.member_kw)

@@ -37,7 +37,7 @@ COMMANDS: dict[str, Command] = {
     "certify-curve": Command("pokeworld.certificate_curve", "CurveConfig",
                              "certificate R² against certificate-fit episodes (where each estimator plateaus)", "data"),
     "train": Command("pokeworld.train", "TrainConfig", "train one X-JEPA variant"),
-    "train-stacked": Command("pokeworld.train_stacked", "StackedConfig",
+    "train-stacked": Command("pokeworld.train.stacked", "StackedConfig",
                              "train a grid of runs (variants × seeds × λ) stacked in one process",
                              runner="run_config"),
     "probe": Command("pokeworld.evaluate.measure", "MeasureConfig", "probe and evaluate one trained run", "run_dir"),

@@ -90,7 +90,7 @@ class _ECF(torch.autograd.Function):
     derivative of each is the other, so keeping the forward values halves that work. This is the
     regulariser's hot spot (≈ 20 % of a ``cpu``-preset step). Written in the ``setup_context`` form with
     a generated vmap rule so the same function also runs under ``torch.vmap`` (stacked ensembles,
-    :mod:`pokeworld.train_stacked`); that form cannot stash intermediates on ``ctx``, so the cos/sin
+    :mod:`pokeworld.train.stacked`); that form cannot stash intermediates on ``ctx``, so the cos/sin
     tensors come back as extra, non-differentiable outputs, which :func:`_ecf` drops."""
 
     generate_vmap_rule = True

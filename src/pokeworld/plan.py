@@ -103,7 +103,7 @@ class LatentScorer:
 
     def __init__(self, run_dir: str, data: str):
         from .evaluate.measure import EpisodeLatents, position_decoder
-        from .train import load_model
+        from .rundir import load_model
 
         self.model = load_model(run_dir, map_location="cpu")
         if not {4, 16} <= set(self.model.horizons):

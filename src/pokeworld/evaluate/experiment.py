@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
+from .. import clock
 from ..config import from_preset, to_dict
 from ..errors import ConfigError
 from ..io import write_json
@@ -141,7 +142,7 @@ class MapConfig(LaunchOptions):
     """Minutes of ``time_budget_min`` kept for checkpointing, measuring a run that just finished,
     the report and the pack; no stage starts inside it."""
     stack: bool = False
-    """Train the runs that can share a step as stacked ensembles in this process (``pokeworld.train_stacked``:
+    """Train the runs that can share a step as stacked ensembles in this process (``pokeworld.train.stacked``:
     one vmapped step for every member of a group, the factorial's six variants in one VFX-shaped group; a GPU
     lever, slower than separate runs on a CPU), then measure each run as usual; runs that cannot stack (tokens)
     train alone. Each member's run directory is the one ``train.run`` would write. Local launcher only."""
@@ -602,9 +603,7 @@ def spec_measure_path(c: MapConfig, s: RunSpec) -> Path:
 
 
 def _past(deadline: float) -> bool:
-    from .. import train
-
-    return deadline > 0 and train.wall_clock() >= deadline
+    return deadline > 0 and clock.wall_clock() >= deadline
 
 
 def execute(job: dict) -> dict:
@@ -645,10 +644,10 @@ def job_train_config(job: dict):
 
 
 def train_stacked_jobs(c: MapConfig, jobs: list[dict]) -> None:
-    """``stack``: train every unfinished job that can stack with :func:`pokeworld.train_stacked.run` (grouped by
+    """``stack``: train every unfinished job that can stack with :func:`pokeworld.train.stacked.run` (grouped by
     what fixes the step's shapes; members resume together from a common checkpoint step), before :func:`launch`
     measures them (and trains alone the jobs that cannot stack). Stops at the jobs' deadline like ``train.run``."""
-    from .. import train_stacked
+    from ..train import stacked as train_stacked
 
     cfgs = [job_train_config(j) for j in jobs]
     todo = [cfg for cfg in cfgs if train_stacked.stackable(cfg) and not (Path(cfg.out) / "DONE").exists()]
@@ -738,8 +737,6 @@ def write_progress(c: MapConfig, specs: list[RunSpec], started: float) -> dict:
     """``progress.json``, read off the run directories (so earlier invocations' work counts): runs
     ``finished`` (trained and measured), ``partial`` (name -> last logged step: stopped at a deadline,
     or trained but not measured yet) and ``pending`` (not started)."""
-    from .. import train
-
     prog: dict[str, Any] = {"finished": [], "partial": {}, "pending": []}
     for s in specs:
         run_dir = Path(c.out) / "runs" / s.name
@@ -750,7 +747,7 @@ def write_progress(c: MapConfig, specs: list[RunSpec], started: float) -> dict:
         else:
             prog["pending"].append(s.name)
     prog["complete"] = len(prog["finished"]) == len(specs)
-    prog["elapsed_min"] = (train.wall_clock() - started) / 60
+    prog["elapsed_min"] = (clock.wall_clock() - started) / 60
     prog["time_budget_min"] = c.time_budget_min
     write_json(Path(c.out) / "progress.json", prog)
     return prog
@@ -861,10 +858,9 @@ def run(c: MapConfig) -> Path:
 
 def _run_locked(c: MapConfig) -> Path:
     """The body of :func:`run`, under the out directory's lock."""
-    from .. import train
     from . import report
 
-    started = train.wall_clock()
+    started = clock.wall_clock()
     # training must stop early enough to leave the reserve for measuring, reporting and packing
     deadline = started + 60 * (c.time_budget_min - c.time_reserve_min) if c.time_budget_min > 0 else 0.0
     out = Path(c.out)

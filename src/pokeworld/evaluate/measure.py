@@ -183,7 +183,7 @@ def untrained_copy(trained, seed: int = 12345):
 
 def untrained_like(run_dir: Path, ds: Dataset | None = None, seed: int = 12345):
     """:func:`untrained_copy` of the model trained in ``run_dir``."""
-    from ..train import load_model
+    from ..rundir import load_model
 
     return untrained_copy(load_model(run_dir, map_location="cpu"), seed)
 
@@ -210,7 +210,7 @@ def covers(stored: dict | None, wanted: dict) -> bool:
 
 def run(cfg: MeasureConfig) -> Path:
     """Measure ``cfg.run_dir`` and write ``measure.json`` there (skipped when up to date)."""
-    from ..train import finished_run_config, load_model
+    from ..rundir import finished_run_config, load_model
 
     run_dir = Path(cfg.run_dir)
     run_cfg = finished_run_config(run_dir)

@@ -283,7 +283,7 @@ def result_path(run_dir: Path, data: str) -> Path:
 def run(cfg: RealEvalConfig) -> Path:
     """Evaluate ``cfg.run_dir`` on a converted store and write ``real_eval[-<store>].json`` there."""
     from ..evaluate.measure import untrained_copy
-    from ..train import finished_run_config, load_model
+    from ..rundir import finished_run_config, load_model
 
     run_dir = Path(cfg.run_dir)
     run_cfg = finished_run_config(run_dir)

@@ -44,7 +44,6 @@ from __future__ import annotations
 import contextlib
 import json
 import random
-import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
@@ -53,11 +52,17 @@ import numpy as np
 import torch
 from torch.nn.attention import SDPBackend, sdpa_kernel
 
-from . import train as T
-from . import checkpoint
-from .config import from_preset, to_dict
-from .errors import ConfigError
-from .models.xjepa import VARIANTS, XJEPA
+from .. import checkpoint, clock
+from ..config import from_preset, to_dict
+from ..errors import ConfigError
+from ..models.xjepa import VARIANTS, XJEPA, check_variant as validate_variant
+from ..rundir import MetricsLog, restart_metrics, write_final
+from .config import PRESETS as TRAIN_PRESETS, TrainConfig, auto_threads, check_existing, make_config as make_train_config, \
+    resolve_device, use_fast_path, validate
+from .loop import LoopSchedule, Progress, run_loop
+from .sampler import WindowSampler, data_stats
+from .step import decay_split, loss_kwargs, lr_lambda, make_optimizer, model_kwargs, sigreg_directions, \
+    sigreg_row_index, to_device
 
 
 #: TrainConfig fields that may differ between members of one stacked group (everything else is shared).
@@ -106,17 +111,17 @@ class StackedConfig:
 
 #: Each TrainConfig preset by name (``tiny`` also silences the progress bar, as its TrainConfig preset does).
 PRESETS: dict[str, dict[str, Any]] = {name: {"preset": name, **({"progress": False} if name == "tiny" else {})}
-                                      for name in T.PRESETS}
+                                      for name in TRAIN_PRESETS}
 
 
 def make_config(preset: str = "cpu", **overrides: Any) -> StackedConfig:
     """``StackedConfig`` for a TrainConfig preset plus field overrides."""
-    if preset not in T.PRESETS:
-        raise ConfigError(f"unknown preset {preset!r}; choose one of {sorted(T.PRESETS)}")
+    if preset not in TRAIN_PRESETS:
+        raise ConfigError(f"unknown preset {preset!r}; choose one of {sorted(TRAIN_PRESETS)}")
     return from_preset(StackedConfig, PRESETS, preset, **overrides)
 
 
-def train_configs(scfg: StackedConfig) -> list[T.TrainConfig]:
+def train_configs(scfg: StackedConfig) -> list[TrainConfig]:
     """The grid's TrainConfigs (variant-major, then λ, then seed)."""
     if not scfg.variants or not scfg.seeds:
         raise ConfigError("variants and seeds must each list at least one value")
@@ -133,7 +138,7 @@ def train_configs(scfg: StackedConfig) -> list[T.TrainConfig]:
                     kw["sigreg_weight"] = lam
                 if scfg.steps:
                     kw["steps"] = scfg.steps
-                cfgs.append(T.make_config(scfg.preset, **kw))
+                cfgs.append(make_train_config(scfg.preset, **kw))
     return cfgs
 
 
@@ -148,7 +153,7 @@ def run_config(scfg: StackedConfig) -> list[Path]:
 def superset_variant(variants: Sequence[str]) -> str:
     """The variant with the fewest inputs+targets that contains every input and target of ``variants``."""
     for v in variants:
-        T.check_variant(v)
+        validate_variant(v)
     ins = set().union(*(VARIANTS[v][0] for v in variants))
     outs = set().union(*(VARIANTS[v][1] for v in variants))
     fits = [v for v, (i, o) in VARIANTS.items() if ins <= set(i) and outs <= set(o)]
@@ -162,18 +167,18 @@ UNSTACKABLE = (("ddp", "train multi-GPU runs with `pokeworld train --ddp`"),
                ("channels_last", "stacked conv weights have no channels-last layout"))
 
 
-def stackable(cfg: T.TrainConfig) -> bool:
+def stackable(cfg: TrainConfig) -> bool:
     """Whether ``cfg`` can train as a member of a stacked group (else it trains alone with ``train.run``)."""
     return not any(getattr(cfg, name) for name, _ in UNSTACKABLE)
 
 
-def _check_stackable(cfg: T.TrainConfig) -> None:
+def _check_stackable(cfg: TrainConfig) -> None:
     for name, why in UNSTACKABLE:
         if getattr(cfg, name):
             raise ConfigError(f"stacked training does not support {name}=True ({why}); {cfg.out}")
 
 
-def group_key(cfg: T.TrainConfig, mix_variants: bool) -> str:
+def group_key(cfg: TrainConfig, mix_variants: bool) -> str:
     """Runs with equal keys can be stacked: all fields but :data:`PER_MEMBER_FIELDS` (and the variant
     when mixing), plus whether the sysid head exists (its weight's sign fixes the parameter set)."""
     d = to_dict(cfg)
@@ -183,14 +188,14 @@ def group_key(cfg: T.TrainConfig, mix_variants: bool) -> str:
     return json.dumps(d, sort_keys=True)
 
 
-def plan_groups(cfgs: Sequence[T.TrainConfig], mix_variants: bool = True, max_members: int = 0) -> list[list[int]]:
+def plan_groups(cfgs: Sequence[TrainConfig], mix_variants: bool = True, max_members: int = 0) -> list[list[int]]:
     """Indices of ``cfgs`` per stacked group, in first-appearance order; each group ≤ ``max_members``."""
     outs = [str(Path(c.out).resolve()) for c in cfgs]
     if len(set(outs)) != len(outs):
         raise ConfigError("two runs share an output directory; give each its own `out`")
     groups: dict[str, list[int]] = {}
     for i, c in enumerate(cfgs):
-        T.validate(c)
+        validate(c)
         _check_stackable(c)
         groups.setdefault(group_key(c, mix_variants), []).append(i)
     out = []
@@ -223,13 +228,13 @@ def _leading(t: torch.Tensor, shape: torch.Size) -> torch.Tensor:
 # ---------------------------------------------------------------------- the stacked group
 
 
-class _Group:
+class StackedGroup:
     """M runs of one group: the superset model, the stacked state, the optimizer and the samplers."""
 
-    def __init__(self, cfgs: list[T.TrainConfig], dev: torch.device, fast: bool, ds=None):
+    def __init__(self, cfgs: list[TrainConfig], dev: torch.device, fast: bool, ds=None):
         from torch.func import stack_module_state
 
-        from . import data as data_mod
+        from .. import data as data_mod
 
         self.cfgs, self.dev, self.fast, self.M = cfgs, dev, fast, len(cfgs)
         c0 = cfgs[0]
@@ -237,17 +242,17 @@ class _Group:
         train_ep = ds.episodes("train")
         dims = (ds.proprio.shape[-1], ds.touch.shape[-1], ds.actions.shape[-1])
         # one copy of the data; member i draws from a generator seeded like its separate run's sampler
-        self.sampler = T.WindowSampler(ds, train_ep, c0.image_size, c0.window, dev, c0.contact_channel,
+        self.sampler = WindowSampler(ds, train_ep, c0.image_size, c0.window, dev, c0.contact_channel,
                                        seed=c0.seed * 1000 + 1, with_params=c0.sysid_weight > 0, non_blocking=fast)
         self.gens = []
         for c in cfgs:
             g = torch.Generator(device="cpu")
             g.manual_seed(c.seed * 1000 + 1)
             self.gens.append(g)
-        stats = T.data_stats(ds, train_ep)
+        stats = data_stats(ds, train_ep)
         del ds
 
-        self.mks = [T.model_kwargs(c, dims) for c in cfgs]
+        self.mks = [model_kwargs(c, dims) for c in cfgs]
         self.super_variant = superset_variant([c.variant for c in cfgs])
         self.members: list[XJEPA] = []
         for c, mk in zip(cfgs, self.mks):
@@ -274,15 +279,15 @@ class _Group:
         self.base = base.to("meta").train()  # structure only; the stacked tensors are passed in
 
         # decay / no-decay split as train.make_optimizer, judged on the per-member parameter
-        decay, no_decay = T.decay_split((n, self.params[n].dim() - 1) for n in self.param_names)
+        decay, no_decay = decay_split((n, self.params[n].dim() - 1) for n in self.param_names)
         self.opt = torch.optim.AdamW([{"params": [self.params[n] for n in decay], "weight_decay": c0.weight_decay},
                                       {"params": [self.params[n] for n in no_decay], "weight_decay": 0.0}],
                                      lr=c0.lr, betas=(0.9, 0.999), fused=True if fast else None)
         self.opt_names = decay + no_decay
-        self.sched = torch.optim.lr_scheduler.LambdaLR(self.opt, lambda s: T.lr_lambda(s, c0.warmup, c0.steps))
+        self.sched = torch.optim.lr_scheduler.LambdaLR(self.opt, lambda s: lr_lambda(s, c0.warmup, c0.steps))
 
         # loss kwargs: shared Python values, or per-member tensors where members differ
-        kws = [T.loss_kwargs(c) for c in cfgs]
+        kws = [loss_kwargs(c) for c in cfgs]
         self.shared_kw: dict[str, Any] = {}
         self.member_kw: dict[str, torch.Tensor] = {}
         targets = [VARIANTS[c.variant][1] for c in cfgs]
@@ -332,23 +337,23 @@ class _Group:
     def sample(self, batch_size: int) -> dict[str, torch.Tensor]:
         """(M, B, ...) windows; member i's draws equal ``WindowSampler.sample`` with its own generator."""
         draws = [self.sampler.draw(batch_size, g) for g in self.gens]
-        e = T.to_device(torch.stack([d[0] for d in draws]), self.dev, self.fast)
-        st = T.to_device(torch.stack([d[1] for d in draws]), self.dev, self.fast)
+        e = to_device(torch.stack([d[0] for d in draws]), self.dev, self.fast)
+        st = to_device(torch.stack([d[1] for d in draws]), self.dev, self.fast)
         return self.sampler.gather(e, st)
 
     def directions(self, step: int) -> torch.Tensor:
-        dirs = torch.stack([T.sigreg_directions(c, step, torch.device("cpu")) for c in self.cfgs])
-        return T.to_device(dirs, self.dev, self.fast)
+        dirs = torch.stack([sigreg_directions(c, step, torch.device("cpu")) for c in self.cfgs])
+        return to_device(dirs, self.dev, self.fast)
 
     def step_kw(self, step: int) -> dict[str, torch.Tensor]:
         """The per-member loss tensors of ``step``: the fixed ones, plus (M, sigreg_rows) pooled-SIGReg row
         subsets when the group subsamples. Inside vmap the loss sees no per-member integer seed, so a subset
         drawn there from ``sigreg_seed`` would be one subset for every member and step; drawn here, member i's
         is the one its separate run draws."""
-        rows = [T.sigreg_row_index(c, step, torch.device("cpu")) for c in self.cfgs]
+        rows = [sigreg_row_index(c, step, torch.device("cpu")) for c in self.cfgs]
         if rows[0] is None:  # same pool, rows, batch and window across the group: all None or none
             return self.member_kw
-        return {**self.member_kw, "sigreg_row_index": T.to_device(torch.stack(rows), self.dev, self.fast)}
+        return {**self.member_kw, "sigreg_row_index": to_device(torch.stack(rows), self.dev, self.fast)}
 
     def clip_(self, max_norm: float) -> torch.Tensor:
         """Per-member gradient-norm clipping as ``clip_grad_norm_`` on each member; returns the (M,) norms."""
@@ -369,12 +374,12 @@ class _Group:
 
     def _member_opt_names(self, i: int) -> list[str]:
         """Member i's parameter names in ``train.make_optimizer``'s index order (decay group first)."""
-        decay, no_decay = T.decay_split((n, p.ndim) for n, p in self.members[i].named_parameters())
+        decay, no_decay = decay_split((n, p.ndim) for n, p in self.members[i].named_parameters())
         return decay + no_decay
 
     def member_optimizer_state(self, i: int) -> dict[str, Any]:
         """Member i's AdamW state_dict as ``train.make_optimizer(member)`` would hold it."""
-        ref = T.make_optimizer(self.members[i], self.cfgs[i]).state_dict()
+        ref = make_optimizer(self.members[i], self.cfgs[i]).state_dict()
         shapes = {n: p.shape for n, p in self.members[i].named_parameters()}
         state = {}
         for idx, n in enumerate(self._member_opt_names(i)):
@@ -420,20 +425,20 @@ class _Group:
 # ---------------------------------------------------------------------- training
 
 
-def _ckpt_step(cfg: T.TrainConfig) -> int:
+def _ckpt_step(cfg: TrainConfig) -> int:
     p = Path(cfg.out) / "ckpt.pt"
     if not p.exists():
         return 0
     return int(checkpoint.load(p)["step"])
 
 
-def run(cfgs: Sequence[T.TrainConfig], *, mix_variants: bool = True, max_members: int = 0) -> list[Path]:
+def run(cfgs: Sequence[TrainConfig], *, mix_variants: bool = True, max_members: int = 0) -> list[Path]:
     """Train (or resume, or skip if finished) every run of ``cfgs``, stacking those that can share a step
     (:func:`plan_groups`); returns the run directories in the order of ``cfgs``."""
     cfgs = list(cfgs)
     plan_groups(cfgs, mix_variants, max_members)  # validates all runs (stackable, distinct outs) up front
     for c in cfgs:
-        T.check_existing(c)
+        check_existing(c)
     todo = [i for i, c in enumerate(cfgs) if not (Path(c.out) / "DONE").exists()]
     # members resume together only from the same step: the checkpoint step joins the group key
     by_step: dict[int, list[int]] = {}
@@ -445,11 +450,11 @@ def run(cfgs: Sequence[T.TrainConfig], *, mix_variants: bool = True, max_members
     return [Path(c.out) for c in cfgs]
 
 
-def _run_group(cfgs: list[T.TrainConfig]) -> None:
-    from .io import run_lock
+def _run_group(cfgs: list[TrainConfig]) -> None:
+    from ..io import run_lock
 
     c0 = cfgs[0]
-    if c0.deadline > 0 and T.wall_clock() >= c0.deadline:
+    if c0.deadline > 0 and clock.wall_clock() >= c0.deadline:
         return
     with contextlib.ExitStack() as locks:  # every member's run directory, as train.run locks its own
         for c in cfgs:
@@ -457,104 +462,88 @@ def _run_group(cfgs: list[T.TrainConfig]) -> None:
         _train_group(cfgs)
 
 
-def _train_group(cfgs: list[T.TrainConfig]) -> None:
+class _StackedRun:
+    """A stacked group and its members' run directories: the :class:`~.loop.Trainee` of a stacked run."""
+
+    def __init__(self, cfgs: list[TrainConfig], g: StackedGroup, outs: list[Path]):
+        self.cfgs, self.g, self.outs = cfgs, g, outs
+        self.logs: list[MetricsLog] = []
+
+    def resume_or_start(self) -> int:
+        g, outs, c0 = self.g, self.outs, self.cfgs[0]
+        if (outs[0] / "ckpt.pt").exists():
+            cks = [checkpoint.load(out / "ckpt.pt") for out in outs]
+            g.load(cks)
+            checkpoint.set_rng_state(cks[0]["rng"])
+            step = int(cks[0]["step"])
+            for out in outs:
+                restart_metrics(out, step)
+            return step
+        # dropout masks: one generator for the group (vmap draws independent masks per member)
+        torch.manual_seed(c0.seed)
+        start_row = {"step": 0, **g.sampler.glide_share(tuple(c0.horizons), c0.glide_loss_weight)}
+        for out in outs:
+            restart_metrics(out, 0, start_row)
+        return 0
+
+    # ------------------------------------------------------------------ Trainee
+    def step(self, step: int) -> dict[str, torch.Tensor]:
+        return self.g.step(step)[1]
+
+    def lr(self) -> float:
+        return self.g.sched.get_last_lr()[0]
+
+    def out_of_time(self, step: int) -> bool:
+        c0 = self.cfgs[0]
+        return c0.deadline > 0 and clock.wall_clock() >= c0.deadline
+
+    def write_rows(self, row: dict[str, float], sums: dict[str, torch.Tensor], n: int) -> float:
+        vals = {k: (v / n).cpu() for k, v in sums.items()}
+        for i, log in enumerate(self.logs):
+            member = dict(row, stacked_members=self.g.M)
+            member.update({k: float(v[i]) for k, v in vals.items()
+                           if k not in ("proprio", "touch") or k in self.g.own_terms[i]})
+            log.write(member)
+        return float(vals["loss"].mean())
+
+    def save_checkpoint(self, step: int) -> None:
+        g, rng = self.g, checkpoint.rng_state()
+        for i, (c, out) in enumerate(zip(self.cfgs, self.outs)):
+            checkpoint.save({"model": g.member_state(i), "optimizer": g.member_optimizer_state(i),
+                             "scheduler": g.sched.state_dict(), "rng": rng, "sampler": g.gens[i].get_state(),
+                             "step": step, "model_kwargs": g.mks[i], "config": to_dict(c)}, out / "ckpt.pt")
+
+
+def _train_group(cfgs: list[TrainConfig]) -> None:
     """The body of :func:`_run_group`, under the members' run-directory locks."""
-    from .io import write_json
+    from ..io import write_json
 
     c0 = cfgs[0]
-    dev = T._device(c0)
+    dev = resolve_device(c0)
     if dev.type == "cpu":
-        torch.set_num_threads(c0.threads or T.auto_threads())
-    fast = T.use_fast_path(c0, dev)
+        torch.set_num_threads(c0.threads or auto_threads())
+    fast = use_fast_path(c0, dev)
     outs = [Path(c.out) for c in cfgs]
     for c, out in zip(cfgs, outs):
         out.mkdir(parents=True, exist_ok=True)
         write_json(out / "config.json", to_dict(c))
-    g = _Group(cfgs, dev, fast)
-    M = g.M
-    train_horizons = tuple(c0.horizons)
-
-    step = 0
-    if (outs[0] / "ckpt.pt").exists():
-        cks = [checkpoint.load(out / "ckpt.pt") for out in outs]
-        g.load(cks)
-        checkpoint.set_rng_state(cks[0]["rng"])
-        step = int(cks[0]["step"])
-        for out in outs:
-            T.restart_metrics(out, step)
-    else:
-        # dropout masks: one generator for the group (vmap draws independent masks per member)
-        torch.manual_seed(c0.seed)
-        start_row = {"step": 0, **g.sampler.glide_share(train_horizons, c0.glide_loss_weight)}
-        for out in outs:
-            T.restart_metrics(out, 0, start_row)
-
-    def save_ckpt(s: int) -> None:
-        rng = checkpoint.rng_state()
-        for i, (c, out) in enumerate(zip(cfgs, outs)):
-            checkpoint.save({"model": g.member_state(i), "optimizer": g.member_optimizer_state(i),
-                            "scheduler": g.sched.state_dict(), "rng": rng, "sampler": g.gens[i].get_state(),
-                            "step": s, "model_kwargs": g.mks[i], "config": to_dict(c)}, out / "ckpt.pt")
-
-    logs = [T.MetricsLog(out, c.tensorboard, step) for c, out in zip(cfgs, outs)]
-    pbar = None
-    if c0.progress:
-        from tqdm.auto import tqdm
-
-        pbar = tqdm(total=c0.steps, initial=step, desc=f"train stacked ×{M} ({g.super_variant})", dynamic_ncols=True)
-
+    g = StackedGroup(cfgs, dev, fast)
+    t = _StackedRun(cfgs, g, outs)
+    step = t.resume_or_start()
+    t.logs = [MetricsLog(out, c.tensorboard, step) for c, out in zip(cfgs, outs)]
     end = min(c0.steps, c0.stop_at) if c0.stop_at > 0 else c0.steps
-    acc: dict[str, torch.Tensor] = {}
-    first_bad = torch.full((M,), -1, dtype=torch.long, device=dev)
-    n_acc, t0 = 0, time.perf_counter()
+    sched = LoopSchedule(step, end, c0.steps, c0.log_every, c0.ckpt_every, c0.batch_size * c0.window)
+    progress = Progress(sched, f"train stacked ×{g.M} ({g.super_variant})", bar=c0.progress)
     try:
-        while step < end:
-            _, terms = g.step(step)
-            first_bad = torch.where((first_bad < 0) & ~torch.isfinite(terms["loss"]), step, first_bad)
-            step += 1
-            for k, v in terms.items():
-                acc[k] = acc.get(k, 0.0) + v.float()
-            n_acc += 1
-            if pbar is not None:
-                pbar.update(1)
-            out_of_time = c0.deadline > 0 and T.wall_clock() >= c0.deadline
-            log_now = step % c0.log_every == 0 or step == end or out_of_time
-            ckpt_now = step % c0.ckpt_every == 0 or step == end or out_of_time
-            if log_now or ckpt_now:
-                bad = first_bad.cpu()
-                for i in range(M):
-                    if bad[i] >= 0:
-                        raise FloatingPointError(
-                            f"non-finite training loss of stacked member {outs[i]} at step {int(bad[i])} "
-                            f"(detected at step {step}). Lower the learning rate or check the data; the last "
-                            "good checkpoints are kept.")
-            if log_now:
-                if dev.type == "cuda":
-                    torch.cuda.synchronize(dev)
-                dt = time.perf_counter() - t0
-                vals = {k: (v / n_acc).cpu() for k, v in acc.items()}
-                for i, log in enumerate(logs):
-                    row = T.speed_row(step, g.sched.get_last_lr()[0], n_acc, c0.batch_size * c0.window, dt)
-                    row["stacked_members"] = M
-                    row.update({k: float(v[i]) for k, v in vals.items()
-                                if k not in ("proprio", "touch") or k in g.own_terms[i]})
-                    log.write(row)
-                if pbar is not None:
-                    pbar.set_postfix(loss=f"{float(vals['loss'].mean()):.4f}")
-                acc, n_acc, t0 = {}, 0, time.perf_counter()
-            if ckpt_now:
-                save_ckpt(step)
-            if out_of_time:
-                break
+        step = run_loop(t, sched, dev, progress, loss_shape=(g.M,), members=[str(o) for o in outs])
     finally:
-        if pbar is not None:
-            pbar.close()
-        for log in logs:
+        progress.close()
+        for log in t.logs:
             log.close()
     if step >= c0.steps:
         for i, (c, out) in enumerate(zip(cfgs, outs)):
-            T.write_final(out, g.member_state(i), g.mks[i], to_dict(c), step, note=f" (stacked ×{M})")
+            write_final(out, g.member_state(i), g.mks[i], to_dict(c), step, note=f" (stacked ×{g.M})")
 
 
 __all__ = ["StackedConfig", "make_config", "train_configs", "run_config", "run", "plan_groups", "group_key",
-           "superset_variant", "embed_state", "PER_MEMBER_FIELDS"]
+           "superset_variant", "embed_state", "stackable", "StackedGroup", "PER_MEMBER_FIELDS", "UNSTACKABLE"]
