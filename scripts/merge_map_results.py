@@ -21,7 +21,7 @@ import json
 import sys
 from pathlib import Path
 
-from pokeworld.evaluate import report
+from pokeworld.experiments import report
 from pokeworld.io import atomic_path, write_json
 
 

@@ -135,7 +135,7 @@ def test_belief_training_decreases_the_loss_at_tiny(data_dir, tmp_path):
 
 @pytest.mark.slow
 def test_tiny_map_runs_the_belief_experiment(tmp_path):
-    from pokeworld.evaluate import experiment
+    from pokeworld import experiments as experiment
 
     out = tmp_path / "map"
     c = experiment.make_config("tiny", out=str(out), workers=1, experiments=("belief",), certify_estimators=("drag",))

@@ -3,7 +3,7 @@
 import pytest
 
 from pokeworld.cli import COMMANDS, PRESET_COSTS, _flag_arity, main, split_args
-from pokeworld.evaluate.experiment import MapConfig
+from pokeworld.experiments import MapConfig
 
 
 def test_positional_and_preset_are_parsed():

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from pokeworld.data import load
-from pokeworld.evaluate import experiment
+from pokeworld import experiments as experiment
 
 
 @pytest.mark.slow

@@ -4,10 +4,13 @@ import json
 
 import pytest
 
-from pokeworld import paper_values as P
-from pokeworld.evaluate import report
-from pokeworld.evaluate.experiment import all_specs, exp_dose_glide, exp_dose_touch, exp_factorial
-from pokeworld.evaluate.experiment import make_config as map_config
+from pokeworld.evaluate import tables
+from pokeworld.experiments import all_specs, attributes, controls, dose_glide, dose_touch, frame_averaged, lambda_sweep, \
+    report, tokens
+from pokeworld.experiments import make_config as map_config
+from pokeworld.experiments.dose_glide import specs as exp_dose_glide
+from pokeworld.experiments.dose_touch import specs as exp_dose_touch
+from pokeworld.experiments.factorial import specs as exp_factorial
 
 
 def test_a_dose_level_at_the_operating_point_is_the_factorial_run(tmp_path):
@@ -41,13 +44,13 @@ def test_dose_tables_put_ours_beside_the_paper(tmp_path):
         d.joinpath("metrics.jsonl").write_text(json.dumps({"step": 5, "glide_loss_share": 0.5 + 0.1 * i}) + "\n")
     results = {"runs": runs, "experiments": {"dose_touch": [s.name for s in touch], "dose_glide": [s.name for s in glide]},
                "map_config": {"out": str(tmp_path)}, "certificates": {}}
-    t = "\n".join(report.dose_touch_table(results))
+    t = "\n".join(dose_touch.dose_touch_table(results))
     assert "| 4 (default) | +0.40 / +0.50 | +0.20 / +0.29 | +0.05 / +0.12 | +0.90 |" in t
     assert "| 0 | +0.10 / -0.01 |" in t  # the paper's −0.005 at two digits
-    g = "\n".join(report.dose_glide_table(results))
+    g = "\n".join(dose_glide.dose_glide_table(results))
     assert "| 4 | 60% / 65% | +0.10 / +0.15 | +0.01 | 0.120 / 0.108 | 0.050 / 0.054 | +0.30 / +0.34 | +0.60 / +0.79 |" in g
     assert "| 64 | 80% / 97% | +0.30 / +0.27 |" in g
-    assert report.dose_touch_table({"experiments": {}, "runs": {}}) == []
+    assert dose_touch.dose_touch_table({"experiments": {}, "runs": {}}) == []
 
 
 def test_attribute_matrix_scores_readout_over_the_recurrent_certificate(tmp_path):
@@ -71,18 +74,18 @@ def test_attribute_matrix_scores_readout_over_the_recurrent_certificate(tmp_path
     results = {"runs": runs, "certificates": certs,
                "experiments": {"factorial": [n for n, s in specs.items() if s.experiment == "factorial"],
                                "attributes": [n for n, s in specs.items() if s.experiment == "attributes"]}}
-    t = "\n".join(report.attribute_matrix_table(results))
+    t = "\n".join(attributes.attribute_matrix_table(results))
     assert "| fast × ratio | stiffness k | +0.10 / +0.00 | +0.90 (gru_geom) / +0.87 | +0.45 / 0.50–0.62 | +0.50 / 0.60–0.70 |" in t
     # 2-d bias: mean of components; gru_geom is missing a component, so gru (0.8) is the recurrent certificate
     assert "| slow × linear, b ∈ ±1.5 | force bias | +0.30 / +0.51 | +0.80 (gru) / +0.96 | +0.40 / +0.39 | +0.50 / +0.41 |" in t
     assert "| slow × ratio, gated | drag γ | +0.00 / +0.00 | +0.30 (gru) / +0.89 | +0.03 / +0.13 | +0.10 / +0.15 |" in t
     assert "| slow × ratio, ungated | actuation gain g | -0.02 / -0.01 | +0.60 (gru) / +0.69 | -0.01 / -0.01 |" in t
     assert "physics-informed certificate: +0.80" in t
-    assert set(P.ATTRIBUTES) == {key for key, *_ in report.ATTRIBUTE_CELLS}
+    assert set(attributes.ATTRIBUTES) == {key for key, *_ in attributes.ATTRIBUTE_CELLS}
 
 
 def test_controls_table_shows_the_mlp_probe_in_parentheses(tmp_path):
-    from pokeworld.evaluate.experiment import exp_controls
+    from pokeworld.experiments.controls import specs as exp_controls
 
     specs = exp_controls(map_config("tiny", out=str(tmp_path), experiments=("controls",)))
     runs = {s.name: {"train": s.train, "corpus": s.corpus, "prediction": {},
@@ -90,13 +93,14 @@ def test_controls_table_shows_the_mlp_probe_in_parentheses(tmp_path):
                                 **({"mlp": {"contact": {"log_k": 0.4}}} if i == 0 else {})}}
             for i, s in enumerate(specs)}
     results = {"runs": runs, "experiments": {"controls": [s.name for s in specs]}, "certificates": {}}
-    t = "\n".join(report.simple_table(results, "controls", "Controls", report._control_key, P.CONTROLS))
+    t = "\n".join(tables.simple_table(results, "controls", "Controls", controls.control_key, controls.CONTROLS))
     assert "| VFX+sysid | +0.30 (+0.40) / +0.91 |" in t  # sysid run: ridge (MLP) / paper
     assert "| VFX-gnll | +0.30 / +0.49 |" in t  # no MLP fit: ridge alone
 
 
 def test_token_factorial_shares_the_controls_token_run_and_reads_beside_the_global_factorial(tmp_path):
-    from pokeworld.evaluate.experiment import exp_controls, exp_tokens
+    from pokeworld.experiments.controls import specs as exp_controls
+    from pokeworld.experiments.tokens import specs as exp_tokens
 
     c = map_config("tiny", out=str(tmp_path), experiments=("factorial", "controls", "tokens"), variants=("VF", "VFX"))
     tok = exp_tokens(c)
@@ -107,19 +111,19 @@ def test_token_factorial_shares_the_controls_token_run_and_reads_beside_the_glob
     runs.update({s.name: _run(s, {"contact": {"log_k": 0.2}}) for s in exp_factorial(c)})
     results = {"runs": runs, "certificates": {},
                "experiments": {"tokens": [s.name for s in tok], "factorial": [s.name for s in exp_factorial(c)]}}
-    t = "\n".join(report.token_factorial_table(results))
+    t = "\n".join(tokens.token_factorial_table(results))
     assert "| VFX | +0.60 / +0.62 | +0.20 | — | +0.90 / +0.98 | — |" in t
     assert "| VF | +0.50 / — | +0.20 |" in t
     # MLP probes, where fit, in parentheses beside ridge in both log k columns
     runs[tok[0].name]["probes"]["mlp"] = {"contact": {"log_k": 0.45}}
     for s in exp_factorial(c):
         runs[s.name]["probes"]["mlp"] = {"contact": {"log_k": 0.25}}
-    t = "\n".join(report.token_factorial_table(results))
+    t = "\n".join(tokens.token_factorial_table(results))
     assert "| VF | +0.50 (+0.45) / — | +0.20 (+0.25) |" in t and "| VFX | +0.60 / +0.62 | +0.20 (+0.25) |" in t
 
 
 def test_lambda_sweep_trains_every_seed_and_reports_their_mean(tmp_path):
-    from pokeworld.evaluate.experiment import exp_lambda
+    from pokeworld.experiments.lambda_sweep import specs as exp_lambda
 
     c = map_config("tiny", out=str(tmp_path), experiments=("factorial", "lambda"), seeds=(0, 1), variants=("VFX",),
                    lambdas=(0.3, 0.02))
@@ -132,7 +136,7 @@ def test_lambda_sweep_trains_every_seed_and_reports_their_mean(tmp_path):
         k = {0.3: 0.1, 0.02: 0.4}[s.train["sigreg_weight"]] + 0.1 * s.train["seed"]
         runs[s.name] = {**_run(s, {"contact": {"log_k": k, "log_m": 0.2, "object_vel": 0.5}}),
                         "prediction": {"direct16": 0.1}}
-    t = "\n".join(report.lambda_table({"runs": runs, "experiments": {"lambda": [s.name for s in specs]},
+    t = "\n".join(lambda_sweep.lambda_table({"runs": runs, "experiments": {"lambda": [s.name for s in specs]},
                                        "certificates": {}}))
     assert "| 0.3 | 2 | +0.15 / +0.12 | +0.20 / +0.12 | +0.50 / +0.54 | 0.100 / 0.128 |" in t
     assert "| 0.02 | 2 | +0.45 / +0.50 |" in t
@@ -141,7 +145,7 @@ def test_lambda_sweep_trains_every_seed_and_reports_their_mean(tmp_path):
 
 def test_an_attribute_corpus_certifies_its_attribute_and_inherits_the_standard_gate():
     from pokeworld.certify import certificate_table, gate
-    from pokeworld.evaluate.experiment import with_standard_gate
+    from pokeworld.experiments.stages import with_standard_gate
 
     std_est = {"gru": {"contact": {"log_m": 0.66, "gamma": 0.28, "log_k": 0.71}}, "drag": {"contact": {"gamma": 0.83}}}
     std = {"estimators": std_est, "counts": {"contact": {"fit": 10, "test": 9}}}
@@ -156,7 +160,7 @@ def test_an_attribute_corpus_certifies_its_attribute_and_inherits_the_standard_g
     assert merged["certificate"]["contact"]["bias_x"] == {"r2": 0.8, "estimator": "gru"}
     # a failed standard gate is stated once, on the standard corpus, not again per attribute corpus
     std_fail = {**std, "gate": {"log_k": {**std["gate"]["log_k"], "passed": False}}}
-    lines = report.no_claim_lines({"certificates": {"standard": std_fail, "bias0.5": with_standard_gate(std_fail, own)}})
+    lines = tables.no_claim_lines({"certificates": {"standard": std_fail, "bias0.5": with_standard_gate(std_fail, own)}})
     assert sum("no claim" in ln for ln in lines) == 1
 
 
@@ -175,12 +179,12 @@ def test_frame_averaged_section_sets_the_model_beside_the_factorial_vfx(tmp_path
                                              for e in ("factorial", "frame_averaged")},
                "certificates": {"standard": {"certificate": cert(0.8), "estimators": est(0.2, 0.8)},
                                 "frame_averaged": {"certificate": cert(0.6), "estimators": est(0.05, 0.6)}}}
-    t = "\n".join(report.frame_averaged_lines(results))
+    t = "\n".join(frame_averaged.frame_averaged_lines(results))
     assert "sub-step touch: ours +0.80 (paper 0.87); with frame-averaged touch: ours +0.60" in t
     assert "| linear | +0.20 | +0.05 |" in t and "| gru | +0.80 | +0.60 |" in t
     assert "| sub-step touch (factorial) | +0.35 | — | +0.00 | — | — | 0.100 |" in t  # mean over the two seeds
     assert "| frame-averaged touch | +0.20 | — | +0.00 | — | — | 0.100 |" in t
-    assert report.frame_averaged_lines({"certificates": {}, "runs": {}, "experiments": {}}) == []
+    assert frame_averaged.frame_averaged_lines({"certificates": {}, "runs": {}, "experiments": {}}) == []
 
 
 def test_merge_script_folds_in_reproduced_runs_and_refuses_ones_that_do_not_reproduce(tmp_path):

@@ -156,8 +156,8 @@ def test_config_validation_and_retired_sampling_weight(tiny_dataset, tmp_path):
 
 
 def test_dose_glide_sweeps_the_loss_weight_and_reads_the_realised_share(tmp_path):
-    from pokeworld.evaluate.experiment import exp_dose_glide, realised_glide_share
-    from pokeworld.evaluate.experiment import make_config as map_config
+    from pokeworld.experiments import make_config as map_config
+    from pokeworld.experiments.dose_glide import realised_glide_share, specs as exp_dose_glide
 
     specs = exp_dose_glide(map_config("tiny", out=str(tmp_path)))
     assert [s.train.get("glide_loss_weight", 1.0) for s in specs] == [1.0, 4.0, 16.0, 64.0]

@@ -86,9 +86,9 @@ def test_config_rejects_motion_weights_without_latent_targets():
 
 
 def test_ledger_shares_runs_and_labels_every_mechanism(tmp_path):
-    from pokeworld.evaluate import report
-    from pokeworld.evaluate.experiment import all_specs, exp_ledger, ledger_mechanism
-    from pokeworld.evaluate.experiment import make_config as map_config
+    from pokeworld.experiments import all_specs, ledger as report
+    from pokeworld.experiments import make_config as map_config
+    from pokeworld.experiments.ledger import ledger_mechanism, specs as exp_ledger
 
     c = map_config("tiny", out=str(tmp_path), experiments=("factorial", "controls", "coordinate", "ledger"))
     specs = exp_ledger(c)

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from pokeworld.errors import ConfigError
-from pokeworld.evaluate import experiment
+from pokeworld import experiments as experiment
+from pokeworld.experiments import attributes, stages
 from pokeworld.evaluate.measure import CONTEXT, HORIZON, glide_test
 from pokeworld.windows import make_windows
 
@@ -33,9 +34,9 @@ def test_bad_map_configs_raise():
 
 def test_attribute_corpora_pick_the_matrix_cells_to_run():
     c = experiment.make_config("tiny", experiments=("attributes",), attribute_corpora=("bias2.5", "gain"))
-    specs = experiment.exp_attributes(c)
+    specs = attributes.specs(c)
     assert [(s.corpus, s.measure_corpus) for s in specs] == [("bias2.5", "bias2.5"), ("gain", "gain")]
-    full = experiment.exp_attributes(experiment.make_config("tiny", experiments=("attributes",)))
+    full = attributes.specs(experiment.make_config("tiny", experiments=("attributes",)))
     assert {s.name for s in specs} < {s.name for s in full}  # same run names: a subset re-runs those cells
 
 
@@ -147,7 +148,7 @@ def test_demo_budget_knobs_are_validated():
     demo = experiment.make_demo_config("cpu")
     assert (demo.preset, demo.train_preset, demo.split_fractions, demo.measure_kinds) == (
         "cpu", "demo", (0.4, 0.4, 0.2), ("contact",))
-    job = experiment._jobs(demo, experiment.all_specs(demo), threads=1)[0]
+    job = stages.jobs(demo, experiment.all_specs(demo), threads=1)[0]
     assert job["train_preset"] == "demo" and job["preset"] == "cpu"
     assert job["measure"] == {"kinds": ("contact",), "max_windows": 12000}
 
@@ -210,7 +211,7 @@ def test_stacked_map_trains_its_runs_as_one_group_and_measures_each(tmp_path, ca
     fresh = tmp_path / "fresh"
     shutil.copytree(out / "data" / "standard", fresh / "data" / "standard")
     (fresh / "data" / "standard" / "certificates.json").unlink()
-    here = experiment.ensure_certificates(experiment.make_config("tiny", out=str(fresh)), "standard")
+    here = stages.ensure_certificates(experiment.make_config("tiny", out=str(fresh)), "standard")
     assert res["certificates"]["standard"]["certificate"] == here["certificate"]
     experiment.run(c)  # finished: nothing is trained again
     assert "stacked group" not in capsys.readouterr().out

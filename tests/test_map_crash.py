@@ -12,7 +12,8 @@ import time
 
 import pytest
 
-from pokeworld.evaluate import experiment
+from pokeworld import experiments as experiment
+from pokeworld.experiments.map import MAP_LOCK_REFUSAL
 
 pytestmark = pytest.mark.slow
 
@@ -98,7 +99,7 @@ def test_a_stale_map_lock_is_taken_over(tmp_path, capsys):
                                " os.kill(os.getpid(), signal.SIGKILL)", str(out)])
     holder.wait(timeout=60)
     assert f"pid {holder.pid} on" in (out / ".map.lock").read_text()  # left behind by the killed holder
-    with dir_lock(out, ".map.lock", experiment.MAP_LOCK_REFUSAL) as stale:
+    with dir_lock(out, ".map.lock", MAP_LOCK_REFUSAL) as stale:
         assert stale.startswith(f"pid {holder.pid} on")
     assert (out / ".map.lock").read_text() == ""  # a clean exit leaves nothing stale
 

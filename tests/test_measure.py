@@ -7,7 +7,8 @@ import torch
 from torch import nn
 
 from pokeworld.evaluate import measure as M
-from pokeworld.evaluate import report
+from pokeworld.evaluate import tables
+from pokeworld.experiments import report
 from pokeworld.models.xjepa import XJEPA
 from pokeworld.train import synthetic_dataset
 from pokeworld.windows import make_windows
@@ -139,7 +140,7 @@ def test_leak_free_readout_does_not_see_the_action_after_the_probed_observation(
     assert "mlp" not in res["probes_action_conditioned"]
     assert set(res["readout"]) == {"probes", "probes_action_conditioned"}
     assert res["probes_action_conditioned"]["counts"]["contact"] == res["probes"]["counts"]["contact"]
-    assert report.probe({"probes": res["probes"]}, "object_pos") == leak_free  # report reads the primary
+    assert tables.probe({"probes": res["probes"]}, "object_pos") == leak_free  # report reads the primary
 
 
 def test_unknown_window_kinds_are_refused():

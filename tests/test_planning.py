@@ -4,15 +4,16 @@ import json
 
 import pytest
 
-from pokeworld.evaluate import experiment
+from pokeworld import experiments as experiment
+from pokeworld.experiments import factorial, planning
 
 
 def test_planning_reuses_the_factorial_runs():
     c = experiment.make_config("cpu", experiments=("factorial", "planning"))
     names = [s.name for s in experiment.all_specs(c)]
-    factorial = {s.name for s in experiment.exp_factorial(c)}
-    assert {s.name for s in experiment.exp_planning(c)} <= factorial  # no extra training
-    assert len(names) == len(set(names)) == len(factorial)
+    factorial_runs = {s.name for s in factorial.specs(c)}
+    assert {s.name for s in planning.specs(c)} <= factorial_runs  # no extra training
+    assert len(names) == len(set(names)) == len(factorial_runs)
     alone = experiment.make_config("cpu", experiments=("planning",))
     assert {s.name for s in experiment.all_specs(alone)} == {
         f"{v}-h1-4-16-lam0.02-standard-s0" for v in ("V", "VX_t", "VX_p", "VFX")}

@@ -41,8 +41,8 @@ COMMANDS: dict[str, Command] = {
                              "train a grid of runs (variants × seeds × λ) stacked in one process",
                              runner="run_config"),
     "probe": Command("pokeworld.evaluate.measure", "MeasureConfig", "probe and evaluate one trained run", "run_dir"),
-    "map": Command("pokeworld.evaluate.experiment", "MapConfig", "the identifiability map end to end", "out"),
-    "demo": Command("pokeworld.evaluate.experiment", "MapConfig", "small map on CPU in minutes", "out",
+    "map": Command("pokeworld.experiments", "MapConfig", "the identifiability map end to end", "out"),
+    "demo": Command("pokeworld.experiments", "MapConfig", "small map on CPU in minutes", "out",
                     make="make_demo_config",
                     cost="≈ 7.5 min on 2 CPU cores: 2,400 episodes, four 2,200-step models of train's "
                          "'demo' preset, demo certificates"),

@@ -1,7 +1,8 @@
-"""Numbers reported in the paper, for side-by-side tables. Never used as results of ours.
+"""Numbers reported in the paper that several modules show beside ours (certificates, prediction errors, the glide
+test, corpus statistics, planning) and the real-robot tables'. Never used as results of ours.
 
-Keys: experiment -> row -> column -> value (contact windows, ridge unless noted).
-Source: paper.tex Table "targets", Table "mlp", Table "lambda", §4 text, App. A/C.
+Each map experiment keeps its own paper values in its module (:mod:`pokeworld.experiments`).
+Keys: experiment -> row -> column -> value (contact windows, ridge unless noted). Source: paper.tex.
 """
 
 CERTIFICATES = {  # App. A "instrument hierarchy", App. C "pixel-derived certificates"
@@ -16,52 +17,12 @@ CERTIFICATES = {  # App. A "instrument hierarchy", App. C "pixel-derived certifi
     "gru_pixel_notouch": {},  # ours only
 }
 
-FACTORIAL = {  # Table "targets" (mean of the two seeds) and single-horizon position column
-    "V": {"log_k": -0.02, "log_m": 0.145, "object_pos_h1": 0.04},
-    "VF": {"log_k": -0.015, "log_m": 0.20},
-    "VX_p": {"log_k": -0.015, "log_m": 0.18, "object_pos_h1": 0.09},
-    "VX_t": {"log_k": 0.415, "log_m": 0.255, "object_pos_h1": 0.17},
-    "VX": {"log_k": 0.455, "log_m": 0.27, "object_pos_h1": 0.58},
-    "VFX": {"log_k": 0.495, "log_m": 0.30, "object_pos_h1": 0.98},
-}
-
-TOKENS = {"VFX": {"log_k": 0.62, "object_pos": 0.98}}  # §4.1 / App. C: the token variant (ordering unchanged)
-
-FACTORIAL_MLP = {  # Table "mlp"
-    "V": {"log_m": 0.00, "gamma": 0.00, "log_k": -0.01},
-    "VX_p": {"log_m": -0.01, "gamma": -0.01, "log_k": 0.00},
-    "VX_t": {"log_m": 0.20, "gamma": 0.06, "log_k": 0.40},
-    "VX": {"log_m": 0.21, "gamma": 0.05, "log_k": 0.44},
-    "VFX": {"log_m": 0.26, "gamma": 0.06, "log_k": 0.51},
-}
-
 LAZY = {  # §4.2: object-position R^2
     "V-h1": 0.04, "VX-h1": 0.58, "V-h3": 0.89, "VFX-h3": 0.98,
 }
 PREDICTION = {"direct16": 0.10, "rollout16": 0.19, "static16": 0.21}  # §4.2, arena units
 
-LAMBDA = {  # Table "lambda" (VFX)
-    0.3: {"log_k": 0.12, "log_m": 0.12, "object_vel": 0.54, "direct16": 0.128},
-    0.1: {"log_k": 0.24, "log_m": 0.18, "object_vel": 0.62, "direct16": 0.111},
-    0.02: {"log_k": 0.50, "log_m": 0.29, "object_vel": 0.79, "direct16": 0.099},
-    0.01: {"log_k": 0.54, "log_m": 0.32, "object_vel": 0.79, "direct16": 0.096},
-    0.005: {"log_k": 0.57, "log_m": 0.32, "object_vel": 0.80, "direct16": 0.095},
-}
-
-COVERAGE = {  # App. C: VFX on contact-poor data vs standard
-    "standard": {"log_k": 0.50, "log_m": 0.29, "object_pos": 0.98, "object_vel": 0.79},
-    "contact_poor": {"log_k": 0.05, "log_m": 0.11, "object_pos": 0.87, "object_vel": 0.58},
-}
-
 GLIDE_TEST = {"true_gamma": 0.0002, "median_gamma": 0.049, "static": 0.144}
-
-CONTROLS = {  # Table "controls" (ridge)
-    "VFX": {"log_m": 0.29, "gamma": 0.12, "log_k": 0.50, "object_pos": 0.98, "object_vel": 0.79},
-    "VFX+sysid": {"log_m": 0.72, "gamma": 0.45, "log_k": 0.91, "object_pos": 0.98, "object_vel": 0.78},
-    "VFX-gnll": {"log_m": 0.31, "gamma": 0.10, "log_k": 0.49, "object_pos": 1.00, "object_vel": 0.88},
-    "V-recon": {"log_m": 0.16, "gamma": 0.08, "log_k": -0.01, "object_pos": 0.75, "object_vel": 0.47},
-    "VFX-recon": {"log_m": 0.19, "gamma": 0.03, "log_k": 0.61, "object_pos": 0.95, "object_vel": 0.64},
-}
 
 DOSE_GLIDE = {  # App. C Table "dose1": glide loss weight -> glide loss share and readouts (γ on glide windows)
     1.0: {"share": 0.32, "gamma_glide": 0.08, "glide_model": 0.098, "log_k": 0.42, "object_vel": 0.85},
@@ -69,27 +30,6 @@ DOSE_GLIDE = {  # App. C Table "dose1": glide loss weight -> glide loss share an
     16.0: {"share": 0.88, "gamma_glide": 0.21, "glide_model": 0.116, "log_k": 0.20, "object_vel": 0.70},
     64.0: {"share": 0.97, "gamma_glide": 0.27, "glide_model": 0.136, "log_k": 0.10, "object_vel": 0.65},
 }
-DOSE_GLIDE_MEDIAN_GAMMA = 0.054  # Table "dose1": the functional glide test's median-γ reference
-
-DOSE_TOUCH = {  # App. C Table "dose2": contact-frame touch-loss weight -> ridge readouts (4 is the default)
-    4.0: {"log_k": 0.50, "log_m": 0.29, "gamma": 0.12},
-    1.0: {"log_k": 0.37, "log_m": 0.28, "gamma": 0.14},
-    0.25: {"log_k": 0.12, "log_m": 0.26, "gamma": 0.13},
-    0.0: {"log_k": -0.005, "log_m": 0.21, "gamma": 0.14},
-}
-
-ATTRIBUTES = {  # App. C Table "matrixfull": cell -> linear cert., recurrent cert., model readout, model / recurrent
-    # ("≈0" cells are stored as 0.0; a range is stored as a (low, high) pair)
-    "stiffness": {"linear": 0.0, "recurrent": 0.87, "model": (0.50, 0.62), "ratio": (0.6, 0.7)},
-    "bias0.5": {"linear": 0.13, "recurrent": 0.92, "model": 0.13, "ratio": 0.14},
-    "bias1.5": {"linear": 0.51, "recurrent": 0.96, "model": 0.39, "ratio": 0.41},
-    "bias2.5": {"linear": 0.65, "recurrent": 0.96, "model": 0.65, "ratio": 0.68},
-    "drag": {"linear": 0.0, "recurrent": 0.89, "model": 0.13, "ratio": 0.15},
-    "gain": {"linear": -0.01, "recurrent": 0.69, "model": -0.01, "ratio": 0.0},
-}
-
-FRAME_AVERAGED = {"certificate_log_k_substep": 0.87}  # §4.4: frame-averaged touch makes k unrecoverable
-
 CORPUS_STATS = {  # observables of the paper's default corpus (the calibration targets; pokeworld.sim.stats)
     "static16": ((0.205, 0.21), "λ-table caption; §4.2 (static 0.21)"),
     "static8": (0.109, "App. C, open-loop 8-step static baseline"),
@@ -164,19 +104,6 @@ REAL_JOINT = {  # §5 "One model, two robots": configuration-blind VFX vs the sp
 
 PLANNING = {  # App. C Table "planning": controller -> (goal-region reach, median distance improvement)
     "random": (0.01, 0.00), "V": (0.20, 0.02), "VX_t": (0.38, 0.15), "VX_p": (0.44, 0.18), "VFX": (0.57, 0.24),
-}
-
-LEDGER = {  # App. C, the γ intervention ledger (text): mechanism -> the paper's best γ readout. The paper adds
-    # mechanisms in sequence (single horizon -> multi-horizon heads -> + motion input channel); our default trunk
-    # has the motion channel, so its multi-horizon run is the paper's "+ motion channel" stage and the
-    # motion-off run its "multi-horizon heads" stage.
-    "single-horizon head": "0.00",
-    "no motion input channel": "0.05",
-    "multi-horizon heads": "0.12 (plateau)",
-    "spatial tokens": "no gain",
-    "magnitude-weighted motion targets": "no gain",
-    "frozen flow velocity sensor": "plateau unchanged",
-    "glide-enriched loss": "no gain",
 }
 
 COORDINATE = {  # App. C "The coordinate test" and the γ ledger (frozen flow velocity sensor)

@@ -51,7 +51,7 @@ from . import certify as C
 from .config import from_preset, to_dict
 from .data import Dataset, load
 from .errors import ConfigError, DataError, ModelError
-from .evaluate import report as R
+from .evaluate import tables as R
 from .evaluate.measure import KINDS, PARAM_TARGETS, READOUT, STATE_TARGETS, neutral_last, padded_actions, probe_windows
 from .io import atomic_path, hash_arrays, write_json
 
@@ -414,7 +414,7 @@ def certify_model(model: StateFn, data: Union[str, Path, Dataset], out: Union[st
                           "probe_fit_episodes": int(ds.episodes("probe_fit").size),
                           "probe_test_episodes": int(ds.episodes("probe_test").size)},
               **res, "certificates": certs, "claims": claims(res, certs["gate"]),
-              "provenance": {"pokeworld": __version__, "git": R._git_commit(),
+              "provenance": {"pokeworld": __version__, "git": R.git_commit(),
                              "seconds": round(time.time() - t0, 1)}}
     write_json(out / "protocol.json", result)
     with atomic_path(out / "protocol.md") as tmp:

@@ -13,7 +13,7 @@ Experiments (:data:`EXPERIMENTS`), each a list of :class:`RealRun` built from th
 Every run trains with ``pokeworld train`` on a store (the given ones, a training-scene subset for
 the scaling points, or the concatenation for the joint model) and is evaluated by
 :mod:`pokeworld.real.evaluate` on its evaluation store(s). Runs execute through the identifiability
-map's launcher (:func:`pokeworld.evaluate.experiment.launch`: local process pool or submitit), and
+map's launcher (:func:`pokeworld.experiments.launch.launch`: local process pool or submitit), and
 re-running skips finished runs and resumes unfinished ones. Results land in ``out/results.json``,
 ``out/results.md`` (tables with the paper's numbers beside ours) and, when the scaling experiment ran, ``out/scissors.png``.
 """
@@ -32,7 +32,7 @@ import numpy as np
 from ..config import from_preset, to_dict
 from ..data import Dataset, concatenate, is_complete, load, read_manifest, save, store_is_current
 from ..errors import ConfigError, DataError
-from ..evaluate.experiment import LaunchOptions, _cores, _default_workers, launch
+from ..experiments.launch import LaunchOptions, cores, default_workers, launch
 from ..io import write_json
 
 STORES = ("kuka", "kuka_close", "kuka_two_view", "flexiv")
@@ -310,10 +310,10 @@ def run(c: RealConfig) -> Path:
     write_json(out / "real_config.json", to_dict(c))
     runs = all_runs(c)
     stores = ensure_stores(c, runs)
-    workers = c.workers or _default_workers(len(runs))
-    threads = max(1, _cores() // workers) if (c.launcher == "local" and workers > 1) else 0
+    workers = c.workers or default_workers(len(runs))
+    threads = max(1, cores() // workers) if (c.launcher == "local" and workers > 1) else 0
     print(f"[real] {len(runs)} runs ({', '.join(experiments(c))}), launcher={c.launcher}, workers={workers}")
-    launch(dataclasses.replace(c, workers=workers), jobs(c, runs, stores, threads), fn=execute)
+    launch(dataclasses.replace(c, workers=workers), jobs(c, runs, stores, threads), fn=execute, name="pokeworld-real")
     results = collect(c, runs, stores)
     write_json(out / "results.json", results)
     written = report.write_all(out, results)

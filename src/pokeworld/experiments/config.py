@@ -1,0 +1,204 @@
+"""The map's configuration: :class:`MapConfig` (which experiments, at which budget, launched how), its presets,
+and the demo's."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+from ..config import from_preset
+from ..errors import ConfigError
+from ..evaluate.probes import KINDS
+from ..losses import SIGREG_POOLS
+from ..models.xjepa import VARIANTS, check_gnll_variance
+from ..train.config import PRESETS as TRAIN_PRESETS
+from .attributes import CORPUS_TARGETS
+from .launch import LaunchOptions
+from .registry import EXPERIMENTS
+from .runs import VARIANT_ORDER
+
+
+@dataclass
+class MapConfig(LaunchOptions):
+    """Run the identifiability map (or the small demo)."""
+
+    out: str = "out/map"
+    """Output directory: data/, runs/, results.json, tables and figures land here."""
+    preset: str = "cpu"
+    """Preset used for every stage (generate, certify, train, measure): tiny (seconds, tests), cpu (2 CPU
+    cores, ≈ 20 min per 4,000-step model, two side by side) or paper (GPU, ≈ 14 min per 20k-step model on
+    one H100, 0.027 s per model-step with ``stack``); see ``pokeworld --help``."""
+    experiments: tuple[str, ...] = ("factorial", "lazy", "lambda", "coverage", "frame_averaged")
+    """Named experiments to run (see EXPERIMENTS)."""
+    variants: tuple[str, ...] = VARIANT_ORDER
+    """Variants of the input x target factorial."""
+    seeds: tuple[int, ...] = (0, 1)
+    """Training seeds of the factorial."""
+    lambdas: tuple[float, ...] = (0.3, 0.1, 0.02, 0.01, 0.005)
+    """SIGReg weights of the lambda sweep."""
+    planning_variants: tuple[str, ...] = ("V", "VX_t", "VX_p", "VFX")
+    """Variants planned with in the planning experiment (their factorial runs, seeds ``seeds``; paper Table
+    "planning"), beside a random controller."""
+    planning_corpus: str = "standard"
+    """Training corpus of the planning experiment's runs: 'standard' (the factorial's own runs) or 'open_loop'
+    (the standard behaviour with 20 % of 16-step slots spent on the planner's own open-loop programs,
+    docs/design.md "Planning: open-loop behaviour data"); probes read the standard corpus either way."""
+    belief_histories: tuple[str, ...] = ("window", "episode")
+    """History lengths of the ``belief`` experiment: 'window' (the standard training windows) and/or 'episode'
+    (whole 64-step episodes, trained at the batch size that keeps the standard runs' frames per step)."""
+    attribute_corpora: tuple[str, ...] = ("bias0.5", "bias1.5", "bias2.5", "gain")
+    """Corpora of the attribute matrix (``attributes``): persistent force bias ±0.5 / ±1.5 / ±2.5 and the
+    actuator gain; a subset re-runs some cells (e.g. to add MLP probes) without re-training the others."""
+    lazy_variants: tuple[str, ...] = ("V", "VX_p", "VX_t", "VX", "VFX")
+    """Variants trained single-horizon (Δ = 1 only) in the lazy-equilibrium experiment."""
+    sigreg_weight: float = 0.02
+    """Operating-point SIGReg weight for every other experiment."""
+    sigreg_pool: str = "step"
+    """SIGReg rows of every global-latent run (``pokeworld train --sigreg-pool``): 'step' or 'pooled'; runs it
+    does not apply to (token, reconstruction) keep theirs. A non-default value is part of each run's name."""
+    gnll_variance: str = "free"
+    """Variance parameterisation of every Gaussian-NLL run (``pokeworld train --gnll-variance``: free, bounded,
+    beta, per_head); part of those runs' names when not 'free'."""
+    train_preset: str = ""
+    """Training preset of every run (empty: ``preset``); the demo trains with ``pokeworld train``'s ``demo``
+    preset (the cpu model at batch 8 with 64-wide vector encoders) and measures as ``preset``."""
+    train_steps: int = 0
+    """Override of training steps per run (0 keeps the preset's)."""
+    train_batch_size: int = 0
+    """Override of windows per training step (0 keeps the preset's); the whole-episode belief runs keep the
+    frames per step of this batch size."""
+    num_episodes: int = 0
+    """Override of episodes per corpus (0 keeps the preset's)."""
+    data_seed: int = 0
+    """Seed of the generated corpora."""
+    split_fractions: tuple[float, ...] = ()
+    """Train / probe-fit / probe-test shares of every generated corpus (empty keeps the generator's 0.6 / 0.2 /
+    0.2); the demo gives the probe-fit split 0.4 (its models see fewer windows than 960 episodes hold)."""
+    certify_estimators: tuple[str, ...] = ("gru", "gru_geom", "linear", "mlp", "drag", "gru_pixel", "drag_pixel",
+                                           "gru_notouch", "gru_pixel_notouch")
+    """Certificate estimators to run."""
+    certify_kinds: tuple[str, ...] = ("contact", "glide")
+    """Window kinds the certificates are computed on (the gate reads contact windows; glide windows
+    give the drag certificate on pure glides)."""
+    certify_max_windows: int = 0
+    """Cap on certificate fit windows per kind (0 keeps the certify preset's; the demo lowers it to fit its budget)."""
+    certify_epochs: int = 0
+    """Maximum epochs of the neural certificate estimators (0 keeps the certify preset's)."""
+    certify_fit_episodes: int = -1
+    """Episodes of the certificates' own fit corpus (``pokeworld certify --fit-episodes``; -1 keeps the certify
+    preset's, 0 fits on the corpus's probe-fit split)."""
+    certify_separate_targets: bool = True
+    """One certificate fit per target (certify's default); the demo fits its three targets jointly to keep
+    its budget (on the standard corpus joint fits read at most 0.07 less, docs/design.md "Certificates")."""
+    mlp_probes: bool = True
+    """Fit early-stopped MLP probes besides ridge."""
+    measure_max_windows: int = 0
+    """Cap on probe-fit windows per kind (0 keeps the measurement preset's, 6,000 at cpu)."""
+    measure_kinds: tuple[str, ...] = ()
+    """Window kinds every run's probes read (empty: the measurement's default, contact, glide and all windows);
+    the demo probes contact windows only, the ones its tables show."""
+    untrained: bool = True
+    """Probe randomly initialised models too (the untrained bound)."""
+    time_budget_min: float = 0.0
+    """Wall-clock budget of this invocation in minutes (0 = none). Training stops with a checkpoint
+    ``time_reserve_min`` before it ends, unfinished runs are reported in progress.json, the command
+    exits 0, and running it again resumes. Corpus generation and certification are not interrupted."""
+    time_reserve_min: float = 1.0
+    """Minutes of ``time_budget_min`` kept for checkpointing, measuring a run that just finished,
+    the report and the pack; no stage starts inside it."""
+    stack: bool = False
+    """Train the runs that can share a step as stacked ensembles in this process (``pokeworld.train.stacked``:
+    one vmapped step for every member of a group, the factorial's six variants in one VFX-shaped group; a GPU
+    lever, slower than separate runs on a CPU), then measure each run as usual; runs that cannot stack (tokens)
+    train alone. Each member's run directory is the one ``train.run`` would write. Local launcher only."""
+    certify_alongside: bool = False
+    """Compute the certificates in a background process while the runs train, instead of before training: on a GPU
+    machine training leaves the CPU cores idle. Certification is not interrupted by ``time_budget_min``: the map
+    waits for it after training stops. The certificates are the same either way (same configs, same seeds)."""
+    stack_max_members: int = 0
+    """With ``stack``: most members per stacked group (0 = no limit; lower it when a group does not fit in memory)."""
+    pack: str = ""
+    """Write the small results to this .tar.gz (paths relative to ``out``): every run's config.json,
+    metrics.jsonl and measure*.json, each corpus's certificates.json and manifest.json, map_config.json,
+    progress.json, results.json/.md and the figure; never checkpoints, TensorBoard events or data."""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        bad = set(self.experiments) - set(EXPERIMENTS)
+        if bad:
+            raise ConfigError(f"unknown experiments {sorted(bad)}; choose from {sorted(EXPERIMENTS)}")
+
+        bad_corpora = set(self.attribute_corpora) - set(CORPUS_TARGETS)
+        if bad_corpora:
+            raise ConfigError(f"unknown attribute corpora {sorted(bad_corpora)}; choose from {sorted(CORPUS_TARGETS)}")
+        badv = (set(self.variants) | set(self.lazy_variants) | set(self.planning_variants)) - set(VARIANTS)
+        if badv:
+            raise ConfigError(f"unknown variants {sorted(badv)}; choose from {list(VARIANTS)}")
+        if not self.belief_histories or set(self.belief_histories) - {"window", "episode"}:
+            raise ConfigError(f"belief_histories must name 'window' and/or 'episode', got {self.belief_histories}")
+        if self.planning_corpus not in ("standard", "open_loop"):
+            raise ConfigError(f"planning_corpus must be standard or open_loop, got {self.planning_corpus!r}")
+        if self.split_fractions and (len(self.split_fractions) != 3 or min(self.split_fractions) <= 0):
+            raise ConfigError(f"split_fractions must be three positive shares (train, probe-fit, probe-test), "
+                              f"got {self.split_fractions}")
+        if set(self.measure_kinds) - set(KINDS):
+            raise ConfigError(f"unknown measure_kinds {sorted(set(self.measure_kinds) - set(KINDS))}; choose from {list(KINDS)}")
+        if self.preset not in ("tiny", "cpu", "paper"):
+            raise ConfigError(f"unknown preset {self.preset!r}; choose tiny, cpu or paper")
+        if self.train_preset and self.train_preset not in TRAIN_PRESETS:
+            raise ConfigError(f"unknown train_preset {self.train_preset!r}; choose one of {sorted(TRAIN_PRESETS)}")
+        if self.sigreg_pool not in SIGREG_POOLS:
+            raise ConfigError(f"unknown sigreg_pool {self.sigreg_pool!r}; choose one of {list(SIGREG_POOLS)}")
+        check_gnll_variance(self.gnll_variance, "gnll", 2.0)
+        if self.time_budget_min < 0 or self.time_reserve_min < 0:
+            raise ConfigError("time_budget_min and time_reserve_min must be non-negative")
+        if 0 < self.time_budget_min <= self.time_reserve_min:
+            raise ConfigError(f"time_budget_min ({self.time_budget_min}) must exceed time_reserve_min "
+                              f"({self.time_reserve_min}), or nothing can be trained")
+        if self.stack and self.launcher != "local":
+            raise ConfigError("stack trains in the map's own process: use it with --launcher local")
+        if self.stack_max_members < 0:
+            raise ConfigError(f"stack_max_members must be ≥ 0, got {self.stack_max_members}")
+        if self.pack and not self.pack.endswith((".tar.gz", ".tgz")):
+            raise ConfigError(f"pack must name a .tar.gz file, got {self.pack!r}")
+
+PRESETS: dict[str, dict] = {
+    "tiny": {"preset": "tiny", "experiments": ("factorial",), "variants": ("V", "VX_t"), "seeds": (0,),
+             "mlp_probes": False, "certify_estimators": ("linear", "drag"), "untrained": False},
+    "cpu": {"preset": "cpu", "seeds": (0,)},
+    "paper": {"preset": "paper"},
+}
+
+DEMO = {  # the newcomer's first run: four variants, one seed; 8 min 55 s measured on 2 idle cores (README)
+    "experiments": ("factorial",), "variants": ("V", "VF", "VX_t", "VFX"), "seeds": (0,),
+    # the cpu map's corpus: a 1,200-episode one halves the probe-fit split, and a ridge readout fit on 240 episodes
+    # under-reads a weak signal (VFX log k 0.06 vs 0.10 for one checkpoint, docs/model.md "Learning speed")
+    # the model: train's "demo" preset (cpu sizes, 64-wide vector encoders, batch 8, 2,200 steps); probes read
+    # contact windows only, the ones the demo's tables show
+    "train_preset": "demo", "measure_kinds": ("contact",),
+    # a ridge readout of a 128-d state at R² ≈ 0.25 is fit-set limited (the same checkpoint reads 0.27 from 5.4k
+    # probe-fit windows and 0.29 from 10.7k, docs/model.md "Learning speed"), and 2,200 steps × 8 windows
+    # sample fewer windows than 960 training episodes hold: 40 % of the episodes go to the probe-fit split
+    "split_fractions": (0.4, 0.4, 0.2), "measure_max_windows": 12000,
+    "num_episodes": 2400, "mlp_probes": False, "untrained": False,
+    # certificates for the demo only: the paper's GRU oracle, the geometry GRU that certifies log k, the
+    # linear floor and the drag estimator, on contact windows, with a smaller fit set and fewer epochs
+    "certify_estimators": ("gru", "gru_geom", "linear", "drag"), "certify_kinds": ("contact",),
+    "certify_max_windows": 3000, "certify_epochs": 60, "certify_separate_targets": False,
+    # ... on the corpus's own probe-fit split: a certificate corpus would add its generation to the demo's budget
+    # and its 3,000-window cap would leave it fit-set limited all the same
+    "certify_fit_episodes": 0,
+}
+
+def make_config(preset: str = "cpu", **overrides) -> MapConfig:
+    """The map config of a preset (tiny, cpu, paper) with field overrides."""
+    return from_preset(MapConfig, PRESETS, preset, **overrides)
+
+def make_demo_config(preset: str = "cpu", **overrides) -> MapConfig:
+    """The demo's map config (:data:`DEMO` over the preset; at tiny only its experiment list)."""
+    cfg = from_preset(MapConfig, PRESETS, preset)
+    demo = {k: v for k, v in DEMO.items() if preset != "tiny" or k in ("experiments",)}
+    return dataclasses.replace(cfg, out="out/demo", **{**demo, **overrides})
+
+
+__all__ = ["MapConfig", "PRESETS", "DEMO", "make_config", "make_demo_config"]

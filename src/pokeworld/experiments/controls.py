@@ -1,0 +1,53 @@
+"""The objective-attribution controls (paper Table "controls"): system-ID head, Gaussian NLL, reconstruction,
+spatial tokens."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from ..evaluate.tables import simple_table
+from .runs import RunSpec, spec
+
+if TYPE_CHECKING:
+    from .config import MapConfig
+
+CONTROLS = {  # Table "controls" (ridge)
+    "VFX": {"log_m": 0.29, "gamma": 0.12, "log_k": 0.50, "object_pos": 0.98, "object_vel": 0.79},
+    "VFX+sysid": {"log_m": 0.72, "gamma": 0.45, "log_k": 0.91, "object_pos": 0.98, "object_vel": 0.78},
+    "VFX-gnll": {"log_m": 0.31, "gamma": 0.10, "log_k": 0.49, "object_pos": 1.00, "object_vel": 0.88},
+    "V-recon": {"log_m": 0.16, "gamma": 0.08, "log_k": -0.01, "object_pos": 0.75, "object_vel": 0.47},
+    "VFX-recon": {"log_m": 0.19, "gamma": 0.03, "log_k": 0.61, "object_pos": 0.95, "object_vel": 0.64},
+}
+
+
+NAME = "controls"
+
+
+def specs(c: MapConfig) -> list[RunSpec]:
+    s, lam = c.seeds[0], c.sigreg_weight
+    return [spec("controls", "VFX", s, lam, sysid_weight=0.5), spec("controls", "VFX", s, lam, objective="gnll"),
+            spec("controls", "VFX", s, lam, objective="gnll", gnll_heads="all"),
+            spec("controls", "V", s, lam, objective="recon"), spec("controls", "VFX", s, lam, objective="recon"),
+            spec("controls", "VFX", s, lam, tokens=True)]
+
+
+def control_key(r: dict) -> str:
+    """Row label of a controls run (the paper's control names)."""
+    t = r["train"]
+    if t.get("sysid_weight"):
+        return "VFX+sysid"
+    if t.get("objective") == "gnll":
+        return "VFX-gnll" + (" (every head)" if t.get("gnll_heads", "latent") == "all" else "")
+    if t.get("objective") == "recon":
+        return f"{t['variant']}-recon"
+    if t.get("tokens"):
+        return "VFX-tokens"
+    return t["variant"]
+
+
+def section(results: dict) -> list[str]:
+    """The objective-attribution controls beside the paper's Table "controls"."""
+    return simple_table(results, NAME, "Objective-attribution controls", lambda r: control_key(r), CONTROLS)
+
+
+__all__ = ['NAME', 'CONTROLS', 'specs', 'section', 'control_key']

@@ -1,0 +1,177 @@
+"""``pokeworld map`` / ``pokeworld demo``: generate -> certify -> train the runs -> measure -> report, under a lock
+on the map folder, resumable and time-sliceable.
+
+Run names are deterministic in their factors and seed, so re-running skips finished runs and resumes
+unfinished ones. Runs execute in a local process pool or through submitit (:mod:`.launch`); on a GPU ``stack``
+trains the runs that can share a step as stacked ensembles and ``certify_alongside`` computes the certificates
+meanwhile. Time-sliced running (``time_budget_min``): every invocation trains until its budget is nearly spent,
+checkpoints, writes ``progress.json`` and exits normally; the same command resumes. ``pack`` tars the small
+result files for the trip back from a lent machine.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import json
+from pathlib import Path
+
+from .. import clock
+from ..config import to_dict
+from ..io import write_json
+from ..train.loop import past
+from . import report, stages
+from .config import MapConfig
+from .factorial import factorial_summary, factorial_table
+from .launch import cores, default_workers, launch
+from .planning import ensure_planning
+
+MAP_LOCK_REFUSAL = ("{path} is in use by another `pokeworld map`: {holder}. Two maps on one --out would overwrite "
+                    "each other's results.json; wait for that one to finish and run this command again (its runs "
+                    "are merged into the same results.json), or give this one another --out")
+
+def carry_over(previous: dict | None, results: dict) -> dict:
+    """``results`` completed with the run records of an earlier ``results.json`` in the same ``out`` that this
+    invocation did not measure (each kept under the experiments that listed it, with the certificates of corpora
+    only it used and the planning table when this invocation did not plan), so a later invocation with other
+    experiments, variants or seeds never drops a finished run's record. Runs measured now replace their earlier
+    records; the carried runs and the command that measured them are named in ``provenance["carried_over"]``."""
+    if not previous:
+        return results
+    out = {**results, "experiments": {k: list(v) for k, v in results["experiments"].items()},
+           "runs": dict(results["runs"]), "certificates": dict(results["certificates"]),
+           "provenance": dict(results["provenance"])}
+    carried: list[str] = []
+    for exp, names in previous.get("experiments", {}).items():
+        now = out["experiments"].setdefault(exp, [])
+        extra = [n for n in names if n not in now and n in previous.get("runs", {})]
+        now += extra
+        for n in extra:
+            if n not in out["runs"]:
+                out["runs"][n] = previous["runs"][n]
+                carried.append(n)
+        if not now:
+            del out["experiments"][exp]
+    if not carried:
+        return results
+    for corpus, cert in previous.get("certificates", {}).items():
+        out["certificates"].setdefault(corpus, cert)
+    if "planning" not in out and "planning" in previous:
+        out["planning"] = previous["planning"]
+    prev = previous.get("provenance", {})
+    # a run carried twice keeps the command that measured it, not the one that last carried it
+    earlier = [{**e, "runs": [n for n in e["runs"] if n in carried]} for e in prev.get("carried_over", [])]
+    already = {n for e in earlier for n in e["runs"]}
+    first = {"runs": [n for n in carried if n not in already], "command": prev.get("command", "?"),
+             "git": prev.get("git", "?")}
+    out["provenance"]["carried_over"] = [e for e in (*earlier, first) if e["runs"]]
+    return out
+
+def read_previous_results(path: Path) -> dict | None:
+    """The results.json an earlier invocation left in this ``out`` (None when there is none or it is unreadable:
+    it is written atomically, so an unreadable one was edited by hand and is not merged)."""
+    if not path.exists():
+        return None
+    try:
+        prev = json.loads(path.read_text())
+        if isinstance(prev, dict) and isinstance(prev.get("experiments"), dict) and isinstance(prev.get("runs"), dict):
+            return prev
+    except (ValueError, UnicodeDecodeError):
+        pass
+    print(f"[map] warning: {path} is not a results record pokeworld wrote; it is replaced, not merged")
+    return None
+
+def run(c: MapConfig) -> Path:
+    """Run every stage of the map and write results.json, results.md and the figure into ``c.out``.
+
+    With ``time_budget_min`` the invocation may stop early (progress.json says where); with ``pack``
+    the small results are tarred at the end either way. The whole invocation holds ``out/.map.lock``: a second
+    map on the same ``out`` is refused with a message naming this one (a killed map's lock is released with its
+    process), and the experiments of an earlier invocation are carried into results.json (:func:`carry_over`).
+    """
+    from ..io import dir_lock
+
+    out = Path(c.out)
+    with dir_lock(out, ".map.lock", MAP_LOCK_REFUSAL) as stale:
+        if stale:
+            print(f"[map] the previous holder of {out} ({stale}) is gone; taking over its lock and resuming")
+        # temporary copies a killed map left of its top-level files (results, report, figures): only the lock's
+        # holder writes these, so none of them is in use
+        for tmp in out.glob(".*.tmp-*"):
+            if tmp.is_file():
+                tmp.unlink()
+        return _run_locked(c)
+
+def _run_locked(c: MapConfig) -> Path:
+    """The body of :func:`run`, under the out directory's lock."""
+    started = clock.wall_clock()
+    # training must stop early enough to leave the reserve for measuring, reporting and packing
+    deadline = started + 60 * (c.time_budget_min - c.time_reserve_min) if c.time_budget_min > 0 else 0.0
+    out = Path(c.out)
+    out.mkdir(parents=True, exist_ok=True)
+    write_json(out / "map_config.json", to_dict(c))
+    specs = stages.all_specs(c)
+    corpora = sorted({s.corpus for s in specs} | {s.measure_corpus for s in specs} | {"standard"})
+    certificates: dict[str, dict] = {}
+    prepared = True  # every corpus (and, unless certify_alongside, certificate) in place: training may start
+    for corpus in corpora:
+        if past(deadline):
+            prepared = False
+            break
+        stages.ensure_corpus(c, corpus)
+    certify_order = [k for k in sorted(corpora, key=lambda k: k == "flow") if k != "contact_poor"]  # flow's build on the standard's
+    background = None
+    if prepared and c.certify_alongside:
+        # certificates are CPU work, training on a GPU leaves the cores idle: one spawned process computes them while
+        # the runs train (spawned, not forked, so it inherits no CUDA state)
+        ctx = __import__("multiprocessing").get_context("spawn")
+        background = cf.ProcessPoolExecutor(max_workers=1, mp_context=ctx)
+        # two cores stay with the training process, whose GPU step is bound by its host-side launches
+        pending = background.submit(stages.certify_corpora, c, certify_order, max(1, cores() - 2))
+        print(f"[map] certifying {certify_order} in a background process while the runs train")
+    else:
+        for corpus in certify_order:
+            if not prepared:
+                break
+            if past(deadline):
+                prepared = False
+                break
+            certificates[corpus] = stages.ensure_certificates(c, corpus)
+    if prepared:
+        workers = c.workers or default_workers(len(specs))
+        threads = max(1, cores() // workers) if (c.launcher == "local" and workers > 1) else 0
+        print(f"[map] {len(specs)} runs, launcher={c.launcher}, workers={workers}"
+              + (f", training until {c.time_budget_min - c.time_reserve_min:g} min" if deadline else ""))
+        jobs = stages.jobs(c, specs, threads, deadline)
+        if c.stack:
+            stages.train_stacked_jobs(c, jobs)
+        launch(c, jobs, stages.execute)
+    if background is not None:
+        with background:
+            print("[map] waiting for the background certificates")
+            certificates = pending.result()
+    prog = stages.write_progress(c, specs, started)
+    planning_late = "planning" in c.experiments and past(deadline)  # planning takes minutes: never start it late
+    if prog["complete"] and prepared and not planning_late:
+        results = report.collect(c, specs, certificates)
+        if "planning" in c.experiments:
+            results["planning"] = ensure_planning(c)
+        results = carry_over(read_previous_results(out / "results.json"), results)
+        write_json(out / "results.json", results)
+        report.write_all(c, results)
+        table = report.certificate_table(results) + factorial_table(results)
+        print("\n".join(table + factorial_summary(results)))
+        print(f"\n[map] wrote {out / 'results.json'}, {out / 'results.md'} (every table) and the figure "
+              f"{out / 'identifiability_map.png'}")
+    elif planning_late and prog["complete"] and prepared:
+        print("[map] time budget reached before planning: every run is trained and measured; run the same "
+              "command again to plan and write the report")
+    else:
+        print(f"[map] time budget reached: {len(prog['finished'])} runs finished, {len(prog['partial'])} partial "
+              f"{prog['partial']}, {len(prog['pending'])} pending; run the same command again to resume "
+              f"({out / 'progress.json'})")
+    if c.pack:
+        stages.pack_results(c, c.pack)
+    return out
+
+
+__all__ = ["run", "carry_over", "read_previous_results", "MAP_LOCK_REFUSAL"]

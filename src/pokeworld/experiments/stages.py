@@ -1,0 +1,227 @@
+"""The map's stages: corpora, certificates, the jobs that train and measure each run, stacked training on a GPU,
+progress and the pack of small results that travels back from a lent machine."""
+
+from __future__ import annotations
+
+import json
+import os
+import tarfile
+from pathlib import Path
+from typing import Any
+
+from .. import clock
+from ..io import write_json
+from ..rundir import last_logged_step
+from ..train.loop import past, status_every
+from .attributes import CORPUS_TARGETS
+from .config import MapConfig
+from .registry import EXPERIMENTS
+from .runs import RunSpec, corpus_dir, run_dir, spec_measure_path, with_map_training
+
+
+def experiment_specs(c: MapConfig, exp: str) -> list[RunSpec]:
+    """The runs of experiment ``exp`` under ``c`` (its own specs with the map-wide training choices)."""
+    return [with_map_training(c, s) for s in EXPERIMENTS[exp](c)]
+
+def all_specs(c: MapConfig) -> list[RunSpec]:
+    """Every run of the map's experiments, once (a run shared by two experiments trains once)."""
+    seen: dict[str, RunSpec] = {}
+    for exp in c.experiments:
+        for spec in experiment_specs(c, exp):
+            seen.setdefault(spec.name, spec)  # a run shared by two experiments trains once
+    return list(seen.values())
+
+def spec_experiments(c: MapConfig) -> dict[str, list[str]]:
+    """experiment -> run names (including runs shared with other experiments)."""
+    return {exp: [s.name for s in experiment_specs(c, exp)] for exp in c.experiments}
+
+def ensure_corpus(c: MapConfig, corpus: str) -> Path:
+    """Generate corpus ``corpus`` into the map folder (skipped when it is there and current)."""
+    from ..sim import generate
+
+    if corpus == "flow":  # derived from the standard corpus by the frozen flow sensor
+        from ..evaluate.coordinate import build_flow_corpus
+        from ..models import flow
+
+        return build_flow_corpus(ensure_corpus(c, "standard"), corpus_dir(c, "flow"), flow.make_config(c.preset))
+
+    overrides: dict[str, Any] = {"out": str(corpus_dir(c, corpus)), "corpus": corpus, "seed": c.data_seed}
+    if c.num_episodes:
+        overrides["num_episodes"] = c.num_episodes
+    if c.split_fractions:
+        overrides["split_fractions"] = tuple(c.split_fractions)
+    return generate.run(generate.make_config(c.preset, **overrides))
+
+GATED = ("log_m", "gamma", "log_k")
+
+def with_standard_gate(std: dict, own: dict) -> dict:
+    """``own`` certificates (a derived or attribute corpus, certified for its new targets only) completed with
+    the standard corpus's estimators for the gated parameters; the gate is then the standard's, and
+    ``gate_from`` says so (reports state it once, on the standard corpus)."""
+    from .. import certify
+
+    est: dict = {}
+    for source in (std.get("estimators", {}), own.get("estimators", {})):
+        for e, kinds in source.items():
+            for kind, r2 in kinds.items():
+                est.setdefault(e, {}).setdefault(kind, {}).update(r2)
+    targets = tuple(dict.fromkeys(GATED + tuple(own.get("config", {}).get("targets", ()))))
+    cert = certify.certificate_table(est, targets)
+    return {**own, "estimators": est, "certificate": cert, "gate": certify.gate(cert, est), "gate_from": "standard",
+            "counts": {**std.get("counts", {}), **{f"{k} ({'/'.join(own['config']['targets'])})": v
+                                                   for k, v in own.get("counts", {}).items()}}}
+
+def ensure_certificates(c: MapConfig, corpus: str) -> dict:
+    """Certificates of ``corpus`` (``certify.run``, skipped when up to date).
+
+    The flow corpus certifies its log-speed channel, an attribute corpus (bias, gain) its attribute: their
+    other parameters have the standard corpus's distributions and (flow) episodes, so their gated-parameter
+    certificates and gate are the standard corpus's (:func:`with_standard_gate`). One recurrent fit per target
+    costs ~20 CPU-minutes on a 2-core machine; not repeating the standard targets on four more corpora saves
+    about four CPU-hours of the `cpu` preset.
+    """
+    from .. import certify
+
+    cost = {k: v for k, v in (("max_windows", c.certify_max_windows), ("epochs", c.certify_epochs)) if v}
+    if c.certify_fit_episodes >= 0:
+        cost["fit_episodes"] = c.certify_fit_episodes
+    cost["separate_targets"] = c.certify_separate_targets
+    if corpus == "flow":
+        # the state-based estimators do not read the appended channels: only the log-speed certificate is new
+        path = certify.run(certify.make_config(c.preset, data=str(corpus_dir(c, corpus)), targets=("gamma",),
+                                               estimators=("linear_logspeed",), kinds=c.certify_kinds))
+        manifest = json.loads((corpus_dir(c, corpus) / "manifest.json").read_text())
+        return {**with_standard_gate(ensure_certificates(c, "standard"), json.loads(Path(path).read_text())),
+                "flow_sensor": manifest.get("flow", {}).get("sensor", {})}
+    if corpus in CORPUS_TARGETS:
+        path = certify.run(certify.make_config(c.preset, data=str(corpus_dir(c, corpus)),
+                                               targets=CORPUS_TARGETS[corpus],
+                                               estimators=c.certify_estimators, kinds=c.certify_kinds, **cost))
+        return with_standard_gate(ensure_certificates(c, "standard"), json.loads(Path(path).read_text()))
+    path = certify.run(certify.make_config(c.preset, data=str(corpus_dir(c, corpus)), targets=GATED,
+                                           estimators=c.certify_estimators, kinds=c.certify_kinds, **cost))
+    return json.loads(Path(path).read_text())
+
+def certify_corpora(c: MapConfig, corpora: list[str], threads: int = 0) -> dict[str, dict]:
+    """:func:`ensure_certificates` of each corpus in order, on ``threads`` CPU threads (0: torch's default); top-level
+    because ``certify_alongside`` runs it in a spawned process."""
+    if threads:
+        import torch
+
+        torch.set_num_threads(threads)
+    return {corpus: ensure_certificates(c, corpus) for corpus in corpora}
+
+def execute(job: dict) -> dict:
+    """Train (resume / skip) and measure one run. Top-level and picklable for process pools and submitit.
+
+    Returns ``{"name", "status"}`` with status ``finished`` (trained and measured; also ``measure``:
+    the path), ``partial`` (stopped at ``job["deadline"]``, or trained but not yet measured) or
+    ``pending`` (the deadline had passed before it started).
+    """
+    import torch
+
+    from .. import train
+    from ..evaluate import measure
+
+    deadline = job.get("deadline", 0.0)
+    if past(deadline):
+        return {"name": job["name"], "status": "pending"}
+    if job.get("threads"):
+        torch.set_num_threads(job["threads"])
+    tcfg = job_train_config(job)
+    done = train.run(tcfg, status_every=status_every())
+    if not (done / "DONE").exists() or past(deadline):
+        return {"name": job["name"], "status": "partial"}
+    # the thread count training sets (CPU reductions round by it): a run measured in a later invocation, whose
+    # training was skipped, then reads the same numbers as one measured right after training
+    torch.set_num_threads(tcfg.threads or train.auto_threads())
+    mcfg = measure.make_config(job["preset"], run_dir=job["train"]["out"], data=job["measure_data"],
+                               mlp=job["mlp"], untrained=job["untrained"], **job.get("measure", {}))
+    path = measure.run(mcfg)
+    return {"name": job["name"], "status": "finished", "measure": str(path)}
+
+def job_train_config(job: dict):
+    """The TrainConfig a map job trains (with its deadline): the same for a separate and a stacked run."""
+    from .. import train
+
+    return train.make_config(job["train_preset"], **job["train"], deadline=job.get("deadline", 0.0))
+
+def train_stacked_jobs(c: MapConfig, jobs: list[dict]) -> None:
+    """``stack``: train every unfinished job that can stack with :func:`pokeworld.train.stacked.run` (grouped by
+    what fixes the step's shapes; members resume together from a common checkpoint step), before :func:`launch`
+    measures them (and trains alone the jobs that cannot stack). Stops at the jobs' deadline like ``train.run``."""
+    from ..train import stacked as train_stacked
+
+    cfgs = [job_train_config(j) for j in jobs]
+    todo = [cfg for cfg in cfgs if train_stacked.stackable(cfg) and not (Path(cfg.out) / "DONE").exists()]
+    if not todo:
+        return
+    groups = train_stacked.plan_groups(todo, mix_variants=True, max_members=c.stack_max_members)
+    print(f"[map] training {len(todo)} runs as {len(groups)} stacked group(s) of {[len(g) for g in groups]} members")
+    train_stacked.run(todo, mix_variants=True, max_members=c.stack_max_members)
+
+def jobs(c: MapConfig, specs: list[RunSpec], threads: int, deadline: float = 0.0) -> list[dict]:
+    """One picklable job per run: its TrainConfig overrides and how to measure it."""
+    out = []
+    for s in specs:
+        tr = dict(s.train, data=str(corpus_dir(c, s.corpus)), out=str(run_dir(c, s.name)),
+                  progress=False)
+        if c.train_steps:
+            tr["steps"] = c.train_steps
+        if c.train_batch_size and "batch_size" not in s.train:
+            tr["batch_size"] = c.train_batch_size
+        if threads:
+            tr["threads"] = threads
+        measure_data = str(corpus_dir(c, s.measure_corpus)) if s.measure_corpus != s.corpus else ""
+        measure = ({"kinds": tuple(c.measure_kinds)} if c.measure_kinds else {}) | (
+            {"max_windows": c.measure_max_windows} if c.measure_max_windows else {}) | dict(s.measure)
+        out.append({"name": s.name, "preset": c.preset, "train_preset": c.train_preset or c.preset, "train": tr,
+                     "measure_data": measure_data,
+                     "mlp": c.mlp_probes, "untrained": c.untrained, "threads": threads, "deadline": deadline,
+                     "measure": measure})
+    return out
+
+def write_progress(c: MapConfig, specs: list[RunSpec], started: float) -> dict:
+    """``progress.json``, read off the run directories (so earlier invocations' work counts): runs
+    ``finished`` (trained and measured), ``partial`` (name -> last logged step: stopped at a deadline,
+    or trained but not measured yet) and ``pending`` (not started)."""
+    prog: dict[str, Any] = {"finished": [], "partial": {}, "pending": []}
+    for s in specs:
+        rd = run_dir(c, s.name)
+        if (rd / "DONE").exists() and spec_measure_path(c, s).exists():
+            prog["finished"].append(s.name)
+        elif (rd / "ckpt.pt").exists() or (rd / "DONE").exists():
+            prog["partial"][s.name] = last_logged_step(rd)
+        else:
+            prog["pending"].append(s.name)
+    prog["complete"] = len(prog["finished"]) == len(specs)
+    prog["elapsed_min"] = (clock.wall_clock() - started) / 60
+    prog["time_budget_min"] = c.time_budget_min
+    write_json(Path(c.out) / "progress.json", prog)
+    return prog
+
+#: Files ``pack`` takes, as globs relative to the map directory (all small: JSON, markdown, figures).
+PACK_GLOBS = ("map_config.json", "progress.json", "results.json", "results.md", "identifiability_map.png",
+              "identifiability_map.pdf", "planning/planning.json", "planning/plan_episode.png", "data/*/certificates.json", "data/*/manifest.json",
+              "runs/*/config.json", "runs/*/metrics.jsonl", "runs/*/measure*.json")
+
+def pack_results(c: MapConfig, dest: str | os.PathLike) -> Path:
+    """Tar+gzip the small result files of ``c.out`` (:data:`PACK_GLOBS`) into ``dest``; returns it."""
+    out, dest = Path(c.out), Path(dest)
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    tmp = dest.with_name(f".{dest.name}.tmp-{os.getpid()}")
+    with tarfile.open(tmp, "w:gz") as tar:
+        for pattern in PACK_GLOBS:
+            for path in sorted(out.glob(pattern)):
+                tar.add(path, arcname=str(path.relative_to(out)))
+    os.replace(tmp, dest)
+    size = dest.stat().st_size
+    # the device machine returns files of at most 16 MiB each
+    print(f"[map] packed results into {dest} ({size / 2 ** 20:.2f} MiB)"
+          + (" — over 16 MiB, too large to come back from the device" if size > 16 * 2 ** 20 else ""))
+    return dest
+
+
+__all__ = ["experiment_specs", "all_specs", "spec_experiments", "ensure_corpus", "GATED", "with_standard_gate",
+           "ensure_certificates", "certify_corpora", "execute", "job_train_config", "train_stacked_jobs", "jobs",
+           "write_progress", "PACK_GLOBS", "pack_results"]
