@@ -54,7 +54,7 @@ from .prediction import (CONTEXT, HORIZON, position_decoder, glide_comparison, g
                          glide_test, prediction_quality)
 from .probes import (KINDS, PARAM_TARGETS, STATE_TARGETS, fit_predict, fit_probes, probe_latents,  # noqa: F401
                      probe_model, probe_targets, probe_windows)
-from .state import (EpisodeLatents, _trunk_at, as_model_input, encode_episodes, model_device, neutral_last,  # noqa: F401
+from .state import (EpisodeLatents, as_model_input, encode_episodes, model_device, neutral_last,  # noqa: F401
                     padded_actions, window_states)
 
 READOUT = {
@@ -265,4 +265,4 @@ __all__ = ["MeasureConfig", "PRESETS", "READOUT", "make_config", "measure", "run
            "untrained_like", "CONTEXT", "HORIZON", "KINDS", "PARAM_TARGETS", "STATE_TARGETS", "EpisodeLatents",
            "encode_episodes", "fit_predict", "fit_probes", "glide_comparison", "glide_reference", "glide_test",
            "neutral_last", "padded_actions", "prediction_quality", "probe_latents", "probe_model", "probe_targets",
-           "probe_windows", "window_states", "position_decoder", "_trunk_at"]
+           "probe_windows", "window_states", "position_decoder"]

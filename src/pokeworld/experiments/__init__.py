@@ -1,7 +1,7 @@
 """The identifiability map and its experiments (``pokeworld map``, ``pokeworld demo``).
 
 * :mod:`.map` — the driver: generate -> certify -> train -> measure -> report, locked, resumable, time-sliceable;
-* :mod:`.config` — :class:`MapConfig`, its presets and the demo's;
+* :mod:`.config` — :class:`MapConfig`; :mod:`.presets` — its presets and the demo's;
 * :mod:`.stages` — corpora, certificates, the per-run jobs, progress and the results pack;
 * :mod:`.launch` — local process pool or submitit;
 * :mod:`.runs` — run specs, run names and paths in a map folder;
@@ -14,9 +14,10 @@
 Adding an experiment: a module with ``NAME``, ``specs(c)`` and ``section(results)``, listed in the registry.
 """
 
-from .config import DEMO, PRESETS, MapConfig, make_config, make_demo_config
+from .config import MapConfig
 from .launch import LaunchOptions, launch
 from .map import carry_over, run
+from .presets import DEMO, PRESETS, make_config, make_demo_config
 from .registry import EXPERIMENTS
 from .stages import all_specs, experiment_specs, spec_experiments
 

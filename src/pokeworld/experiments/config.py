@@ -1,21 +1,19 @@
-"""The map's configuration: :class:`MapConfig` (which experiments, at which budget, launched how), its presets,
-and the demo's."""
+"""The map's configuration, :class:`MapConfig`: which experiments, at which budget, launched how. Its presets
+and the demo's are :mod:`.presets`; the names of experiments are checked against :mod:`.registry` there."""
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 
-from ..config import from_preset
 from ..errors import ConfigError
 from ..evaluate.probes import KINDS
 from ..losses import SIGREG_POOLS
 from ..models.xjepa import VARIANTS, check_gnll_variance
 from ..train.config import PRESETS as TRAIN_PRESETS
-from .attributes import CORPUS_TARGETS
 from .launch import LaunchOptions
-from .registry import EXPERIMENTS
-from .runs import VARIANT_ORDER
+
+#: The factorial's variants in the paper's order (inputs, then targets).
+VARIANT_ORDER = ("V", "VF", "VX_p", "VX_t", "VX", "VFX")
 
 
 @dataclass
@@ -124,13 +122,7 @@ class MapConfig(LaunchOptions):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        bad = set(self.experiments) - set(EXPERIMENTS)
-        if bad:
-            raise ConfigError(f"unknown experiments {sorted(bad)}; choose from {sorted(EXPERIMENTS)}")
 
-        bad_corpora = set(self.attribute_corpora) - set(CORPUS_TARGETS)
-        if bad_corpora:
-            raise ConfigError(f"unknown attribute corpora {sorted(bad_corpora)}; choose from {sorted(CORPUS_TARGETS)}")
         badv = (set(self.variants) | set(self.lazy_variants) | set(self.planning_variants)) - set(VARIANTS)
         if badv:
             raise ConfigError(f"unknown variants {sorted(badv)}; choose from {list(VARIANTS)}")
@@ -162,43 +154,4 @@ class MapConfig(LaunchOptions):
         if self.pack and not self.pack.endswith((".tar.gz", ".tgz")):
             raise ConfigError(f"pack must name a .tar.gz file, got {self.pack!r}")
 
-PRESETS: dict[str, dict] = {
-    "tiny": {"preset": "tiny", "experiments": ("factorial",), "variants": ("V", "VX_t"), "seeds": (0,),
-             "mlp_probes": False, "certify_estimators": ("linear", "drag"), "untrained": False},
-    "cpu": {"preset": "cpu", "seeds": (0,)},
-    "paper": {"preset": "paper"},
-}
-
-DEMO = {  # the newcomer's first run: four variants, one seed; 8 min 55 s measured on 2 idle cores (README)
-    "experiments": ("factorial",), "variants": ("V", "VF", "VX_t", "VFX"), "seeds": (0,),
-    # the cpu map's corpus: a 1,200-episode one halves the probe-fit split, and a ridge readout fit on 240 episodes
-    # under-reads a weak signal (VFX log k 0.06 vs 0.10 for one checkpoint, docs/model.md "Learning speed")
-    # the model: train's "demo" preset (cpu sizes, 64-wide vector encoders, batch 8, 2,200 steps); probes read
-    # contact windows only, the ones the demo's tables show
-    "train_preset": "demo", "measure_kinds": ("contact",),
-    # a ridge readout of a 128-d state at R² ≈ 0.25 is fit-set limited (the same checkpoint reads 0.27 from 5.4k
-    # probe-fit windows and 0.29 from 10.7k, docs/model.md "Learning speed"), and 2,200 steps × 8 windows
-    # sample fewer windows than 960 training episodes hold: 40 % of the episodes go to the probe-fit split
-    "split_fractions": (0.4, 0.4, 0.2), "measure_max_windows": 12000,
-    "num_episodes": 2400, "mlp_probes": False, "untrained": False,
-    # certificates for the demo only: the paper's GRU oracle, the geometry GRU that certifies log k, the
-    # linear floor and the drag estimator, on contact windows, with a smaller fit set and fewer epochs
-    "certify_estimators": ("gru", "gru_geom", "linear", "drag"), "certify_kinds": ("contact",),
-    "certify_max_windows": 3000, "certify_epochs": 60, "certify_separate_targets": False,
-    # ... on the corpus's own probe-fit split: a certificate corpus would add its generation to the demo's budget
-    # and its 3,000-window cap would leave it fit-set limited all the same
-    "certify_fit_episodes": 0,
-}
-
-def make_config(preset: str = "cpu", **overrides) -> MapConfig:
-    """The map config of a preset (tiny, cpu, paper) with field overrides."""
-    return from_preset(MapConfig, PRESETS, preset, **overrides)
-
-def make_demo_config(preset: str = "cpu", **overrides) -> MapConfig:
-    """The demo's map config (:data:`DEMO` over the preset; at tiny only its experiment list)."""
-    cfg = from_preset(MapConfig, PRESETS, preset)
-    demo = {k: v for k, v in DEMO.items() if preset != "tiny" or k in ("experiments",)}
-    return dataclasses.replace(cfg, out="out/demo", **{**demo, **overrides})
-
-
-__all__ = ["MapConfig", "PRESETS", "DEMO", "make_config", "make_demo_config"]
+__all__ = ["MapConfig", "VARIANT_ORDER"]

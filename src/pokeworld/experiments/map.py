@@ -24,6 +24,7 @@ from .config import MapConfig
 from .factorial import factorial_summary, factorial_table
 from .launch import cores, default_workers, launch
 from .planning import ensure_planning
+from .presets import check_names
 
 MAP_LOCK_REFUSAL = ("{path} is in use by another `pokeworld map`: {holder}. Two maps on one --out would overwrite "
                     "each other's results.json; wait for that one to finish and run this command again (its runs "
@@ -90,6 +91,7 @@ def run(c: MapConfig) -> Path:
     """
     from ..io import dir_lock
 
+    check_names(c)
     out = Path(c.out)
     with dir_lock(out, ".map.lock", MAP_LOCK_REFUSAL) as stale:
         if stale:

@@ -11,9 +11,6 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from .config import MapConfig
 
-VARIANT_ORDER = ("V", "VF", "VX_p", "VX_t", "VX", "VFX")
-
-
 @dataclass(frozen=True)
 class RunSpec:
     """One training run and how to measure it."""
@@ -80,5 +77,5 @@ def run_dir(c: MapConfig, name: str) -> Path:
     return Path(c.out) / "runs" / name
 
 
-__all__ = ["VARIANT_ORDER", "RunSpec", "horizon_tag", "spec", "with_map_training", "corpus_dir", "run_dir",
+__all__ = ["RunSpec", "horizon_tag", "spec", "with_map_training", "corpus_dir", "run_dir",
            "spec_measure_path"]

@@ -1,0 +1,64 @@
+"""The map's presets (tiny, cpu, paper) and the demo's, and the check of a config's experiment and corpus names
+against the registry."""
+
+from __future__ import annotations
+
+import dataclasses
+
+from ..config import from_preset
+from ..errors import ConfigError
+from .attributes import CORPUS_TARGETS
+from .config import MapConfig
+from .registry import EXPERIMENTS
+
+PRESETS: dict[str, dict] = {
+    "tiny": {"preset": "tiny", "experiments": ("factorial",), "variants": ("V", "VX_t"), "seeds": (0,),
+             "mlp_probes": False, "certify_estimators": ("linear", "drag"), "untrained": False},
+    "cpu": {"preset": "cpu", "seeds": (0,)},
+    "paper": {"preset": "paper"},
+}
+
+DEMO = {  # the newcomer's first run: four variants, one seed; 8 min 55 s measured on 2 idle cores (README)
+    "experiments": ("factorial",), "variants": ("V", "VF", "VX_t", "VFX"), "seeds": (0,),
+    # the cpu map's corpus: a 1,200-episode one halves the probe-fit split, and a ridge readout fit on 240 episodes
+    # under-reads a weak signal (VFX log k 0.06 vs 0.10 for one checkpoint, docs/model.md "Learning speed")
+    # the model: train's "demo" preset (cpu sizes, 64-wide vector encoders, batch 8, 2,200 steps); probes read
+    # contact windows only, the ones the demo's tables show
+    "train_preset": "demo", "measure_kinds": ("contact",),
+    # a ridge readout of a 128-d state at R² ≈ 0.25 is fit-set limited (the same checkpoint reads 0.27 from 5.4k
+    # probe-fit windows and 0.29 from 10.7k, docs/model.md "Learning speed"), and 2,200 steps × 8 windows
+    # sample fewer windows than 960 training episodes hold: 40 % of the episodes go to the probe-fit split
+    "split_fractions": (0.4, 0.4, 0.2), "measure_max_windows": 12000,
+    "num_episodes": 2400, "mlp_probes": False, "untrained": False,
+    # certificates for the demo only: the paper's GRU oracle, the geometry GRU that certifies log k, the
+    # linear floor and the drag estimator, on contact windows, with a smaller fit set and fewer epochs
+    "certify_estimators": ("gru", "gru_geom", "linear", "drag"), "certify_kinds": ("contact",),
+    "certify_max_windows": 3000, "certify_epochs": 60, "certify_separate_targets": False,
+    # ... on the corpus's own probe-fit split: a certificate corpus would add its generation to the demo's budget
+    # and its 3,000-window cap would leave it fit-set limited all the same
+    "certify_fit_episodes": 0,
+}
+
+def make_config(preset: str = "cpu", **overrides) -> MapConfig:
+    """The map config of a preset (tiny, cpu, paper) with field overrides."""
+    return check_names(from_preset(MapConfig, PRESETS, preset, **overrides))
+
+def make_demo_config(preset: str = "cpu", **overrides) -> MapConfig:
+    """The demo's map config (:data:`DEMO` over the preset; at tiny only its experiment list)."""
+    cfg = from_preset(MapConfig, PRESETS, preset)
+    demo = {k: v for k, v in DEMO.items() if preset != "tiny" or k in ("experiments",)}
+    return check_names(dataclasses.replace(cfg, out="out/demo", **{**demo, **overrides}))
+
+
+def check_names(c: MapConfig) -> MapConfig:
+    """``c``, after checking its experiment and attribute-corpus names against the registry (ConfigError)."""
+    bad = set(c.experiments) - set(EXPERIMENTS)
+    if bad:
+        raise ConfigError(f"unknown experiments {sorted(bad)}; choose from {sorted(EXPERIMENTS)}")
+    bad_corpora = set(c.attribute_corpora) - set(CORPUS_TARGETS)
+    if bad_corpora:
+        raise ConfigError(f"unknown attribute corpora {sorted(bad_corpora)}; choose from {sorted(CORPUS_TARGETS)}")
+    return c
+
+
+__all__ = ["PRESETS", "DEMO", "make_config", "make_demo_config", "check_names"]
