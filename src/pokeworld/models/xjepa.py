@@ -142,6 +142,18 @@ class BeliefModule(nn.Module):
         return self.prior(h).chunk(2, -1)
 
 
+def _horizon_weights(w: torch.Tensor | None):
+    """``at(d, pos=None)``: the (B, L) target-frame weights ``w`` read at horizon d (at window positions ``pos``);
+    None when there are no weights."""
+
+    def at(d: int, pos=None):
+        if w is None:
+            return None
+        return w[:, d:] if pos is None else w[:, pos + d]
+
+    return at
+
+
 class XJEPA(nn.Module):
     """The X-JEPA model. Construct with :meth:`__init__` kwargs (stored in ``self.config`` for checkpoints).
 
@@ -527,86 +539,20 @@ class XJEPA(nn.Module):
         h = hs.mean(2)
         terms: dict[str, torch.Tensor] = {}
         total = z.new_zeros((), dtype=torch.float32)
+        h_causal = h
         if self.belief is not None:
-            # one ELBO per step t with a shared variational posterior: q may depend on anything (here the
-            # whole window), the bound holds for each t; prediction terms below read h_t + W·u, u ~ q
-            mu_q, lv_q = self.posterior(z, actions)
-            mu_p, lv_p = self.belief.prior_of(h)
-            kl = gaussian_kl(mu_q[:, None], lv_q[:, None], mu_p, lv_p)  # (B, L)
-            terms["kl"], terms["kl_last"] = kl.mean(), kl[:, -1].mean()
-            total = total + belief_kl_weight * terms["kl"]
-            u = mu_q + torch.exp(0.5 * lv_q.float().clamp(*LOGVAR_RANGE)).to(mu_q.dtype) * torch.randn_like(mu_q)
-            # the sysid control reads the causal state the probes read (prior mean), never the posterior sample:
-            # labels flowing into u would make the episode latent a supervised parameter code
-            h_causal = self.condition(h, mu_p)
-            h = self.condition(h, u)
-        else:
-            h_causal = h
+            h, h_causal, kl_term = self._belief_terms(z, h, actions, terms)
+            total = total + belief_kl_weight * kl_term
         valid = [d for d in self.horizons if d < L]
-        # (B, L) per-target-frame weights; None at W = 1 keeps the unweighted losses bit-for-bit
-        gw = None
-        if "glide" in batch:
-            if glide_loss_weight != 1.0:
-                gw = glide_weights(batch["glide"], glide_loss_weight)
-            terms["glide_loss_share"] = glide_loss_share(batch["glide"], glide_loss_weight, valid)
-        elif glide_loss_weight != 1.0:
-            raise ValueError("glide_loss_weight != 1 needs batch['glide'] (the glide-frame mask)")
-
-        def at(d: int, pos=None):  # target-frame weights of horizon d (at window positions ``pos``)
-            if gw is None:
-                return None
-            return gw[:, d:] if pos is None else gw[:, pos + d]
-
-        lw = gw  # latent-target weights: the glide weights, times the motion-magnitude weights when on
-        if motion_loss_weight > 0:
-            if self.objective == "recon":
-                raise ValueError("motion_loss_weight weights latent targets; the recon objective has none")
-            mw = motion_weights(x[:, :, 0], motion_loss_weight)  # the frame channel, as the encoder sees it
-            lw = mw if gw is None else gw * mw
-
-        def at_latent(d: int):
-            return None if lw is None else lw[:, d:]
-
+        gw, lw = self._target_weights(batch, x, valid, glide_loss_weight, motion_loss_weight, terms)
+        at = _horizon_weights(gw)  # target-frame weights of horizon d (at window positions ``pos``)
+        at_latent = _horizon_weights(lw)
         if self.tokens:
-            # the paper's token variant keeps the shared Δ ∈ {1, 4, 16} heads and adds dense prediction: Δ = 1 is
-            # predicted per token, spatially aligned; the longer horizons predict the token-mean latent from the
-            # token-mean state, as the global model does
-            z_mean, losses = z.mean(2), []
-            for d in valid:
-                if d == 1:
-                    pred = self._head_out(hs, actions, 1, self.latent_heads["1"])
-                    w1 = at_latent(1)
-                    l_d = masked_mse(pred[:, :-1], z[:, 1:],
-                                     None if w1 is None else w1[..., None].expand(z[:, 1:].shape[:-1]))
-                else:
-                    l_d = masked_mse(self.predict(h, actions, d)[:, :L - d], z_mean[:, d:], at_latent(d))
-                terms[f"pred_{d}"] = l_d
-                losses.append(l_d)
-            total = total + torch.stack(losses).mean()
-            flat = z.reshape(-1, z.shape[-1])
-            terms["sigreg"] = sigreg(flat, token_dirs, sigreg_seed, sigreg_knots, max_rows=token_rows,
-                                     directions=sigreg_directions)
+            total = total + self._token_terms(z, hs, h, actions, valid, at_latent, terms)
+            terms["sigreg"] = sigreg(z.reshape(-1, z.shape[-1]), token_dirs, sigreg_seed, sigreg_knots,
+                                     max_rows=token_rows, directions=sigreg_directions)
         elif self.objective in ("latent", "gnll", "belief"):
-            losses, precisions = [], []
-            weights = []
-            for d in valid:
-                mean, logvar = self.predict(h, actions, d, return_logvar=True)
-                if self.objective == "gnll":
-                    l_d = self._nll(mean[:, :L - d], logvar[:, :L - d], z[:, d:], at_latent(d), gnll_beta)
-                    # the NLL weighs a latent error by exp(-s): its mean is the latent terms' effective weight
-                    # (β-NLL multiplies it by sg(e^{βs}); that product is reported as latent_weight)
-                    precisions.append(nll_precision(logvar.detach()).mean())
-                    if self.gnll_variance == "beta":
-                        weights.append(beta_nll_weight(logvar.detach(), gnll_beta).mean())
-                else:
-                    l_d = masked_mse(mean[:, :L - d], z[:, d:], at_latent(d))
-                terms[f"pred_{d}"] = l_d
-                losses.append(l_d)
-            total = total + torch.stack(losses).mean()
-            if precisions:
-                terms["latent_precision"] = torch.stack(precisions).mean()
-            if weights:
-                terms["latent_weight"] = torch.stack(weights).mean()
+            total = total + self._latent_terms(z, h, actions, valid, at_latent, gnll_beta, terms)
             # 'step': per time step over the batch (LeWM), then averaged over time and directions; 'pooled': one
             # statistic over the batch × time rows (subsampled), so its N — and the statistic's excess over the
             # null under any departure from N(0, I) — is L times the per-step one (docs/design.md)
@@ -615,49 +561,128 @@ class XJEPA(nn.Module):
                                      directions=sigreg_directions,
                                      rows=sigreg_row_index if sigreg_pool == "pooled" else None)
         else:  # recon: shared decoder on per-horizon adapters; SIGReg omitted (pixels anchor the latent)
-            img = area_downsample(frames, self.image_size).float() / 255.0
-            losses = []
-            for d in valid:
-                pos = torch.linspace(0, L - 1 - d, min(self.recon_positions, L - d), device=h.device).round().long()
-                inp = h[:, pos]
-                if d > 1:
-                    inp = torch.cat([inp, self.action_window(actions, d)[:, pos]], -1)
-                rec = self.decoder(self.adapters[str(d)](inp)).reshape(h.shape[0], len(pos), *img.shape[-2:])
-                if gw is None:
-                    l_d = (rec - img[:, pos + d]).pow(2).mean()
-                else:
-                    l_d = masked_mse(rec.flatten(2), img[:, pos + d].flatten(2), at(d, pos))
-                terms[f"recon_{d}"] = l_d
-                losses.append(l_d)
-            total = total + torch.stack(losses).mean()
-
+            total = total + self._recon_terms(frames, h, actions, valid, gw, at, terms)
         if "sigreg" in terms:
             total = total + sigreg_weight * terms["sigreg"]
-
         for m, w in (("proprio", proprio_weight), ("touch", touch_weight)):
-            if m not in self.modal_heads:
-                continue
-            target = self.norm(m, batch[m])
-            losses = []
-            for d in valid:
-                pred, logvar = self.forecast(h, actions, d, m, raw=False, return_logvar=True)
-                weight = at(d)
-                if m == "touch" and 0 <= self.contact_channel < batch[m].shape[-1]:
-                    contact = batch[m][:, d:, self.contact_channel] > 0.5
-                    cw = 1.0 + (touch_contact_weight - 1.0) * contact.float()
-                    weight = cw if weight is None else cw * weight  # the two reweightings compose
-                if logvar is None:
-                    losses.append(masked_mse(pred[:, :L - d], target[:, d:], weight))
-                else:
-                    losses.append(self._nll(pred[:, :L - d], logvar[:, :L - d], target[:, d:], weight, gnll_beta))
-            terms[m] = torch.stack(losses).mean()
-            total = total + w * terms[m]
-
+            if m in self.modal_heads:
+                terms[m] = self._modal_term(m, batch, h, actions, valid, at, touch_contact_weight, gnll_beta)
+                total = total + w * terms[m]
         if self.sysid_head is not None:
             if "params" not in batch:
                 raise ValueError("sysid control needs batch['params'] (log_m, gamma, log_k)")
             tgt = self.norm("param", batch["params"])[:, None, :].expand(-1, L, -1)
             terms["sysid"] = masked_mse(self.sysid_head(h_causal), tgt)
             total = total + sysid_weight * terms["sysid"]
-
         return total, {k: v.detach() for k, v in terms.items()}
+
+    # ------------------------------------------------------------------ loss terms, one per objective
+    def _belief_terms(self, z, h, actions, terms):
+        """The belief objective's ELBO pieces: (h conditioned on a posterior sample, the causal h, the KL term)."""
+        # one ELBO per step t with a shared variational posterior: q may depend on anything (here the
+        # whole window), the bound holds for each t; prediction terms read h_t + W·u, u ~ q
+        mu_q, lv_q = self.posterior(z, actions)
+        mu_p, lv_p = self.belief.prior_of(h)
+        kl = gaussian_kl(mu_q[:, None], lv_q[:, None], mu_p, lv_p)  # (B, L)
+        terms["kl"], terms["kl_last"] = kl.mean(), kl[:, -1].mean()
+        u = mu_q + torch.exp(0.5 * lv_q.float().clamp(*LOGVAR_RANGE)).to(mu_q.dtype) * torch.randn_like(mu_q)
+        # the sysid control reads the causal state the probes read (prior mean), never the posterior sample:
+        # labels flowing into u would make the episode latent a supervised parameter code
+        return self.condition(h, u), self.condition(h, mu_p), terms["kl"]
+
+    def _target_weights(self, batch, x, valid, glide_loss_weight, motion_loss_weight, terms):
+        """(B, L) target-frame weights: the glide weights (None at W = 1, which keeps the unweighted losses bit for
+        bit) and the latent targets' weights (glide times motion magnitude when ``motion_loss_weight`` > 0)."""
+        gw = None
+        if "glide" in batch:
+            if glide_loss_weight != 1.0:
+                gw = glide_weights(batch["glide"], glide_loss_weight)
+            terms["glide_loss_share"] = glide_loss_share(batch["glide"], glide_loss_weight, valid)
+        elif glide_loss_weight != 1.0:
+            raise ValueError("glide_loss_weight != 1 needs batch['glide'] (the glide-frame mask)")
+        lw = gw
+        if motion_loss_weight > 0:
+            if self.objective == "recon":
+                raise ValueError("motion_loss_weight weights latent targets; the recon objective has none")
+            mw = motion_weights(x[:, :, 0], motion_loss_weight)  # the frame channel, as the encoder sees it
+            lw = mw if gw is None else gw * mw
+        return gw, lw
+
+    def _token_terms(self, z, hs, h, actions, valid, at_latent, terms) -> torch.Tensor:
+        """The token variant's prediction terms (mean over horizons)."""
+        # the paper's token variant keeps the shared Δ ∈ {1, 4, 16} heads and adds dense prediction: Δ = 1 is
+        # predicted per token, spatially aligned; the longer horizons predict the token-mean latent from the
+        # token-mean state, as the global model does
+        L = z.shape[1]
+        z_mean, losses = z.mean(2), []
+        for d in valid:
+            if d == 1:
+                pred = self._head_out(hs, actions, 1, self.latent_heads["1"])
+                w1 = at_latent(1)
+                l_d = masked_mse(pred[:, :-1], z[:, 1:],
+                                 None if w1 is None else w1[..., None].expand(z[:, 1:].shape[:-1]))
+            else:
+                l_d = masked_mse(self.predict(h, actions, d)[:, :L - d], z_mean[:, d:], at_latent(d))
+            terms[f"pred_{d}"] = l_d
+            losses.append(l_d)
+        return torch.stack(losses).mean()
+
+    def _latent_terms(self, z, h, actions, valid, at_latent, gnll_beta, terms) -> torch.Tensor:
+        """The latent Δ-heads' terms (MSE, or Gaussian NLL for ``gnll``; mean over horizons)."""
+        L = z.shape[1]
+        losses, precisions, weights = [], [], []
+        for d in valid:
+            mean, logvar = self.predict(h, actions, d, return_logvar=True)
+            if self.objective == "gnll":
+                l_d = self._nll(mean[:, :L - d], logvar[:, :L - d], z[:, d:], at_latent(d), gnll_beta)
+                # the NLL weighs a latent error by exp(-s): its mean is the latent terms' effective weight
+                # (β-NLL multiplies it by sg(e^{βs}); that product is reported as latent_weight)
+                precisions.append(nll_precision(logvar.detach()).mean())
+                if self.gnll_variance == "beta":
+                    weights.append(beta_nll_weight(logvar.detach(), gnll_beta).mean())
+            else:
+                l_d = masked_mse(mean[:, :L - d], z[:, d:], at_latent(d))
+            terms[f"pred_{d}"] = l_d
+            losses.append(l_d)
+        if precisions:
+            terms["latent_precision"] = torch.stack(precisions).mean()
+        if weights:
+            terms["latent_weight"] = torch.stack(weights).mean()
+        return torch.stack(losses).mean()
+
+    def _recon_terms(self, frames, h, actions, valid, gw, at, terms) -> torch.Tensor:
+        """The reconstruction control's pixel terms (mean over horizons)."""
+        L = frames.shape[1]
+        img = area_downsample(frames, self.image_size).float() / 255.0
+        losses = []
+        for d in valid:
+            pos = torch.linspace(0, L - 1 - d, min(self.recon_positions, L - d), device=h.device).round().long()
+            inp = h[:, pos]
+            if d > 1:
+                inp = torch.cat([inp, self.action_window(actions, d)[:, pos]], -1)
+            rec = self.decoder(self.adapters[str(d)](inp)).reshape(h.shape[0], len(pos), *img.shape[-2:])
+            if gw is None:
+                l_d = (rec - img[:, pos + d]).pow(2).mean()
+            else:
+                l_d = masked_mse(rec.flatten(2), img[:, pos + d].flatten(2), at(d, pos))
+            terms[f"recon_{d}"] = l_d
+            losses.append(l_d)
+        return torch.stack(losses).mean()
+
+    def _modal_term(self, m, batch, h, actions, valid, at, touch_contact_weight, gnll_beta) -> torch.Tensor:
+        """The proprio or touch forecasting term (mean over horizons; contact frames weighted for touch)."""
+        L = h.shape[1]
+        target = self.norm(m, batch[m])
+        losses = []
+        for d in valid:
+            pred, logvar = self.forecast(h, actions, d, m, raw=False, return_logvar=True)
+            weight = at(d)
+            if m == "touch" and 0 <= self.contact_channel < batch[m].shape[-1]:
+                contact = batch[m][:, d:, self.contact_channel] > 0.5
+                cw = 1.0 + (touch_contact_weight - 1.0) * contact.float()
+                weight = cw if weight is None else cw * weight  # the two reweightings compose
+            if logvar is None:
+                losses.append(masked_mse(pred[:, :L - d], target[:, d:], weight))
+            else:
+                losses.append(self._nll(pred[:, :L - d], logvar[:, :L - d], target[:, d:], weight, gnll_beta))
+        return torch.stack(losses).mean()
