@@ -233,3 +233,14 @@ def test_runs_recorded_before_the_options_resume_unchanged(data_dir, tmp_path):
         with pytest.raises(ConfigError, match="different config"):
             run(make_config("tiny", **{**kw, **bad}))
     assert (run(make_config("tiny", **kw)) / "DONE").exists()
+
+
+def test_status_lines_report_step_loss_speed_and_time_left(data_dir, tmp_path, capsys):
+    """Runs the map launches have no progress bar (parallel workers would tear it): they print a status line every
+    ``status_every`` seconds instead; a run with the default prints none."""
+    run(make_config("tiny", data=data_dir, out=str(tmp_path / "quiet"), steps=4))
+    assert "[train" not in capsys.readouterr().out
+    run(make_config("tiny", data=data_dir, out=str(tmp_path / "loud"), steps=10), status_every=1e-9)
+    lines = [x for x in capsys.readouterr().out.splitlines() if x.startswith("[train loud]")]
+    assert len(lines) == 10 and lines[-1].startswith("[train loud] step 10/10")
+    assert "loss" in lines[-1] and "steps/s" in lines[-1] and "min left" in lines[-1]
