@@ -11,6 +11,7 @@ from pokeworld.errors import ConfigError, DataError
 from pokeworld.real import rh20t
 from pokeworld.real.fixtures import (FT_OFFSET, force_breakpoints, image_level, make_fixture_root, signals)
 from pokeworld.real.rh20t import apply_whiten, contact_onset, make_config, parse_scene_name, run
+from pokeworld.real.rh20t import cache as rh20t_cache
 
 
 @pytest.fixture(scope="module")
@@ -196,7 +197,7 @@ def test_rerun_skips_and_resume_uses_scene_cache(converted, monkeypatch, tmp_pat
     def boom(*a, **k):
         raise AssertionError("scene re-processed although cached")
 
-    monkeypatch.setattr(rh20t, "process_scene", boom)
+    monkeypatch.setattr(rh20t_cache, "process_scene", boom)  # where convert_scene_cached looks it up
     import shutil
     shutil.rmtree(out)
     out2 = run(cfg)
@@ -357,7 +358,7 @@ def test_camera_frame_force_torque_rotation_chain(tmp_path):
 def test_sideways_camera_is_rotated_then_bottom_cropped():
     img = np.zeros((36, 64), np.uint8)  # landscape sensor; after a 270 degree turn the image is 64 tall, 36 wide
     img[:, -20:] = 200  # right columns become the bottom rows after a clockwise quarter turn (PIL ROTATE_270)
-    out = rh20t._crop_resize(img, (), (18, 18), rotate=270)
+    out = rh20t.crop_resize(img, (), (18, 18), rotate=270)
     assert out.shape == (18, 18)
     assert out[-5:].mean() > 150 and out[:5].mean() < 50  # bottom square kept, bright band at its bottom
     assert rh20t.CAMERA_ROTATION[(7, "f0271510")] == 270

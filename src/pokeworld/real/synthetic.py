@@ -52,8 +52,8 @@ from ..sim.core import PARAM_NAMES, ParamRanges, PhysicsConfig, PokeWorldSim
 from ..sim.physics import render_kernel
 from ..sim.policy import MixedPolicy, PolicyConfig
 from .fixtures import save_dict, write_mp4
-from .rh20t import (CAMERA_ROLES, IN_HAND_CALIB, ROBOTS, SKIP_REASONS, contact_onset, euler_sxyz_to_mat,
-                    quat_mul, quat_to_mat)
+from .rh20t import (ALIGN_BASE_ROT, CAMERA_ROLES, IN_HAND_CALIB, ROBOTS, SKIP_REASONS, TCP_CAMERA_ROT, contact_onset,
+                    euler_sxyz_to_mat, quat_mul, quat_to_mat)
 
 T0_MS = 1_700_000_000_000
 """First scene's start (13-digit ms); scene i starts one hour after scene i-1."""
@@ -351,8 +351,6 @@ def calibration(cfg: SynthConfig, serials: list[str]) -> dict:
 
 def base_to_camera(cal: dict, serial: str, cfg_num: int) -> np.ndarray:
     """4x4 base -> camera transform as rh20t_api composes it (extrinsics[s] @ base_world @ align_mat_base)."""
-    from .rh20t import ALIGN_BASE_ROT, TCP_CAMERA_ROT
-
     ext = {s: m[0] for s, m in cal["extrinsics"].items()}
     tc = _homog(np.asarray(TCP_CAMERA_ROT[cfg_num], float), [0.03, 0.05, 0.2])  # translation is irrelevant
     base_world = np.linalg.inv(ext[IN_HAND_CALIB[cfg_num][0]]) @ tc @ np.linalg.inv(cal["tcp_mat"])
@@ -373,26 +371,33 @@ def write_calib(cfg_dir: Path, cal: dict) -> None:
 # --------------------------------------------------------------------------------- one scene
 
 
-def write_scene(cfg_dir: Path, truth_dir: Path, plan: ScenePlan, cfg: SynthConfig, cal: dict) -> dict:
-    """Simulate and write one scene folder and its truth file; returns the scene's manifest row."""
-    name = plan.name(cfg.cfg)
-    ss = np.random.SeedSequence([cfg.seed, plan.task, plan.user, plan.scene, int(plan.human)])
-    sim_ss, rec_ss = ss.spawn(2)
-    rng = np.random.default_rng(rec_ss)
-    lo, hi = cfg.duration_s
-    duration = 1.0 if plan.defect == "too_short" else float(rng.uniform(lo, hi))
-    sim = simulate_scene(plan.task, duration + 0.6, sim_ss)
-    dt = sim["dt"]
-    t0 = T0_MS + 3_600_000 * plan.index
-    roles = CAMERA_ROLES[cfg.cfg]
-    serial = {"far": roles["far"][1 if plan.defect == "far_fallback" else 0], "close": roles["close"][0]}
-    cams = ["far", "close"] if plan.defect != "missing_camera" else ["close"]
-    if plan.defect == "missing_camera":  # a side camera instead of any front one
-        cams_extra = {}  # only the wrist camera: no external camera to fall back to
-    else:
-        cams_extra = {}
+@dataclass
+class _SceneDraw:
+    """One scene's simulation and its seeded draws (duration, camera frame times), shared by the writers of its
+    folder and of its truth; ``rng`` is the scene's record generator, drawn from in a fixed order."""
 
-    # continuous truth: positions at step boundaries, forces at step mid-times (piecewise linear)
+    name: str
+    rng: np.random.Generator
+    duration: float
+    sim: dict
+    t0: int
+    serial: dict[str, str]
+    cams: list[str]
+    cam_ts: dict[str, np.ndarray]
+    t_pos: np.ndarray
+    t_f: np.ndarray
+    ft_knots: np.ndarray
+    start_ms: int
+    finish_ms: int
+    grid_ms: np.ndarray
+
+
+def _force_knots(sim: dict, cfg: SynthConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Knots of the continuous truth: (position times, F/T times, (n, 6) F/T values) [s since t0, N, N m].
+
+    Positions are known at step boundaries and forces as per-step means, placed at step mid-times, so the truth
+    between knots is piecewise linear."""
+    dt = sim["dt"]
     k = np.arange(len(sim["finger"]))
     t_pos = k * dt
     t_f = np.concatenate([[0.0], (k[1:] - 0.5) * dt, [k[-1] * dt]])
@@ -402,82 +407,117 @@ def write_scene(cfg_dir: Path, truth_dir: Path, plan: ScenePlan, cfg: SynthConfi
     ft_knots[:, 0:2] = f_xy
     ft_knots[:, 3] = cfg.lever_arm_m * f_xy[:, 1]  # (0, 0, -h) x (Fx, Fy, 0) = (h Fy, -h Fx, 0)
     ft_knots[:, 4] = -cfg.lever_arm_m * f_xy[:, 0]
-    off = np.asarray(cfg.tcp_offset_m, float)
+    return t_pos, t_f, ft_knots
 
-    def tcp_at(t_s):
-        xy = _interp(t_s, t_pos, sim["finger"])
-        return off + cfg.metres_per_unit * np.concatenate([xy, np.zeros((len(t_s), 1))], 1)
 
+def _draw_scene(plan: ScenePlan, cfg: SynthConfig) -> _SceneDraw:
+    """Simulate one scene and draw its duration and camera frame times, all from the scene's own seed."""
+    ss = np.random.SeedSequence([cfg.seed, plan.task, plan.user, plan.scene, int(plan.human)])
+    sim_ss, rec_ss = ss.spawn(2)
+    rng = np.random.default_rng(rec_ss)
+    lo, hi = cfg.duration_s
+    duration = 1.0 if plan.defect == "too_short" else float(rng.uniform(lo, hi))
+    sim = simulate_scene(plan.task, duration + 0.6, sim_ss)
+    t0 = T0_MS + 3_600_000 * plan.index
+    roles = CAMERA_ROLES[cfg.cfg]
+    serial = {"far": roles["far"][1 if plan.defect == "far_fallback" else 0], "close": roles["close"][0]}
+    # missing_camera keeps only the wrist camera, so the converter has no external camera to fall back to
+    cams = ["far", "close"] if plan.defect != "missing_camera" else ["close"]
+    t_pos, t_f, ft_knots = _force_knots(sim, cfg)
     span_ms = (duration + 0.5) * 1000.0
-    cam_ts = {role: _camera_times(rng, t0, span_ms) for role in [*cams, *cams_extra]}
+    cam_ts = {role: _camera_times(rng, t0, span_ms) for role in cams}
     start_ms, finish_ms = t0 + 300, t0 + int(round(duration * 1000)) - 200
     grid_ms = start_ms + 100 * np.arange((finish_ms - start_ms) // 100 + 1, dtype=np.int64)
+    return _SceneDraw(plan.name(cfg.cfg), rng, duration, sim, t0, serial, cams, cam_ts, t_pos, t_f, ft_knots,
+                      start_ms, finish_ms, grid_ms)
 
-    tcp_d, ft_d, ftc_d, gr_d, jt_d = {}, {}, {}, {}, {}
+
+def _tcp_at(t_s: np.ndarray, sc: _SceneDraw, cfg: SynthConfig) -> np.ndarray:
+    """TCP position [m] at ``t_s`` [s since t0]: the finger's arena position placed in the robot base frame."""
+    off = np.asarray(cfg.tcp_offset_m, float)
+    xy = _interp(t_s, sc.t_pos, sc.sim["finger"])
+    return off + cfg.metres_per_unit * np.concatenate([xy, np.zeros((len(t_s), 1))], 1)
+
+
+def _plant_record_defects(defect: str | None, first: bool, tcp: np.ndarray, zeroed: np.ndarray, ok_tcp: np.ndarray,
+                          ok_ft: np.ndarray, dropped: dict[str, dict[str, int]]) -> None:
+    """Damage one serial's records in place as ``defect`` asks; the isolated (repairable) defects go into the first
+    serial only and mark their records as not ``ok`` and counted in ``dropped``, as the converter must."""
+    if first and defect in ("overflow_tcp", "zero_tcp_records", "nan_ft_isolated"):
+        n = len(tcp)
+        bad_idx = np.array([n // 3, n // 3 + 4, 2 * n // 3])
+        if defect == "overflow_tcp":
+            tcp[bad_idx, 1] = OVERFLOW_VALUE
+            ok_tcp[bad_idx] = False
+            dropped["tcp_base"] = {"overflow": len(bad_idx)}
+        elif defect == "zero_tcp_records":
+            tcp[bad_idx] = 0.0
+            ok_tcp[bad_idx] = False
+            dropped["tcp_base"] = {"zero": len(bad_idx)}
+        else:
+            zeroed[bad_idx, 2] = np.nan
+            ok_ft[bad_idx] = False
+            dropped["force_torque_base"] = {"non_finite": len(bad_idx)}
+    if defect == "nan_ft":
+        zeroed[::2, 0] = np.nan
+    if defect == "overflow_ft":
+        zeroed[1::2, 1] = 3.0e38
+    if defect == "zero_tcp":
+        tcp[:] = 0.0
+    if defect == "mm_units":
+        tcp[:, :3] *= 1000.0
+
+
+def _record_streams(sc: _SceneDraw, plan: ScenePlan, cfg: SynthConfig,
+                    cal: dict) -> tuple[dict[str, dict], dict[str, list], dict[str, dict[str, int]]]:
+    """Each camera serial's records of every numeric stream, sampled at that serial's frame times (as in RH20T).
+
+    Returns the ``transformed/<stem>.npy`` dicts by stem, the recorded (ts, values, good) samples per stream that
+    the expected conversion is built from, and the dropped-record counts the planted defects imply."""
+    files: dict[str, dict] = {"tcp_base": {}, "force_torque_base": {}, "force_torque": {}, "gripper": {},
+                              "joint": {}}
     samples: dict[str, list] = {"tcp": [], "ft": []}
-    r_bc = {}
     dropped: dict[str, dict[str, int]] = {}
-    for role in [*cams, *cams_extra]:
-        sn = serial.get(role) or cams_extra[role]
-        ts = cam_ts[role]
+    for role in sc.cams:
+        sn = sc.serial[role]
+        ts = sc.cam_ts[role]
         n = len(ts)
-        t_s = (ts - t0) / 1000.0
-        pos = tcp_at(t_s)
-        quat = quat_mul(_small_rotations(rng, n, cfg.quat_noise_rad), QUAT_DOWN[None])
-        ft_true = _interp(t_s, t_f, ft_knots)
-        noise = rng.uniform(-cfg.ft_noise_n, cfg.ft_noise_n, (n, 6))
+        t_s = (ts - sc.t0) / 1000.0
+        pos = _tcp_at(t_s, sc, cfg)
+        quat = quat_mul(_small_rotations(sc.rng, n, cfg.quat_noise_rad), QUAT_DOWN[None])
+        ft_true = _interp(t_s, sc.t_f, sc.ft_knots)
+        noise = sc.rng.uniform(-cfg.ft_noise_n, cfg.ft_noise_n, (n, 6))
         noise[:, 2:] = 0.0
         noise[:, 3] = cfg.lever_arm_m * noise[:, 1]
         noise[:, 4] = -cfg.lever_arm_m * noise[:, 0]
         zeroed = ft_true + noise
         tcp = np.concatenate([pos, quat], 1)
         ok_tcp, ok_ft = np.ones(n, bool), np.ones(n, bool)
-        first = role == cams[0]
-        if first and plan.defect in ("overflow_tcp", "zero_tcp_records", "nan_ft_isolated"):
-            bad_idx = np.array([n // 3, n // 3 + 4, 2 * n // 3])
-            if plan.defect == "overflow_tcp":
-                tcp[bad_idx, 1] = OVERFLOW_VALUE
-                ok_tcp[bad_idx] = False
-                dropped["tcp_base"] = {"overflow": len(bad_idx)}
-            elif plan.defect == "zero_tcp_records":
-                tcp[bad_idx] = 0.0
-                ok_tcp[bad_idx] = False
-                dropped["tcp_base"] = {"zero": len(bad_idx)}
-            else:
-                zeroed[bad_idx, 2] = np.nan
-                ok_ft[bad_idx] = False
-                dropped["force_torque_base"] = {"non_finite": len(bad_idx)}
-        if plan.defect == "nan_ft":
-            zeroed[::2, 0] = np.nan
-        if plan.defect == "overflow_ft":
-            zeroed[1::2, 1] = 3.0e38
-        if plan.defect == "zero_tcp":
-            tcp[:] = 0.0
-        if plan.defect == "mm_units":
-            tcp[:, :3] *= 1000.0
+        _plant_record_defects(plan.defect, role == sc.cams[0], tcp, zeroed, ok_tcp, ok_ft, dropped)
         samples["tcp"].append((ts, pos, ok_tcp))
         samples["ft"].append((ts, zeroed, ok_ft))
-        order = rng.permutation(n)  # RH20T lists are not guaranteed sorted
-        tcp_d[sn] = [{"timestamp": int(ts[i]), "tcp": tcp[i], "robot_ft": ft_true[i] * 0.9} for i in order]
-        ft_d[sn] = [{"timestamp": int(ts[i]), "raw": zeroed[i] + FT_RAW_OFFSET, "zeroed": zeroed[i]} for i in order]
-        r_bc[sn] = base_to_camera(cal, sn, cfg.cfg)[:3, :3]
-        rot6 = np.kron(np.eye(2), r_bc[sn])
-        ftc_d[sn] = [{"timestamp": int(ts[i]), "raw": rot6 @ (zeroed[i] + FT_RAW_OFFSET), "zeroed": rot6 @ zeroed[i]}
-                     for i in order]
-        gr_d[sn] = {int(ts[i]): {"gripper_command": [cfg.gripper_mm, 0.0, 0.0],
-                                 "gripper_info": [cfg.gripper_mm, 0.0, 0.0]} for i in range(n)}
-        jt_d[sn] = {int(ts[i]): np.zeros(7) for i in range(n)}
+        order = sc.rng.permutation(n)  # RH20T lists are not guaranteed sorted
+        files["tcp_base"][sn] = [{"timestamp": int(ts[i]), "tcp": tcp[i], "robot_ft": ft_true[i] * 0.9}
+                                 for i in order]
+        files["force_torque_base"][sn] = [{"timestamp": int(ts[i]), "raw": zeroed[i] + FT_RAW_OFFSET,
+                                           "zeroed": zeroed[i]} for i in order]
+        rot6 = np.kron(np.eye(2), base_to_camera(cal, sn, cfg.cfg)[:3, :3])
+        files["force_torque"][sn] = [{"timestamp": int(ts[i]), "raw": rot6 @ (zeroed[i] + FT_RAW_OFFSET),
+                                      "zeroed": rot6 @ zeroed[i]} for i in order]
+        files["gripper"][sn] = {int(ts[i]): {"gripper_command": [cfg.gripper_mm, 0.0, 0.0],
+                                             "gripper_info": [cfg.gripper_mm, 0.0, 0.0]} for i in range(n)}
+        files["joint"][sn] = {int(ts[i]): np.zeros(7) for i in range(n)}
+    return files, samples, dropped
 
-    d = cfg_dir / name
-    if d.exists():
-        shutil.rmtree(d)
-    (d / "transformed").mkdir(parents=True)
+
+def _write_cameras(d: Path, sc: _SceneDraw, plan: ScenePlan, cfg: SynthConfig) -> str:
+    """Render and write every camera folder of the scene; returns the storage variant used (``mp4`` or ``jpg``)."""
     video = "jpg" if cfg.jpg_every and plan.index % cfg.jpg_every == cfg.jpg_every - 1 else "mp4"
-    for role in [*cams, *cams_extra]:
-        sn = serial.get(role) or cams_extra[role]
-        ts = cam_ts[role]
-        t_s = (ts - t0) / 1000.0
-        frames = _render(_interp(t_s, t_pos, sim["finger"]), _interp(t_s, t_pos, sim["object"]),
+    for role in sc.cams:
+        sn = sc.serial[role]
+        ts = sc.cam_ts[role]
+        t_s = (ts - sc.t0) / 1000.0
+        frames = _render(_interp(t_s, sc.t_pos, sc.sim["finger"]), _interp(t_s, sc.t_pos, sc.sim["object"]),
                          "far" if role in ("far", "side") else "close", cfg)
         cam = d / f"cam_{sn}"
         cam.mkdir()
@@ -493,53 +533,84 @@ def write_scene(cfg_dir: Path, truth_dir: Path, plan: ScenePlan, cfg: SynthConfi
             if plan.defect == "truncated_video" and role == "far":
                 rgb = rgb[: len(rgb) - 10]
             write_mp4(cam / "color.mp4", rgb, options={"preset": "ultrafast", "crf": "18"})
+    return video
+
+
+def _write_streams(d: Path, plan: ScenePlan, files: dict[str, dict]) -> None:
+    """The ``transformed/`` stream files (none for a human demonstration; no base-frame F/T for the camera-frame
+    defects)."""
     if not plan.human:
         tr = d / "transformed"
-        save_dict(tr / "tcp_base.npy", tcp_d)
+        save_dict(tr / "tcp_base.npy", files["tcp_base"])
         if plan.defect not in ("camera_frame_ft", "camera_frame_ft_no_calib"):
-            save_dict(tr / "force_torque_base.npy", ft_d)
-        save_dict(tr / "force_torque.npy", ftc_d)
-        save_dict(tr / "gripper.npy", gr_d)
-        save_dict(tr / "joint.npy", jt_d)
-    calib = EMPTY_CALIB_MS if plan.defect == "camera_frame_ft_no_calib" else CALIB_MS
-    meta = {"calib": calib, "rating": 1 if plan.defect == "low_rating" else int(rng.integers(3, 10)),
-            "bad_calib_view": [], "start_time": int(start_ms), "finish_time": int(finish_ms)}
-    (d / "metadata.json").write_text(json.dumps(meta))
+            save_dict(tr / "force_torque_base.npy", files["force_torque_base"])
+        save_dict(tr / "force_torque.npy", files["force_torque"])
+        save_dict(tr / "gripper.npy", files["gripper"])
+        save_dict(tr / "joint.npy", files["joint"])
 
-    # ground truth on the converter's grid
+
+def _write_metadata(d: Path, sc: _SceneDraw, plan: ScenePlan) -> dict:
+    """``metadata.json`` (calibration, rating, start / finish time); returns what it wrote."""
+    calib = EMPTY_CALIB_MS if plan.defect == "camera_frame_ft_no_calib" else CALIB_MS
+    meta = {"calib": calib, "rating": 1 if plan.defect == "low_rating" else int(sc.rng.integers(3, 10)),
+            "bad_calib_view": [], "start_time": int(sc.start_ms), "finish_time": int(sc.finish_ms)}
+    (d / "metadata.json").write_text(json.dumps(meta))
+    return meta
+
+
+def _scene_truth(sc: _SceneDraw, cfg: SynthConfig, samples: dict[str, list]) -> dict[str, np.ndarray]:
+    """The scene's truth on the converter's grid: the noise-free signals and the labels the converter derives from
+    them, ``expected_*`` from the recorded samples, the simulator's positions and contact intervals, and the hidden
+    parameters."""
+    dt = sc.sim["dt"]
+    t0, start_ms, grid_ms = sc.t0, sc.start_ms, sc.grid_ms
     g_s = (grid_ms - t0) / 1000.0
-    ft_grid = _interp(g_s, t_f, ft_knots)
+    ft_grid = _interp(g_s, sc.t_f, sc.ft_knots)
     force, torque = ft_grid[:, :3], ft_grid[:, 3:]
     fn = np.linalg.norm(force, axis=1)
     contact, onset = contact_onset(fn, 10.0, 4)
     exp_ft = _expected(grid_ms, samples["ft"])
     exp_pos = _expected(grid_ms, samples["tcp"])
-    step_contact = sim["contact"]
+    step_contact = sc.sim["contact"]
     edges = np.flatnonzero(np.diff(np.concatenate([[0], step_contact.astype(int), [0]])))
     intervals = np.stack([(edges[0::2] - 1) * dt, (edges[1::2] - 1) * dt], 1) - (start_ms - t0) / 1000.0
-    far_cam = "far" if "far" in cams else None
-    expected = DEFECTS[plan.defect] if plan.defect else None
-    truth = {
+    return {
         "grid_ms": grid_ms, "time_s": (grid_ms - start_ms) / 1000.0, "start_ms": np.int64(start_ms),
         "t0_ms": np.int64(t0),
         "force": force, "torque": torque, "force_norm": fn, "contact": contact, "contact_onset": onset,
-        "tcp_pos": tcp_at(g_s), "tcp_quat": QUAT_DOWN.copy(), "gripper_width": np.full(len(grid_ms), cfg.gripper_mm
-                                                                                      / 1000.0),
+        "tcp_pos": _tcp_at(g_s, sc, cfg), "tcp_quat": QUAT_DOWN.copy(),
+        "gripper_width": np.full(len(grid_ms), cfg.gripper_mm / 1000.0),
         "expected_force": exp_ft[:, :3], "expected_torque": exp_ft[:, 3:], "expected_tcp_pos": exp_pos,
-        "finger_pos": _interp(g_s, t_pos, sim["finger"]), "object_pos": _interp(g_s, t_pos, sim["object"]),
-        "object_vel": _interp(g_s, t_pos, sim["object_vel"]),
-        "contact_intervals_s": intervals, "knots_t_s": t_f - (start_ms - t0) / 1000.0, "knots_ft": ft_knots,
-        **{f"param_{k_}": np.float64(v) for k_, v in sim["params"].items()},
+        "finger_pos": _interp(g_s, sc.t_pos, sc.sim["finger"]), "object_pos": _interp(g_s, sc.t_pos, sc.sim["object"]),
+        "object_vel": _interp(g_s, sc.t_pos, sc.sim["object_vel"]),
+        "contact_intervals_s": intervals, "knots_t_s": sc.t_f - (start_ms - t0) / 1000.0, "knots_ft": sc.ft_knots,
+        **{f"param_{k_}": np.float64(v) for k_, v in sc.sim["params"].items()},
     }
-    with atomic_path(truth_dir / f"{name}.npz") as tmp, open(tmp, "wb") as fh:
+
+
+def write_scene(cfg_dir: Path, truth_dir: Path, plan: ScenePlan, cfg: SynthConfig, cal: dict) -> dict:
+    """Simulate and write one scene folder and its truth file; returns the scene's manifest row."""
+    sc = _draw_scene(plan, cfg)
+    files, samples, dropped = _record_streams(sc, plan, cfg, cal)
+    d = cfg_dir / sc.name
+    if d.exists():
+        shutil.rmtree(d)
+    (d / "transformed").mkdir(parents=True)
+    video = _write_cameras(d, sc, plan, cfg)
+    _write_streams(d, plan, files)
+    meta = _write_metadata(d, sc, plan)
+    truth = _scene_truth(sc, cfg, samples)
+    with atomic_path(truth_dir / f"{sc.name}.npz") as tmp, open(tmp, "wb") as fh:
         np.savez(fh, **truth)
-    return {"name": name, "task": plan.task, "task_name": TASKS[plan.task]["name"], "user": plan.user,
+    far_cam = "far" if "far" in sc.cams else None
+    expected = DEFECTS[plan.defect] if plan.defect else None
+    return {"name": sc.name, "task": plan.task, "task_name": TASKS[plan.task]["name"], "user": plan.user,
             "scene": plan.scene, "defect": plan.defect, "expected": expected or "converted",
-            "duration_s": duration, "video": video, "far_serial": serial["far"] if far_cam else None,
-            "close_serial": serial["close"], "ft_source": ("camera_via_calib" if plan.defect == "camera_frame_ft"
-                                                           else "base"),
-            "dropped_records": dropped, "grid_steps": int(len(grid_ms)), "contact_steps": int(contact.sum()),
-            "params": sim["params"], "rating": meta["rating"]}
+            "duration_s": sc.duration, "video": video, "far_serial": sc.serial["far"] if far_cam else None,
+            "close_serial": sc.serial["close"], "ft_source": ("camera_via_calib" if plan.defect == "camera_frame_ft"
+                                                              else "base"),
+            "dropped_records": dropped, "grid_steps": int(len(sc.grid_ms)),
+            "contact_steps": int(truth["contact"].sum()), "params": sc.sim["params"], "rating": meta["rating"]}
 
 
 # ------------------------------------------------------------------------------------- run
