@@ -426,7 +426,7 @@ def certify_model(model: StateFn, data: Union[str, Path, Dataset], out: Union[st
 
 # --------------------------------------------------------------------------- report
 def _results_view(result: dict) -> dict:
-    # report.py's helpers read {"certificates": {corpus: {"gate": ...}}}; the user's store is the corpus
+    # evaluate.tables' helpers read {"certificates": {corpus: {"gate": ...}}}; the user's store is the corpus
     return {"certificates": {"standard": {"gate": result["certificates"]["gate"]}}}
 
 
