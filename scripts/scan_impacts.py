@@ -4,53 +4,20 @@ Reproduces ``impact_scan`` in docs/results/calibration.json (docs/design.md, "Ca
 a set of generator overrides; for each, a render-free corpus (default 1,200 episodes, seed 0), its
 observable statistics and calibration loss, and the GRU and linear certificates on contact windows with a
 smaller budget than the ``cpu`` certificate (3,000 fit windows, 60 epochs), so the values read lower than
-``pokeworld certify`` and are comparable only with each other. Run by hand (≈ 2–3 min per point, 1 core):
+``pokeworld certify`` and are comparable only with each other. The points and the per-point measurement are
+in :mod:`pokeworld.sim.calibration`. Run by hand (≈ 2–3 min per point, 1 core):
 
     python scripts/scan_impacts.py --out scan.json
     python scripts/scan_impacts.py --points '{"mine": {"policy": {"strike_gain": 0.9}}}'
 """
-
-from __future__ import annotations
 
 import argparse
 import json
 
 import torch
 
-from calibrate_env import evaluate_corpus, loss
-from pokeworld import certify
 from pokeworld.io import write_json
-
-#: the points of the scan in docs/results/calibration.json (overrides of the current defaults' generator
-#: are written in full where the defaults have changed since: A is the kinematic-only calibration)
-KINEMATIC_ONLY = {"physics": {"force_max": 5.3, "finger_damping": 1.25},
-                  "policy": {"mode_weights": (0.68, 0.17, 0.15), "switch_prob": 0.026, "pursuit_gain": 0.5,
-                             "strike_gain": 0.42, "retreat_steps": (2, 9), "launch_fraction": 0.67,
-                             "launch_speed": (3.0, 3.3)}}
-
-
-def _on_kinematic(**policy) -> dict:
-    return {"physics": dict(KINEMATIC_ONLY["physics"]), "policy": {**KINEMATIC_ONLY["policy"], **policy}}
-
-
-SCAN = {
-    "A": _on_kinematic(),
-    "B": _on_kinematic(mode_weights=(0.34, 0.5, 0.16)),
-    "C": _on_kinematic(mode_weights=(0.34, 0.5, 0.16), strike_gain=0.8),
-    "E": _on_kinematic(mode_weights=(0.2, 0.65, 0.15), strike_gain=1.0),
-    "F": _on_kinematic(mode_weights=(0.15, 0.7, 0.15), strike_gain=1.0, retreat_steps=(2, 5)),
-    "G": _on_kinematic(mode_weights=(0.15, 0.7, 0.15), strike_gain=1.0, pursuit_gain=0.8),
-    "defaults": {"physics": {}, "policy": {}},
-}
-
-
-def scan_point(point: dict, episodes: int, seed: int) -> dict:
-    ds, stats = evaluate_corpus(point, episodes, seed)
-    cfg = certify.make_config("cpu", estimators=("gru", "linear"), kinds=("contact",), max_windows=3000, epochs=60,
-                              separate_targets=False)  # the joint fit every point in calibration.json was scanned with
-    est = certify.certify(ds, cfg)["estimators"]
-    return {"point": point, "stats": stats, "stats_loss": loss(stats),
-            "gru_contact": est["gru"]["contact"], "linear_contact": est["linear"]["contact"]}
+from pokeworld.sim.calibration import SCAN, scan_point
 
 
 def main() -> None:

@@ -10,7 +10,7 @@ from pokeworld.data import save
 from pokeworld.errors import ConfigError
 from pokeworld.losses import gaussian_kl
 from pokeworld.models import XJEPA
-from pokeworld.train import make_config, run, synthetic_dataset
+from pokeworld.train import make_config, synthetic_dataset
 
 SMALL = dict(image_size=16, channels=(4, 8, 8, 8), latent_dim=16, width=16, depth=2, heads=2, vec_dim=8)
 B, L = 3, 18

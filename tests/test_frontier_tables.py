@@ -6,7 +6,7 @@ import pytest
 
 from pokeworld.evaluate import tables
 from pokeworld.experiments import all_specs, attributes, controls, dose_glide, dose_touch, frame_averaged, lambda_sweep, \
-    report, tokens
+    merge, report, tokens
 from pokeworld.experiments import make_config as map_config
 from pokeworld.experiments.dose_glide import specs as exp_dose_glide
 from pokeworld.experiments.dose_touch import specs as exp_dose_touch
@@ -188,15 +188,8 @@ def test_frame_averaged_section_sets_the_model_beside_the_factorial_vfx(tmp_path
 
 
 def test_merge_script_folds_in_reproduced_runs_and_refuses_ones_that_do_not_reproduce(tmp_path):
-    """scripts/merge_map_results.py: a re-trained run replaces the base's only when its ridge numbers agree;
-    new runs and experiments are added; one mismatch writes nothing."""
-    import importlib.util
-    from pathlib import Path
-
-    spec = importlib.util.spec_from_file_location(
-        "merge_map_results", Path(__file__).resolve().parents[1] / "scripts" / "merge_map_results.py")
-    script = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(script)
+    """pokeworld.experiments.merge (scripts/merge_map_results.py): a re-trained run replaces the base's only when
+    its ridge numbers agree; new runs and experiments are added; one mismatch writes nothing."""
 
     def run(k, mlp=None):
         r = {"train": {"variant": "VFX", "seed": 0}, "probes": {"ridge": {"contact": {"log_k": k, "log_m": 0.1}}}}
@@ -209,7 +202,7 @@ def test_merge_script_folds_in_reproduced_runs_and_refuses_ones_that_do_not_repr
     new = {"runs": {"a": run(0.35 + 1e-6, mlp=0.37), "c": run(0.5)}, "experiments": {"controls": ["a"], "tokens": ["c"]},
            "certificates": {"x": 2}, "map_config": {"experiments": ["controls", "tokens"]},
            "provenance": {"command": "new", "git": "g1"}}
-    merged, rec = script.merge(base, new, ["controls", "tokens"], 1e-4)
+    merged, rec = merge.merge(base, new, ["controls", "tokens"], 1e-4)
     assert merged["runs"]["a"]["probes"]["mlp"]["contact"]["log_k"] == 0.37  # the MLP numbers came in
     assert merged["runs"]["b"] == base["runs"]["b"] and merged["certificates"] == {"x": 1}
     assert merged["experiments"] == {"controls": ["a", "b"], "tokens": ["c"]}
@@ -217,7 +210,7 @@ def test_merge_script_folds_in_reproduced_runs_and_refuses_ones_that_do_not_repr
     assert merged["provenance"]["merged"][0]["git"] == "g1" and "merged" not in base["provenance"]
     new_pl = {**new, "experiments": {**new["experiments"], "planning": ["a"]}, "planning": {"summary": 1},
               "runs": {"a": run(0.35)}}  # a ridge-only re-run of a run whose MLP numbers the merged record holds
-    again = script.merge(merged, new_pl, ["planning"], 1e-4)[0]
+    again = merge.merge(merged, new_pl, ["planning"], 1e-4)[0]
     assert again["planning"] == {"summary": 1} and again["runs"]["a"]["probes"]["mlp"]["contact"]["log_k"] == 0.37
     line = report.merged_lines(merged["provenance"])[0]
     assert line.startswith("Merged in from `new` (git g1), experiments controls, tokens: 1 re-trained run reproduced")
@@ -228,11 +221,11 @@ def test_merge_script_folds_in_reproduced_runs_and_refuses_ones_that_do_not_repr
     new["runs"]["a"] = run(0.30)  # does not reproduce
     nj.write_text(json.dumps(new))
     with pytest.raises(SystemExit, match="do not reproduce"):
-        script.main([str(bj), str(nj), "--experiments", "controls", "--out", str(out)])
+        merge.main([str(bj), str(nj), "--experiments", "controls", "--out", str(out)])
     assert not out.exists()
-    assert script.main([str(bj), str(tmp_path / "nope.json"), "--experiments", "controls", "--out", str(out)]) == 2
+    assert merge.main([str(bj), str(tmp_path / "nope.json"), "--experiments", "controls", "--out", str(out)]) == 2
     # asked to, a differing run replaces the record's whole row and the report names it with its difference
-    assert script.main([str(bj), str(nj), "--experiments", "controls", "--out", str(out), "--replace-differing"]) == 0
+    assert merge.main([str(bj), str(nj), "--experiments", "controls", "--out", str(out), "--replace-differing"]) == 0
     got = json.loads(out.read_text())
     assert got["runs"]["a"]["probes"]["ridge"]["contact"]["log_k"] == 0.30
     rec = got["provenance"]["merged"][0]

@@ -6,7 +6,7 @@ import socket
 import pytest
 import torch
 
-from pokeworld.losses import (beta_nll, bounded_logvar, epps_pulley, expected_null_ep, gaussian_nll, head_logvar_nll,
+from pokeworld.losses import (beta_nll, bounded_logvar, expected_null_ep, gaussian_nll, head_logvar_nll,
                               masked_mse, nll_precision, random_directions, sigreg, sigreg_rows_of, subsample_index)
 
 

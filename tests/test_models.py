@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 import torch
 
+from pokeworld.diagnostics import nll_precision, token_state
 from pokeworld.errors import ConfigError
 from pokeworld.models import VARIANTS, XJEPA
 
@@ -222,16 +223,9 @@ def test_gnll_on_every_head_scores_proprio_and_touch_by_their_own_nll():
 
 
 def test_nll_precision_script_reads_planted_log_variances(tiny_dataset):
-    """scripts/nll_precision.py on a model whose log-variance halves are planted constants: it must read
-    e^{-s} of the log-variance half (not the mean half) on contact and contact-free frames alike."""
-    import importlib.util
-    from pathlib import Path
-
-    spec = importlib.util.spec_from_file_location(
-        "nll_precision", Path(__file__).resolve().parents[1] / "scripts" / "nll_precision.py")
-    script = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(script)
-
+    """pokeworld.diagnostics.nll_precision (scripts/nll_precision.py) on a model whose log-variance halves are
+    planted constants: it must read e^{-s} of the log-variance half (not the mean half) on contact and
+    contact-free frames alike."""
     ds = tiny_dataset
     m = make("VFX", objective="gnll", gnll_heads="all", image_size=16, proprio_dim=ds.proprio.shape[-1],
              touch_dim=ds.touch.shape[-1], action_dim=ds.actions.shape[-1])
@@ -244,32 +238,24 @@ def test_nll_precision_script_reads_planted_log_variances(tiny_dataset):
                 last.weight.zero_()
                 last.bias[:half] = 3.0  # the mean half: a wrong read would give e^{-3}
                 last.bias[half:] = -float(np.log(planted[name]))
-    res = script.precisions(m, ds, windows=32)
+    res = nll_precision.precisions(m, ds, windows=32)
     for row in res.values():
         assert 0.0 < row["contact_share"] < 1.0
         for name, p in planted.items():
             assert row[f"{name}_contact"] == pytest.approx(p, rel=1e-5)
             assert row[f"{name}_free"] == pytest.approx(p, rel=1e-5)
     with pytest.raises(ConfigError, match="only for objective='gnll'"):
-        script.precisions(make("VFX", image_size=16), ds, windows=4)
+        nll_precision.precisions(make("VFX", image_size=16), ds, windows=4)
 
 
 def test_token_state_probe_script_mean_pool_is_the_measured_state(tiny_dataset):
-    """scripts/token_state_probe.py: its 'mean' pool is exactly the state every table probes (the trunk state at
-    the last step, leak-free) and 'concat' keeps every token, so the comparison between pools is like for like;
-    on planted token states where the signal lives in the difference between tokens, the mean reads nothing and
-    the concatenation reads it, so the pooling comparison can come out either way."""
-    import importlib.util
-    from pathlib import Path
-
+    """pokeworld.diagnostics.token_state (scripts/token_state_probe.py): its 'mean' pool is exactly the state every
+    table probes (the trunk state at the last step, leak-free) and 'concat' keeps every token, so the comparison
+    between pools is like for like; on planted token states where the signal lives in the difference between tokens,
+    the mean reads nothing and the concatenation reads it, so the pooling comparison can come out either way."""
     from pokeworld.evaluate.probes import fit_probes
     from pokeworld.evaluate.state import EpisodeLatents, padded_actions, window_states
     from pokeworld.windows import make_windows
-
-    spec = importlib.util.spec_from_file_location(
-        "token_state_probe", Path(__file__).resolve().parents[1] / "scripts" / "token_state_probe.py")
-    script = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(script)
 
     ds = tiny_dataset
     m = make("VFX", tokens=True, image_size=32, proprio_dim=ds.proprio.shape[-1], touch_dim=ds.touch.shape[-1],
@@ -280,9 +266,9 @@ def test_token_state_probe_script_mean_pool_is_the_measured_state(tiny_dataset):
     h = window_states(m, ds, lat, w, acts, per_token=True)
     assert h.shape[:2] == (len(w), m.num_tokens) and m.num_tokens > 1
     want = window_states(m, ds, lat, w, acts)
-    np.testing.assert_allclose(script.pooled(h, "mean"), want, atol=1e-5)
-    assert script.pooled(h, "concat").shape == (len(w), m.num_tokens * h.shape[-1])
-    np.testing.assert_allclose(script.pooled(h, "max"), h.max(1))
+    np.testing.assert_allclose(token_state.pooled(h, "mean"), want, atol=1e-5)
+    assert token_state.pooled(h, "concat").shape == (len(w), m.num_tokens * h.shape[-1])
+    np.testing.assert_allclose(token_state.pooled(h, "max"), h.max(1))
 
     rng = np.random.default_rng(0)
     n, S, D = 400, 4, 8
@@ -292,8 +278,9 @@ def test_token_state_probe_script_mean_pool_is_the_measured_state(tiny_dataset):
     planted[:, 1, 0] -= y[:, 0]  # token 0 carries +y, token 1 carries -y: the mean cancels it
     g = np.arange(n) // 4
     fit, test = slice(0, 300), slice(300, n)
-    r2 = {pool: fit_probes(script.pooled(planted[fit], pool), g[fit], {"y": y[fit]}, script.pooled(planted[test], pool),
-                           {"y": y[test]}, False, 0)["ridge"]["y"] for pool in script.POOLS}
+    r2 = {pool: fit_probes(token_state.pooled(planted[fit], pool), g[fit], {"y": y[fit]},
+                           token_state.pooled(planted[test], pool), {"y": y[test]}, False, 0)["ridge"]["y"]
+          for pool in token_state.POOLS}
     assert r2["concat"] > 0.9 and r2["mean"] < 0.1
 
 

@@ -198,24 +198,14 @@ def test_scaling_subset_is_seeded_and_stratified(corpus, tmp_path):
     assert set(small["scenes"]) < set(sub["scenes"])  # nested: scaling curves reuse the smaller draws
 
 
-def _check_script():
-    import importlib.util
-    from pathlib import Path
-
-    spec = importlib.util.spec_from_file_location(
-        "check_synth_conversion", Path(__file__).resolve().parents[1] / "scripts" / "check_synth_conversion.py")
-    script = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(script)
-    return script
-
-
 def test_conversion_check_script_passes_a_correct_store_and_catches_a_corrupted_one(corpus, tmp_path):
     """check_conversion (and its script): float-precision errors and planted counts on the converted store; a
     store whose force was scaled (a units slip) must show up as a large error against expected_force."""
     import shutil
 
     root, man, out, ds = corpus
-    script = _check_script()
+    from pokeworld.real import conversion_check as script
+
     good = check_conversion(out, root)
     assert all(good["counts_match_planted"].values())
     assert good["max_abs_error_vs_expected"]["force_n"] < 1e-4 and good["force_r2_vs_noise_free_truth"] > 0.9

@@ -5,7 +5,8 @@
 * :mod:`.stages` — corpora, certificates, the per-run jobs, progress and the results pack;
 * :mod:`.launch` — local process pool or submitit;
 * :mod:`.runs` — run specs, run names and paths in a map folder;
-* :mod:`.report` — results.json, results.md and the figure;
+* :mod:`.report` — results.json, results.md and the figure; :mod:`.merge` — fold a later map's runs into a
+  record (``scripts/merge_map_results.py``);
 * :mod:`.registry` — every experiment, one module each (its run specs, its report section, its paper values):
   :mod:`.factorial`, :mod:`.lazy`, :mod:`.lambda_sweep`, :mod:`.coverage`, :mod:`.frame_averaged`,
   :mod:`.controls`, :mod:`.dose_touch`, :mod:`.dose_glide`, :mod:`.attributes`, :mod:`.belief`, :mod:`.planning`,
