@@ -17,19 +17,10 @@ CERTIFICATES = {  # App. A "instrument hierarchy", App. C "pixel-derived certifi
     "gru_pixel_notouch": {},  # ours only
 }
 
-LAZY = {  # §4.2: object-position R^2
-    "V-h1": 0.04, "VX-h1": 0.58, "V-h3": 0.89, "VFX-h3": 0.98,
-}
 PREDICTION = {"direct16": 0.10, "rollout16": 0.19, "static16": 0.21}  # §4.2, arena units
 
 GLIDE_TEST = {"true_gamma": 0.0002, "median_gamma": 0.049, "static": 0.144}
 
-DOSE_GLIDE = {  # App. C Table "dose1": glide loss weight -> glide loss share and readouts (γ on glide windows)
-    1.0: {"share": 0.32, "gamma_glide": 0.08, "glide_model": 0.098, "log_k": 0.42, "object_vel": 0.85},
-    4.0: {"share": 0.65, "gamma_glide": 0.15, "glide_model": 0.108, "log_k": 0.34, "object_vel": 0.79},
-    16.0: {"share": 0.88, "gamma_glide": 0.21, "glide_model": 0.116, "log_k": 0.20, "object_vel": 0.70},
-    64.0: {"share": 0.97, "gamma_glide": 0.27, "glide_model": 0.136, "log_k": 0.10, "object_vel": 0.65},
-}
 CORPUS_STATS = {  # observables of the paper's default corpus (the calibration targets; pokeworld.sim.stats)
     "static16": ((0.205, 0.21), "λ-table caption; §4.2 (static 0.21)"),
     "static8": (0.109, "App. C, open-loop 8-step static baseline"),
@@ -104,13 +95,4 @@ REAL_JOINT = {  # §5 "One model, two robots": configuration-blind VFX vs the sp
 
 PLANNING = {  # App. C Table "planning": controller -> (goal-region reach, median distance improvement)
     "random": (0.01, 0.00), "V": (0.20, 0.02), "VX_t": (0.38, 0.15), "VX_p": (0.44, 0.18), "VFX": (0.57, 0.24),
-}
-
-COORDINATE = {  # App. C "The coordinate test" and the γ ledger (frozen flow velocity sensor)
-    "gamma_linear_certificate_logspeed": 0.52,  # ridge on log-speed sequences over glide windows (696/351)
-    "gamma_linear_certificate_standard": 0.0,  # Table "matrix": ≈ 0 in the standard coordinates
-    "gamma_glide_readout": (0.08, 0.33),  # model readout on glide windows, before / after (ridge)
-    "object_vel": (0.79, 0.88),  # velocity readout before / after the frozen flow sensor (ledger)
-    "glide_test_model_after": 0.114,  # functional glide test with the log-speed channel
-    "glide_test_median_gamma": 0.054,  # its median-γ reference
 }
