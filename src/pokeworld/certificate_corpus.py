@@ -17,6 +17,7 @@ import numpy as np
 from .config import apply_overrides, from_dict
 from .data import Dataset, load
 from .errors import ConfigError
+from .sim import generate
 
 FOLDER = "certificate_corpus"
 """Where, inside the store's folder, the certificate corpora live: one store per size, ``n<episodes>``."""
@@ -36,8 +37,6 @@ def ensure(store: Dataset, data: str | Path, episodes: int) -> Dataset:
     generated (or found up to date) in ``data/certificate_corpus/n<episodes>``. One folder per size keeps every
     size reproducible on its own (a generator's last batch depends on the total count, so the first n episodes
     of a larger corpus are not an n-episode corpus); fit-size curves fit prefixes of one large corpus instead."""
-    from .sim import generate
-
     if store.manifest.get("generator") != "pokeworld.sim.generate":
         raise ConfigError(f"fit_episodes > 0 needs a store written by `pokeworld generate` (its generator config "
                           f"makes the certificate corpus); {data} was written by "

@@ -44,6 +44,7 @@ from .config import from_preset, to_dict
 from .data import Dataset, load
 from .errors import ConfigError, DataError
 from .io import write_json
+from .models.xjepa import area_downsample
 from .regressors import RidgeCV, TorchRegressor, r2_scores
 from .windows import Windows, make_windows, wall_contact
 
@@ -148,7 +149,6 @@ def pixel_object_state(ds: Dataset, episodes: np.ndarray, smooth: int = 3,
     dt = cfg.get("dt", 0.05)
     frames = ds.frames[episodes]
     if size and size != frames.shape[-1]:
-        from .models.xjepa import area_downsample  # the pooling the models apply to their input
 
         import torch
 

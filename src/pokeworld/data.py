@@ -32,7 +32,7 @@ from typing import Any
 import h5py
 import numpy as np
 
-from .errors import DataError
+from .errors import ConfigError, DataError
 from .io import atomic_path, hash_arrays, write_json
 
 FORMAT_VERSION = 1
@@ -198,8 +198,6 @@ def store_is_current(path: str | os.PathLike, content_config: dict, overwrite: b
     False when there is no complete store or ``overwrite`` is set; raises ConfigError when a store
     built from a *different* config is there, so nothing is silently replaced.
     """
-    from .errors import ConfigError
-
     if overwrite or not is_complete(path):
         return False
     if read_manifest(path).get("config") == content_config:

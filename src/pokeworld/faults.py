@@ -13,6 +13,7 @@ import os
 import signal
 import time
 
+
 def _spec(var: str, default_arg: str) -> tuple[str, str] | None:
     """``<point>[:<arg>]`` from the environment (read once: the tests set it before the process starts)."""
     spec = os.environ.get(var, "")

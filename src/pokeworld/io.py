@@ -13,6 +13,7 @@ from typing import Any, Iterator
 
 import numpy as np
 
+from .errors import ConfigError
 from .faults import crash_point
 
 
@@ -119,7 +120,6 @@ def dir_lock(directory: str | os.PathLike, lock_name: str, refusal: str, enabled
     if not enabled:
         yield ""
         return
-    from .errors import ConfigError
 
     path = Path(directory)
     path.mkdir(parents=True, exist_ok=True)

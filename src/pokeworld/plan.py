@@ -25,9 +25,11 @@ import torch
 from .config import from_preset, to_dict
 from .data import load
 from .errors import ConfigError
+from .evaluate.measure import EpisodeLatents, position_decoder
 from .evaluate.ranking import agreement
-from .io import atomic_path, write_json
+from .io import atomic_path, save_figure, write_json
 from .paper_values import PLANNING
+from .rundir import load_model
 from .sim import PhysicsConfig, PokeWorldSim
 from .sim.policy import KNOT_SD, PROGRAM, programs
 
@@ -102,9 +104,6 @@ class LatentScorer:
     """Scores action programs with one model's direct heads and its position decoder."""
 
     def __init__(self, run_dir: str, data: str):
-        from .evaluate.measure import EpisodeLatents, position_decoder
-        from .rundir import load_model
-
         self.model = load_model(run_dir, map_location="cpu")
         if not {4, 16} <= set(self.model.horizons):
             raise ConfigError(f"{run_dir}: planning needs Δ=4 and Δ=16 heads, model has {self.model.horizons}")
@@ -367,7 +366,6 @@ def figure(planned: dict, out: Path, goal_radius: float, left: str | None = None
     axes[2].legend(fontsize=8)
     fig.suptitle(f"Held-out episode {i}: same planner and budget, two frozen latents", fontsize=10)
     fig.tight_layout()
-    from .io import save_figure
 
     return save_figure(fig, out, "plan_episode")
 

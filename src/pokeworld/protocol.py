@@ -46,13 +46,20 @@ from typing import Any, Callable, Union
 import numpy as np
 import torch
 
-from . import __version__
-from . import certify as C
+from . import __version__, certify as C
 from .config import from_preset, to_dict
 from .data import Dataset, load
 from .errors import ConfigError, DataError, ModelError
 from .evaluate import tables as R
-from .evaluate.measure import KINDS, PARAM_TARGETS, READOUT, STATE_TARGETS, neutral_last, padded_actions, probe_windows
+from .evaluate.measure import (
+    KINDS,
+    PARAM_TARGETS,
+    READOUT,
+    STATE_TARGETS,
+    neutral_last,
+    padded_actions,
+    probe_windows,
+)
 from .io import atomic_path, hash_arrays, write_json
 
 StateFn = Callable[..., Any]

@@ -50,12 +50,37 @@ from ..data import Dataset, load, read_manifest
 from ..errors import ConfigError
 from ..faults import crash_point
 from ..io import write_json
-from .prediction import (CONTEXT, HORIZON, position_decoder, glide_comparison, glide_reference,  # noqa: F401
-                         glide_test, prediction_quality)
-from .probes import (KINDS, PARAM_TARGETS, STATE_TARGETS, fit_predict, fit_probes, probe_latents,  # noqa: F401
-                     probe_model, probe_targets, probe_windows)
-from .state import (EpisodeLatents, as_model_input, encode_episodes, model_device, neutral_last,  # noqa: F401
-                    padded_actions, window_states)
+from ..models.xjepa import XJEPA
+from ..rundir import finished_run_config, load_model
+from .prediction import (  # noqa: F401
+    CONTEXT,
+    HORIZON,
+    glide_comparison,
+    glide_reference,
+    glide_test,
+    position_decoder,
+    prediction_quality,
+)
+from .probes import (  # noqa: F401
+    KINDS,
+    PARAM_TARGETS,
+    STATE_TARGETS,
+    fit_predict,
+    fit_probes,
+    probe_latents,
+    probe_model,
+    probe_targets,
+    probe_windows,
+)
+from .state import (  # noqa: F401
+    EpisodeLatents,
+    as_model_input,
+    encode_episodes,
+    model_device,
+    neutral_last,
+    padded_actions,
+    window_states,
+)
 
 READOUT = {
     "probes": "state at the window's last observation with the action after it replaced by the neutral "
@@ -171,8 +196,6 @@ def untrained_copy(trained, seed: int = 12345):
     as the encoder's BatchNorm running statistics are accumulated during training and stay fresh, or the
     bound would not be untrained.
     """
-    from ..models.xjepa import XJEPA
-
     stats = {k: v.detach().clone() for k, v in trained.named_buffers(recurse=False) if k.endswith(("_mean", "_std"))}
     with torch.random.fork_rng(devices=[]):  # a fixed initialisation without disturbing the caller's stream
         torch.manual_seed(seed)
@@ -183,8 +206,6 @@ def untrained_copy(trained, seed: int = 12345):
 
 def untrained_like(run_dir: Path, ds: Dataset | None = None, seed: int = 12345):
     """:func:`untrained_copy` of the model trained in ``run_dir``."""
-    from ..rundir import load_model
-
     return untrained_copy(load_model(run_dir, map_location="cpu"), seed)
 
 
@@ -210,8 +231,6 @@ def covers(stored: dict | None, wanted: dict) -> bool:
 
 def run(cfg: MeasureConfig) -> Path:
     """Measure ``cfg.run_dir`` and write ``measure.json`` there (skipped when up to date)."""
-    from ..rundir import finished_run_config, load_model
-
     run_dir = Path(cfg.run_dir)
     run_cfg = finished_run_config(run_dir)
     data = cfg.data or run_cfg["data"]

@@ -7,8 +7,7 @@ from typing import TYPE_CHECKING
 
 from ..config import from_preset
 from ..evaluate.tables import dagger, fmt, gate_failed, probe, run_gate_failed
-from ..train.config import PRESETS as TRAIN_PRESETS
-from ..train.config import TrainConfig
+from ..train.config import PRESETS as TRAIN_PRESETS, TrainConfig
 from .runs import RunSpec, spec
 
 if TYPE_CHECKING:

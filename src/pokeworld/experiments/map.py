@@ -17,7 +17,7 @@ from pathlib import Path
 
 from .. import clock
 from ..config import to_dict
-from ..io import write_json
+from ..io import dir_lock, write_json
 from ..train.loop import past
 from . import report, stages
 from .config import MapConfig
@@ -89,8 +89,6 @@ def run(c: MapConfig) -> Path:
     map on the same ``out`` is refused with a message naming this one (a killed map's lock is released with its
     process), and the experiments of an earlier invocation are carried into results.json (:func:`carry_over`).
     """
-    from ..io import dir_lock
-
     check_names(c)
     out = Path(c.out)
     with dir_lock(out, ".map.lock", MAP_LOCK_REFUSAL) as stale:

@@ -11,9 +11,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import __version__
-from .. import paper_values as P
+from .. import __version__, paper_values as P
 from ..certify import GATES, gate_of
+from ..config import to_dict
 from ..evaluate.tables import (
     LABELS,
     QUANTITIES,
@@ -30,14 +30,12 @@ from ..evaluate.tables import (
 from ..io import atomic_path, save_figure
 from .registry import REPORT_ORDER
 from .runs import spec_measure_path
+from .stages import spec_experiments
 
 
 def collect(c, specs, certificates: dict) -> dict:
     """results.json: every run's measurement, the certificates and gates, the experiments' run lists, the map
     config and where the record came from."""
-    from ..config import to_dict
-    from .stages import spec_experiments
-
     runs = {}
     for s in specs:
         path = spec_measure_path(c, s)

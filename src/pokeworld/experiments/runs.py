@@ -8,6 +8,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from ..evaluate.measure import measure_path
+from ..train.config import field_defaults
+
 if TYPE_CHECKING:
     from .config import MapConfig
 
@@ -36,8 +39,6 @@ def spec(exp, variant, seed, lam, horizons=(1, 4, 16), corpus="standard", measur
     """The run of ``exp`` with these factors; ``extra`` are TrainConfig overrides, named in the run's name."""
     # an override equal to the training default is the default run itself: it keeps the plain name, so a
     # dose level that equals the operating point (touch contact weight 4, glide weight 1) shares the factorial's run
-    from ..train.config import field_defaults
-
     defaults = field_defaults()
     extra = {k: v for k, v in extra.items() if not (k in defaults and defaults[k] == v)}
     tag = "".join(f"-{k}{v}" for k, v in sorted(extra.items()))
@@ -66,8 +67,6 @@ def corpus_dir(c: MapConfig, corpus: str) -> Path:
 
 def spec_measure_path(c: MapConfig, s: RunSpec) -> Path:
     """The measure.json the map writes for run ``s`` (on its measure corpus when that differs from its training one)."""
-    from ..evaluate.measure import measure_path
-
     data = str(corpus_dir(c, s.measure_corpus)) if s.measure_corpus != s.corpus else ""
     return measure_path(run_dir(c, s.name), data)
 

@@ -9,9 +9,14 @@ import tarfile
 from pathlib import Path
 from typing import Any
 
-from .. import clock
+from .. import certify, clock, train
+from ..evaluate import measure
+from ..evaluate.coordinate import build_flow_corpus
 from ..io import write_json
+from ..models import flow
 from ..rundir import last_logged_step
+from ..sim import generate
+from ..train import stacked as train_stacked
 from ..train.loop import past, status_every
 from .attributes import CORPUS_TARGETS
 from .config import MapConfig
@@ -37,11 +42,7 @@ def spec_experiments(c: MapConfig) -> dict[str, list[str]]:
 
 def ensure_corpus(c: MapConfig, corpus: str) -> Path:
     """Generate corpus ``corpus`` into the map folder (skipped when it is there and current)."""
-    from ..sim import generate
-
     if corpus == "flow":  # derived from the standard corpus by the frozen flow sensor
-        from ..evaluate.coordinate import build_flow_corpus
-        from ..models import flow
 
         return build_flow_corpus(ensure_corpus(c, "standard"), corpus_dir(c, "flow"), flow.make_config(c.preset))
 
@@ -58,8 +59,6 @@ def with_standard_gate(std: dict, own: dict) -> dict:
     """``own`` certificates (a derived or attribute corpus, certified for its new targets only) completed with
     the standard corpus's estimators for the gated parameters; the gate is then the standard's, and
     ``gate_from`` says so (reports state it once, on the standard corpus)."""
-    from .. import certify
-
     est: dict = {}
     for source in (std.get("estimators", {}), own.get("estimators", {})):
         for e, kinds in source.items():
@@ -80,8 +79,6 @@ def ensure_certificates(c: MapConfig, corpus: str) -> dict:
     costs ~20 CPU-minutes on a 2-core machine; not repeating the standard targets on four more corpora saves
     about four CPU-hours of the `cpu` preset.
     """
-    from .. import certify
-
     cost = {k: v for k, v in (("max_windows", c.certify_max_windows), ("epochs", c.certify_epochs)) if v}
     if c.certify_fit_episodes >= 0:
         cost["fit_episodes"] = c.certify_fit_episodes
@@ -120,9 +117,6 @@ def execute(job: dict) -> dict:
     """
     import torch
 
-    from .. import train
-    from ..evaluate import measure
-
     deadline = job.get("deadline", 0.0)
     if past(deadline):
         return {"name": job["name"], "status": "pending"}
@@ -142,16 +136,12 @@ def execute(job: dict) -> dict:
 
 def job_train_config(job: dict):
     """The TrainConfig a map job trains (with its deadline): the same for a separate and a stacked run."""
-    from .. import train
-
     return train.make_config(job["train_preset"], **job["train"], deadline=job.get("deadline", 0.0))
 
 def train_stacked_jobs(c: MapConfig, jobs: list[dict]) -> None:
     """``stack``: train every unfinished job that can stack with :func:`pokeworld.train.stacked.run` (grouped by
     what fixes the step's shapes; members resume together from a common checkpoint step), before :func:`launch`
     measures them (and trains alone the jobs that cannot stack). Stops at the jobs' deadline like ``train.run``."""
-    from ..train import stacked as train_stacked
-
     cfgs = [job_train_config(j) for j in jobs]
     todo = [cfg for cfg in cfgs if train_stacked.stackable(cfg) and not (Path(cfg.out) / "DONE").exists()]
     if not todo:

@@ -23,6 +23,7 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
+from ..checkpoint import load, save
 from ..config import from_preset
 from ..errors import ConfigError, DataError
 
@@ -181,14 +182,10 @@ def log_speed(velocity: np.ndarray, floor: float = 0.01) -> np.ndarray:
 
 
 def save_flow(net: FlowNet, path, meta: dict) -> None:
-    from ..checkpoint import save
-
     save({"state": net.state_dict(), "config": net.config, "meta": meta}, path)
 
 
 def load_flow(path) -> FlowNet:
-    from ..checkpoint import load
-
     ck = load(path)
     net = FlowNet(**ck["config"])
     net.load_state_dict(ck["state"])

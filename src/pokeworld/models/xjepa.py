@@ -30,9 +30,23 @@ import torch.nn.functional as F
 from torch import nn
 
 from ..errors import ConfigError
-from ..losses import (GNLL_VARIANCES, LOGVAR_RANGE, beta_nll, beta_nll_weight, bounded_logvar,
-                      gaussian_kl, gaussian_nll, glide_loss_share, glide_weights, head_logvar_nll, masked_mse,
-                      motion_weights, nll_precision, sigreg, sigreg_rows_of)
+from ..losses import (
+    GNLL_VARIANCES,
+    LOGVAR_RANGE,
+    beta_nll,
+    beta_nll_weight,
+    bounded_logvar,
+    gaussian_kl,
+    gaussian_nll,
+    glide_loss_share,
+    glide_weights,
+    head_logvar_nll,
+    masked_mse,
+    motion_weights,
+    nll_precision,
+    sigreg,
+    sigreg_rows_of,
+)
 from .encoders import FusedEncoder
 from .predictor import CausalPredictor, KVCache
 

@@ -33,10 +33,12 @@ import torch
 from ..config import from_preset, to_dict
 from ..data import Dataset, load, read_manifest
 from ..errors import ConfigError, DataError
+from ..evaluate.measure import untrained_copy
 from ..evaluate.prediction import position_decoder, prediction_quality
 from ..evaluate.probes import fit_predict
 from ..evaluate.state import EpisodeLatents, padded_actions, window_states
 from ..io import write_json
+from ..rundir import finished_run_config, load_model
 from ..windows import make_windows
 
 TESTS = {"iid": "probe_test", "ood": "heldout"}
@@ -282,9 +284,6 @@ def result_path(run_dir: Path, data: str) -> Path:
 
 def run(cfg: RealEvalConfig) -> Path:
     """Evaluate ``cfg.run_dir`` on a converted store and write ``real_eval[-<store>].json`` there."""
-    from ..evaluate.measure import untrained_copy
-    from ..rundir import finished_run_config, load_model
-
     run_dir = Path(cfg.run_dir)
     run_cfg = finished_run_config(run_dir)
     data = cfg.data or run_cfg["data"]

@@ -29,11 +29,23 @@ from typing import Any, Callable
 
 import numpy as np
 
+from .. import train
 from ..config import from_preset, to_dict
-from ..data import Dataset, concatenate, is_complete, load, read_manifest, save, store_is_current
+from ..data import (
+    Dataset,
+    concatenate,
+    is_complete,
+    load,
+    read_manifest,
+    save,
+    store_is_current,
+)
 from ..errors import ConfigError, DataError
 from ..experiments.launch import LaunchOptions, cores, default_workers, launch
 from ..io import write_json
+from ..models.xjepa import VARIANTS
+from . import evaluate, report
+from .rh20t import stratified_indices
 
 STORES = ("kuka", "kuka_close", "kuka_two_view", "flexiv")
 """Store fields of :class:`RealConfig`: cfg7 far / close-up / two-view, cfg1 far."""
@@ -82,7 +94,6 @@ class RealConfig(LaunchOptions):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        from ..models.xjepa import VARIANTS
 
         bad = set(self.experiments) - set(EXPERIMENTS)
         if bad:
@@ -207,8 +218,6 @@ def subset_train_scenes(ds: Dataset, scale: float, seed: int) -> tuple[Dataset, 
     ``scale`` > 1 is a number of corpus scenes (all splits), mapped to the same share of training
     scenes; ``scale`` <= 1 is that share directly. Probe-fit, probe-test and held-out episodes stay.
     """
-    from .rh20t import stratified_indices
-
     scene = ds.params["scene_index"].astype(int) if "scene_index" in ds.params else np.arange(ds.num_episodes)
     task = ds.params["task_id"].astype(int) if "task_id" in ds.params else np.zeros(ds.num_episodes, int)
     total = np.unique(scene).size
@@ -270,9 +279,6 @@ def execute(job: dict) -> dict:
     """Train (resume / skip) one run and evaluate it on each store. Top-level and picklable."""
     import torch
 
-    from .. import train
-    from . import evaluate
-
     if job.get("threads"):
         torch.set_num_threads(job["threads"])
     run_dir = train.run(train.make_config(job["preset"], **job["train"]))
@@ -285,8 +291,6 @@ def execute(job: dict) -> dict:
 
 
 def jobs(c: RealConfig, runs: list[RealRun], stores: dict[str, str], threads: int) -> list[dict]:
-    from .. import train
-
     base_steps = c.train_steps or train.make_config(c.preset).steps
     out = []
     for r in runs:
@@ -303,8 +307,6 @@ def jobs(c: RealConfig, runs: list[RealRun], stores: dict[str, str], threads: in
 
 def run(c: RealConfig) -> Path:
     """Build derived stores, train and evaluate every run, write results.json, results.md (and scissors.png after scaling)."""
-    from . import report
-
     out = Path(c.out)
     out.mkdir(parents=True, exist_ok=True)
     write_json(out / "real_config.json", to_dict(c))
@@ -323,8 +325,6 @@ def run(c: RealConfig) -> Path:
 
 def collect(c: RealConfig, runs: list[RealRun], stores: dict[str, str]) -> dict:
     """Every run's evaluation results, keyed by run name and evaluation store."""
-    from . import evaluate
-
     res: dict[str, Any] = {"config": to_dict(c), "experiments": run_experiments(c), "stores": stores, "runs": {}}
     for r in runs:
         run_dir = Path(c.out) / "runs" / r.name

@@ -46,14 +46,26 @@ from tqdm.auto import tqdm
 
 from .. import __version__
 from ..config import from_preset, to_dict
+from ..data import load
 from ..errors import ConfigError
 from ..io import atomic_path, write_json
 from ..sim.core import PARAM_NAMES, ParamRanges, PhysicsConfig, PokeWorldSim
 from ..sim.physics import render_kernel
 from ..sim.policy import MixedPolicy, PolicyConfig
+from .evaluate import r2
 from .fixtures import save_dict, write_mp4
-from .rh20t import (ALIGN_BASE_ROT, CAMERA_ROLES, IN_HAND_CALIB, ROBOTS, SKIP_REASONS, TCP_CAMERA_ROT, contact_onset,
-                    euler_sxyz_to_mat, quat_mul, quat_to_mat)
+from .rh20t import (
+    ALIGN_BASE_ROT,
+    CAMERA_ROLES,
+    IN_HAND_CALIB,
+    ROBOTS,
+    SKIP_REASONS,
+    TCP_CAMERA_ROT,
+    contact_onset,
+    euler_sxyz_to_mat,
+    quat_mul,
+    quat_to_mat,
+)
 
 T0_MS = 1_700_000_000_000
 """First scene's start (13-digit ms); scene i starts one hour after scene i-1."""
@@ -715,9 +727,6 @@ def check_conversion(store: str | Path, root: str | Path) -> dict:
     Two separate things: conversion mechanics (stored signals against ``expected_*``, the linear interpolation of
     the recorded samples after the drop rules: float precision when the converter is right) and sampling loss
     (against the noise-free simulator signal), plus whether the skip / F/T-source counts are the planted ones."""
-    from ..data import load
-    from .evaluate import r2
-
     ds = load(store)
     man = json.loads((Path(root) / "truth" / "manifest.json").read_text())
     rep = json.loads((Path(store) / "conversion_report.json").read_text())

@@ -9,7 +9,6 @@ that sub-environment and returns its first observation with reward 0.
 
 from __future__ import annotations
 
-
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces

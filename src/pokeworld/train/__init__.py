@@ -13,12 +13,33 @@ The run directory's format is :mod:`pokeworld.rundir`'s. This package's names be
 """
 
 from ..rundir import finished_run_config, load_model
-from .config import (PRESETS, RESUMABLE_FIELDS, RETIRED_FIELDS, TrainConfig, auto_threads, check_existing,
-                     field_defaults, make_config, resolve_device, use_fast_path, validate)
+from .config import (
+                     PRESETS,
+                     RESUMABLE_FIELDS,
+                     RETIRED_FIELDS,
+                     TrainConfig,
+                     auto_threads,
+                     check_existing,
+                     field_defaults,
+                     make_config,
+                     resolve_device,
+                     use_fast_path,
+                     validate,
+)
 from .sampler import WindowSampler, data_stats
 from .single import run
-from .step import (decay_split, loss_kwargs, lr_lambda, make_optimizer, model_kwargs, sigreg_directions,
-                   sigreg_row_index, sigreg_seed, to_device, train_step)
+from .step import (
+                     decay_split,
+                     loss_kwargs,
+                     lr_lambda,
+                     make_optimizer,
+                     model_kwargs,
+                     sigreg_directions,
+                     sigreg_row_index,
+                     sigreg_seed,
+                     to_device,
+                     train_step,
+)
 from .synthetic import synthetic_dataset
 
 __all__ = ["TrainConfig", "PRESETS", "RESUMABLE_FIELDS", "RETIRED_FIELDS", "make_config", "validate", "field_defaults",

@@ -8,6 +8,7 @@ import torch
 
 from ..errors import ConfigError, DataError
 from ..models.xjepa import SYSID_PARAMS, area_downsample
+from ..windows import glide_frames
 from .step import to_device
 
 
@@ -43,7 +44,6 @@ class WindowSampler:
             if missing:
                 raise ConfigError(f"sysid control needs params {list(SYSID_PARAMS)}; the dataset lacks {missing}")
             self.params = torch.from_numpy(np.stack([ds.params[k][ep] for k in SYSID_PARAMS], -1)).float().to(device)
-        from ..windows import glide_frames
 
         try:
             glide = glide_frames(ds, contact_channel=contact_channel)[ep]

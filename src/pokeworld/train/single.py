@@ -20,12 +20,20 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .. import checkpoint, clock
+from .. import checkpoint, clock, data as data_mod
 from ..config import to_dict
 from ..errors import ConfigError
+from ..io import run_lock, write_json
 from ..models.xjepa import XJEPA
 from ..rundir import MetricsLog, restart_metrics, write_final
-from .config import TrainConfig, auto_threads, check_existing, resolve_device, use_fast_path, validate
+from .config import (
+    TrainConfig,
+    auto_threads,
+    check_existing,
+    resolve_device,
+    use_fast_path,
+    validate,
+)
 from .loop import LoopSchedule, Progress, run_loop
 from .sampler import WindowSampler, data_stats
 from .step import loss_kwargs, lr_lambda, make_optimizer, model_kwargs, train_step
@@ -42,7 +50,6 @@ def run(cfg: TrainConfig, status_every: float = 0.0) -> Path:
         return out
     if cfg.deadline > 0 and clock.wall_clock() >= cfg.deadline:  # out of time before starting: leave the run as it is
         return out
-    from ..io import run_lock
 
     with run_lock(out, enabled=int(os.environ.get("RANK", "0")) == 0):  # ranks > 0 never write the run dir
         return _train(cfg, out, cfg_dict, status_every)
@@ -79,7 +86,6 @@ class _SingleRun:
         self.cfg, self.out, self.cfg_dict, self.ranks = cfg, out, cfg_dict, ranks
         dev = self.dev = ranks.dev
         self.fast = use_fast_path(cfg, dev)
-        from .. import data as data_mod
 
         ds = data_mod.load(cfg.data)
         train_ep = ds.episodes("train")
@@ -188,7 +194,6 @@ def _train(cfg: TrainConfig, out: Path, cfg_dict: dict, status_every: float) -> 
     if ranks.dev.type == "cpu":
         torch.set_num_threads(cfg.threads or auto_threads())
     if ranks.main:
-        from ..io import write_json
 
         out.mkdir(parents=True, exist_ok=True)
         write_json(out / "config.json", cfg_dict)

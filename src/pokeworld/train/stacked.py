@@ -52,18 +52,34 @@ import numpy as np
 import torch
 from torch.nn.attention import SDPBackend, sdpa_kernel
 
-from .. import checkpoint, clock
+from .. import checkpoint, clock, data as data_mod
 from ..config import from_preset, to_dict
 from ..errors import ConfigError
+from ..io import run_lock, write_json
 from ..models.xjepa import VARIANTS, XJEPA, check_variant as validate_variant
 from ..rundir import MetricsLog, restart_metrics, write_final
-from .config import PRESETS as TRAIN_PRESETS, TrainConfig, auto_threads, check_existing, make_config as make_train_config, \
-    resolve_device, use_fast_path, validate
+from .config import (
+    PRESETS as TRAIN_PRESETS,
+    TrainConfig,
+    auto_threads,
+    check_existing,
+    make_config as make_train_config,
+    resolve_device,
+    use_fast_path,
+    validate,
+)
 from .loop import LoopSchedule, Progress, run_loop
 from .sampler import WindowSampler, data_stats
-from .step import decay_split, loss_kwargs, lr_lambda, make_optimizer, model_kwargs, sigreg_directions, \
-    sigreg_row_index, to_device
-
+from .step import (
+    decay_split,
+    loss_kwargs,
+    lr_lambda,
+    make_optimizer,
+    model_kwargs,
+    sigreg_directions,
+    sigreg_row_index,
+    to_device,
+)
 
 #: TrainConfig fields that may differ between members of one stacked group (everything else is shared).
 PER_MEMBER_FIELDS = ("seed", "out", "sigreg_weight", "touch_contact_weight", "proprio_weight", "touch_weight",
@@ -233,8 +249,6 @@ class StackedGroup:
 
     def __init__(self, cfgs: list[TrainConfig], dev: torch.device, fast: bool, ds=None):
         from torch.func import stack_module_state
-
-        from .. import data as data_mod
 
         self.cfgs, self.dev, self.fast, self.M = cfgs, dev, fast, len(cfgs)
         c0 = cfgs[0]
@@ -451,8 +465,6 @@ def run(cfgs: Sequence[TrainConfig], *, mix_variants: bool = True, max_members: 
 
 
 def _run_group(cfgs: list[TrainConfig]) -> None:
-    from ..io import run_lock
-
     c0 = cfgs[0]
     if c0.deadline > 0 and clock.wall_clock() >= c0.deadline:
         return
@@ -516,8 +528,6 @@ class _StackedRun:
 
 def _train_group(cfgs: list[TrainConfig]) -> None:
     """The body of :func:`_run_group`, under the members' run-directory locks."""
-    from ..io import write_json
-
     c0 = cfgs[0]
     dev = resolve_device(c0)
     if dev.type == "cpu":

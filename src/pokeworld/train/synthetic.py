@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..data import Dataset
+
 
 def synthetic_dataset(num_episodes: int = 12, steps: int = 24, size: int = 32, seed: int = 0,
                       proprio_dim: int = 4, touch_dim: int = 7, action_dim: int = 2, glide_fraction: float = 0.25):
@@ -12,8 +14,6 @@ def synthetic_dataset(num_episodes: int = 12, steps: int = 24, size: int = 32, s
     A finger blob follows integrated random actions; an object blob drifts and is pushed when the
     finger is close (touch channel 6 = contact flag). Params (log_m, gamma, log_k) are random.
     """
-    from ..data import Dataset
-
     rng = np.random.default_rng(seed)
     E, T1 = num_episodes, steps + 1
     actions = rng.uniform(-1, 1, (E, steps, action_dim)).astype(np.float32)

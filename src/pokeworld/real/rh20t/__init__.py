@@ -47,19 +47,55 @@ Modules, in pipeline order: :mod:`.format` (RH20T layout facts), :mod:`.skips` (
 
 from __future__ import annotations
 
-from .assembly import (ACTION_COLUMNS, PROPRIO_COLUMNS, TOUCH_COLUMNS, apply_whiten, assemble, contact_onset,
-                       robust_whiten_stats, tcp_actions)
+from .assembly import (
+                       ACTION_COLUMNS,
+                       PROPRIO_COLUMNS,
+                       TOUCH_COLUMNS,
+                       apply_whiten,
+                       assemble,
+                       contact_onset,
+                       robust_whiten_stats,
+                       tcp_actions,
+)
 from .cache import PIPELINE_VERSION, cache_dir, convert_scene_cached
 from .calibration import base_to_camera_rotations, calib_tcp_rotation
-from .cameras import EXTERNAL_ROLES, IN_HAND_SERIALS, camera_serials, other_external_serials
+from .cameras import (
+                       EXTERNAL_ROLES,
+                       IN_HAND_SERIALS,
+                       camera_serials,
+                       other_external_serials,
+)
 from .config import PRESETS, ConvertConfig, content_config, make_config, out_dir
 from .convert import corpus_source, run
 from .folders import SceneRef, check_scene_name, parse_scene_name, scan
-from .format import (ALIGN_BASE_ROT, CAMERA_OPTIONS, CAMERA_ROLES, CAMERA_ROTATION, IN_HAND_CALIB, ROBOTS, SCENE_RE,
-                     TCP_CAMERA_ROT)
-from .records import (BAD_RECORD_KINDS, OVERFLOW_ABS, classify_records, clean_records, load_pickled_dict, read_ft,
-                      read_gripper, read_records)
-from .rotations import align_quaternions, euler_sxyz_to_mat, quat_mul, quat_to_mat, quat_to_rotvec, rotvec_to_mat
+from .format import (
+                       ALIGN_BASE_ROT,
+                       CAMERA_OPTIONS,
+                       CAMERA_ROLES,
+                       CAMERA_ROTATION,
+                       IN_HAND_CALIB,
+                       ROBOTS,
+                       SCENE_RE,
+                       TCP_CAMERA_ROT,
+)
+from .records import (
+                       BAD_RECORD_KINDS,
+                       OVERFLOW_ABS,
+                       classify_records,
+                       clean_records,
+                       load_pickled_dict,
+                       read_ft,
+                       read_gripper,
+                       read_records,
+)
+from .rotations import (
+                       align_quaternions,
+                       euler_sxyz_to_mat,
+                       quat_mul,
+                       quat_to_mat,
+                       quat_to_rotvec,
+                       rotvec_to_mat,
+)
 from .scene import interp_columns, process_scene
 from .skips import SKIP_REASONS, SceneSkip
 from .splits import split_scenes, stratified_indices, stratified_subset

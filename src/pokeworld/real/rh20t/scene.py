@@ -11,7 +11,13 @@ from .cameras import camera_serials
 from .config import ConvertConfig
 from .folders import SceneRef, check_scene_name
 from .format import CAMERA_ROTATION
-from .records import clean_records, load_pickled_dict, read_ft, read_gripper, read_records
+from .records import (
+    clean_records,
+    load_pickled_dict,
+    read_ft,
+    read_gripper,
+    read_records,
+)
 from .rotations import align_quaternions
 from .skips import SceneSkip
 from .video import read_camera
