@@ -1,6 +1,6 @@
 """CPU training throughput study for the `cpu` preset (issue: the demo on 2 cores).
 
-Usage:  python benchmarks/train_cpu.py [--preset cpu] [--batch-size N] [--steps 30] [--out benchmarks/results/train_cpu.json]
+Usage:  python benchmarks/train_cpu.py [--preset cpu] [--batch-size N] [--image-size N] [--steps 30] [--out benchmarks/results/train_cpu.json]
 
 Measures, on synthetic data at the preset's sizes, full optimisation steps as ``pokeworld.train.run`` takes them:
 
@@ -133,11 +133,13 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--preset", default="cpu")
     ap.add_argument("--batch-size", type=int, default=0, help="windows per step (0: the preset's)")
+    ap.add_argument("--image-size", type=int, default=0, help="encoder input side (0: the preset's; 64 = the paper's)")
     ap.add_argument("--steps", type=int, default=30)
     ap.add_argument("--out", default="benchmarks/results/train_cpu.json")
     args = ap.parse_args()
     load_before = os.getloadavg()
-    over = {"batch_size": args.batch_size} if args.batch_size else {}
+    over = ({"batch_size": args.batch_size} if args.batch_size else {}) | (
+        {"image_size": args.image_size} if args.image_size else {})
     rows = []
     one1 = time_steps(args.preset, args.steps, 1, **over)
     rows.append({"setting": "one model, 1 thread", "sec_per_step": one1, "model_steps_per_s": 1 / one1})
@@ -158,7 +160,8 @@ def main() -> None:
         print(json.dumps(r))
     split = cost_split(args.preset, max(5, args.steps // 3), **over)
     print(json.dumps(split))
-    res = {"preset": args.preset, "batch_size": args.batch_size or make_config(args.preset).batch_size, "rows": rows, "cost_split_1_thread": split,
+    res = {"preset": args.preset, "batch_size": args.batch_size or make_config(args.preset).batch_size,
+           "image_size": args.image_size or make_config(args.preset).image_size, "rows": rows, "cost_split_1_thread": split,
            "loadavg_before": load_before, "loadavg_after": os.getloadavg()}
     write_results(args.out, torch.device("cpu"), [res])
 
