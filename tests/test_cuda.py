@@ -6,6 +6,7 @@ equal their separate GPU runs; the compiled loss trains; a GPU-trained run is me
 for bf16 autocast and non-deterministic cuDNN kernels, not for a wrong batch or a wrong update.
 """
 
+import copy
 import json
 
 import numpy as np
@@ -93,3 +94,25 @@ def test_a_gpu_trained_run_is_measured(data_dir, tmp_path, tiny_dataset):
     run_dir = train.run(train.make_config("tiny", data=str(d), out=str(tmp_path / "m"), variant="VFX", **kw))
     res = json.loads(measure.run(measure.make_config("tiny", run_dir=str(run_dir))).read_text())
     assert "ridge" in res["probes"] and np.isfinite(res["prediction"]["direct16"])
+
+
+def test_gpu_states_equal_cpu_states(tiny_dataset):
+    """The probed states read on the GPU (fp32, TF32 off) equal the CPU's to float rounding, which is why a
+    measurement's key omits the device."""
+    from pokeworld.evaluate.measure import full_precision
+    from pokeworld.evaluate.state import EpisodeLatents, padded_actions, window_states
+    from pokeworld.models import XJEPA
+    from pokeworld.windows import make_windows
+
+    ds = tiny_dataset
+    torch.manual_seed(0)
+    cpu = XJEPA(variant="VFX", proprio_dim=ds.proprio.shape[-1], touch_dim=ds.touch.shape[-1],
+                action_dim=ds.actions.shape[-1], image_size=32, channels=(8, 16, 16, 16), latent_dim=16, width=32,
+                depth=1, heads=2, vec_dim=8).eval()
+    gpu = copy.deepcopy(cpu).to("cuda")
+    eps = ds.episodes("probe_test")[:8]
+    w, acts = make_windows(ds, eps, 16, 4), padded_actions(ds)
+    want = window_states(cpu, ds, EpisodeLatents(cpu, ds, eps, 8), w, acts)
+    with full_precision(torch.device("cuda")):
+        got = window_states(gpu, ds, EpisodeLatents(gpu, ds, eps, 8), w, acts)
+    np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-5 * np.abs(want).max())

@@ -38,6 +38,7 @@ module is the simulator's orchestrator and re-exports their public names.
 
 from __future__ import annotations
 
+import contextlib
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -125,7 +126,8 @@ class MeasureConfig:
     """Recompute even if measure.json is up to date."""
     device: str = "auto"
     """Where the model runs while its states are read: 'auto' (cuda when available, else cpu), 'cpu', 'cuda' or
-    'cuda:N'. The probes are fit on the CPU either way; GPU and CPU states differ by float rounding only, so the
+    'cuda:N'. The probes are fit on the CPU either way; on CUDA the states are read with TF32 off (:func:`full_precision`),
+    so GPU and CPU states differ by float rounding only (tests/test_cuda.py) and the
     device is not part of the measurement's key (a measurement made on either is up to date for both)."""
 
     def __post_init__(self) -> None:
@@ -248,13 +250,30 @@ def run(cfg: MeasureConfig) -> Path:
             return out
     ds = load(data)
     torch.set_num_threads(max(1, torch.get_num_threads()))
-    model = load_model(run_dir, map_location=measure_device(cfg.device))
-    res = measure(model, ds, cfg, untrained_copy(model) if cfg.untrained else None)
+    dev = measure_device(cfg.device)
+    model = load_model(run_dir, map_location=dev)
+    with full_precision(dev):
+        res = measure(model, ds, cfg, untrained_copy(model) if cfg.untrained else None)
     res.update(key=key, run=run_cfg, data=data)
     crash_point("measure")
     write_json(out, res)
     print(f"[measure] {run_dir.name}: " + summary_line(res))
     return out
+
+
+@contextlib.contextmanager
+def full_precision(dev: torch.device):
+    """fp32 convolutions and matmuls on CUDA while states are read: cuDNN's default TF32 convolutions carry ~1e-3
+    relative error, so a measurement made on the GPU would not match the CPU's (its key omits the device)."""
+    if dev.type != "cuda":
+        yield
+        return
+    saved = torch.backends.cudnn.allow_tf32, torch.backends.cuda.matmul.allow_tf32
+    torch.backends.cudnn.allow_tf32 = torch.backends.cuda.matmul.allow_tf32 = False
+    try:
+        yield
+    finally:
+        torch.backends.cudnn.allow_tf32, torch.backends.cuda.matmul.allow_tf32 = saved
 
 
 def measure_device(name: str) -> torch.device:
