@@ -91,6 +91,7 @@ class Progress:
     def __init__(self, sched: LoopSchedule, label: str, bar: bool = False, every: float = 0.0):
         self.sched, self.label, self.every = sched, label, every
         self.pbar = None
+        self.last_loss: float | None = None
         self.t_start = self.t_last = time.perf_counter()
         self.step0 = sched.start
         if bar:
@@ -111,7 +112,7 @@ class Progress:
             self.pbar.set_postfix(loss=f"{loss:.4f}", fps=f"{frames_per_s:.0f}")
 
     def status(self, step: int, loss: float | None) -> str:
-        loss = getattr(self, "last_loss", None) if loss is None else loss
+        loss = self.last_loss if loss is None else loss
         rate = (step - self.step0) / max(time.perf_counter() - self.t_start, 1e-9)
         left = (self.sched.end - step) / rate if rate > 0 else float("inf")
         return (f"[train {self.label}] step {step}/{self.sched.total}"

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .. import checkpoint, clock, data as data_mod
+from .. import checkpoint, data as data_mod
 from ..config import to_dict
 from ..errors import ConfigError
 from ..io import run_lock, write_json
@@ -34,7 +34,7 @@ from .config import (
     use_fast_path,
     validate,
 )
-from .loop import LoopSchedule, Progress, run_loop
+from .loop import LoopSchedule, Progress, past, run_loop
 from .sampler import WindowSampler, data_stats
 from .step import loss_kwargs, lr_lambda, make_optimizer, model_kwargs, train_step
 
@@ -48,7 +48,7 @@ def run(cfg: TrainConfig, status_every: float = 0.0) -> Path:
     check_existing(cfg)
     if (out / "DONE").exists():
         return out
-    if cfg.deadline > 0 and clock.wall_clock() >= cfg.deadline:  # out of time before starting: leave the run as it is
+    if past(cfg.deadline):  # out of time before starting: leave the run as it is
         return out
 
     with run_lock(out, enabled=int(os.environ.get("RANK", "0")) == 0):  # ranks > 0 never write the run dir
@@ -160,17 +160,15 @@ class _SingleRun:
 
     def out_of_time(self, step: int) -> bool:
         cfg = self.cfg
-        if cfg.deadline <= 0:
-            return False
-        if not cfg.ddp:
-            return clock.wall_clock() >= cfg.deadline
+        if not cfg.ddp or cfg.deadline <= 0:
+            return past(cfg.deadline)
         if step % cfg.log_every:
             return False
         # ranks must stop at the same step (or the others hang in the next all-reduce): rank 0's clock
         # decides, at log steps only, so the broadcast costs one sync per logged row
         import torch.distributed as dist
 
-        flag = torch.tensor(float(clock.wall_clock() >= cfg.deadline), device=self.dev)
+        flag = torch.tensor(float(past(cfg.deadline)), device=self.dev)
         dist.broadcast(flag, 0)
         return bool(flag)
 

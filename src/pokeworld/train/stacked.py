@@ -52,7 +52,7 @@ import numpy as np
 import torch
 from torch.nn.attention import SDPBackend, sdpa_kernel
 
-from .. import checkpoint, clock, data as data_mod
+from .. import checkpoint, data as data_mod
 from ..config import from_preset, to_dict
 from ..errors import ConfigError
 from ..io import run_lock, write_json
@@ -68,7 +68,7 @@ from .config import (
     use_fast_path,
     validate,
 )
-from .loop import LoopSchedule, Progress, run_loop
+from .loop import LoopSchedule, Progress, past, run_loop
 from .sampler import WindowSampler, data_stats
 from .step import (
     decay_split,
@@ -466,7 +466,7 @@ def run(cfgs: Sequence[TrainConfig], *, mix_variants: bool = True, max_members: 
 
 def _run_group(cfgs: list[TrainConfig]) -> None:
     c0 = cfgs[0]
-    if c0.deadline > 0 and clock.wall_clock() >= c0.deadline:
+    if past(c0.deadline):
         return
     with contextlib.ExitStack() as locks:  # every member's run directory, as train.run locks its own
         for c in cfgs:
@@ -506,8 +506,7 @@ class _StackedRun:
         return self.g.sched.get_last_lr()[0]
 
     def out_of_time(self, step: int) -> bool:
-        c0 = self.cfgs[0]
-        return c0.deadline > 0 and clock.wall_clock() >= c0.deadline
+        return past(self.cfgs[0].deadline)
 
     def write_rows(self, row: dict[str, float], sums: dict[str, torch.Tensor], n: int) -> float:
         vals = {k: (v / n).cpu() for k, v in sums.items()}
