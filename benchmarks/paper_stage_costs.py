@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 import tempfile
 import time
@@ -23,9 +22,10 @@ from pathlib import Path
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # a sibling script, not a package
-from train_throughput import meta, pick_device, write_results  # noqa: E402
+from train_throughput import write_results  # noqa: E402
 
 from pokeworld import certify, train  # noqa: E402
+from pokeworld.devices import pick_device  # noqa: E402
 from pokeworld.evaluate import measure  # noqa: E402
 from pokeworld.sim import generate  # noqa: E402
 

@@ -36,8 +36,8 @@ def bench_pokeworld(n: int, seconds: float) -> dict:
 def bench_pusht(seconds: float) -> dict | None:
     os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
     try:
-        import gymnasium as gym
         import gym_pusht  # noqa: F401
+        import gymnasium as gym
     except Exception as e:  # noqa: BLE001 - optional comparison only
         return {"available": False, "reason": repr(e)}
     env = gym.make("gym_pusht/PushT-v0", obs_type="pixels", render_mode="rgb_array")

@@ -32,8 +32,16 @@ from train_throughput import write_results  # noqa: E402
 
 from pokeworld.losses import sigreg  # noqa: E402
 from pokeworld.models import XJEPA  # noqa: E402
-from pokeworld.train import (WindowSampler, loss_kwargs, make_config, make_optimizer, model_kwargs,  # noqa: E402
-                             sigreg_directions, synthetic_dataset, train_step)
+from pokeworld.train import (  # noqa: E402
+    WindowSampler,
+    loss_kwargs,
+    make_config,
+    make_optimizer,
+    model_kwargs,
+    sigreg_directions,
+    synthetic_dataset,
+    train_step,
+)
 
 
 def setup(preset: str, channels_last: bool = False, **over):

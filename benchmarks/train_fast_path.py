@@ -21,8 +21,9 @@ from pathlib import Path
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # a sibling script, not a package
-from train_throughput import bench, pick_device, write_results  # noqa: E402
+from train_throughput import bench, write_results  # noqa: E402
 
+from pokeworld.devices import pick_device  # noqa: E402
 from pokeworld.train import PRESETS, auto_threads  # noqa: E402
 
 CONFIGS = {  # name -> bench() keyword arguments

@@ -29,12 +29,24 @@ from pathlib import Path
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # a sibling script, not a package
-from train_throughput import pick_device, write_results  # noqa: E402
+from train_throughput import write_results  # noqa: E402
 
+from pokeworld.devices import pick_device  # noqa: E402
 from pokeworld.models import XJEPA  # noqa: E402
 from pokeworld.models.xjepa import VARIANTS  # noqa: E402
-from pokeworld.train import (PRESETS, WindowSampler, auto_threads, data_stats, loss_kwargs, make_config,  # noqa: E402
-                             make_optimizer, model_kwargs, synthetic_dataset, train_step, use_fast_path)
+from pokeworld.train import (  # noqa: E402
+    PRESETS,
+    WindowSampler,
+    auto_threads,
+    data_stats,
+    loss_kwargs,
+    make_config,
+    make_optimizer,
+    model_kwargs,
+    synthetic_dataset,
+    train_step,
+    use_fast_path,
+)
 from pokeworld.train.stacked import StackedGroup, superset_variant  # noqa: E402
 
 

@@ -24,9 +24,19 @@ from pathlib import Path
 
 import torch
 
+from pokeworld.devices import pick_device
 from pokeworld.models import XJEPA
-from pokeworld.train import (PRESETS, WindowSampler, auto_threads, loss_kwargs, make_config, make_optimizer,
-                             model_kwargs, synthetic_dataset, train_step)
+from pokeworld.train import (
+    PRESETS,
+    WindowSampler,
+    auto_threads,
+    loss_kwargs,
+    make_config,
+    make_optimizer,
+    model_kwargs,
+    synthetic_dataset,
+    train_step,
+)
 
 
 def matmul_peak(device: torch.device, dtype: torch.dtype, n: int = 2048, reps: int = 10) -> float:
@@ -109,12 +119,6 @@ def meta(device: torch.device) -> dict:
     return {"torch": torch.__version__, "machine": platform.machine(), "cpu_count": os.cpu_count(),
             "threads": torch.get_num_threads(), "loadavg": os.getloadavg() if hasattr(os, "getloadavg") else None,
             "gpu": torch.cuda.get_device_name() if device.type == "cuda" else None}
-
-
-def pick_device(name: str) -> torch.device:
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    return torch.device(name)
 
 
 def main() -> None:

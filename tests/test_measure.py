@@ -298,3 +298,17 @@ def test_token_models_with_multi_horizon_heads_are_scored_by_their_direct_head(t
         zh = m.predict(h, w.gather(padded_actions(ds)), 16)[:, 7].numpy()
     truth = w.gather(ds.labels["object_pos"])[:, -1]
     assert res["direct16"] == pytest.approx(float(np.linalg.norm(dec.predict(zh) - truth, axis=-1).mean()), rel=1e-4)
+
+
+def test_a_device_that_cannot_be_used_is_a_clear_error():
+    import torch
+
+    from pokeworld.errors import ConfigError
+    from pokeworld.evaluate.measure import MeasureConfig
+
+    with pytest.raises(ConfigError, match="unknown device 'gpu0'"):
+        MeasureConfig(device="gpu0")
+    if not torch.cuda.is_available():
+        with pytest.raises(ConfigError, match="CUDA is not available"):
+            MeasureConfig(device="cuda")
+    assert MeasureConfig(device="cpu").device == "cpu"

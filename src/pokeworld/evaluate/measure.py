@@ -48,6 +48,7 @@ import torch
 
 from ..config import from_preset, to_dict
 from ..data import Dataset, load, read_manifest
+from ..devices import pick_device
 from ..errors import ConfigError
 from ..faults import crash_point
 from ..io import write_json
@@ -134,7 +135,7 @@ class MeasureConfig:
         bad = (set(self.kinds) | set(self.action_conditioned_kinds)) - set(KINDS)
         if bad:
             raise ConfigError(f"unknown window kinds {sorted(bad)}; choose from {list(KINDS)}")
-        measure_device(self.device)  # a clear error now rather than inside torch later
+        pick_device(self.device)  # a clear error now rather than inside torch later
         if self.context < 1 or self.window < 2:
             raise ConfigError(f"context must be ≥ 1 and window ≥ 2, got context={self.context}, window={self.window}")
 
@@ -250,7 +251,7 @@ def run(cfg: MeasureConfig) -> Path:
             return out
     ds = load(data)
     torch.set_num_threads(max(1, torch.get_num_threads()))
-    dev = measure_device(cfg.device)
+    dev = pick_device(cfg.device)
     model = load_model(run_dir, map_location=dev)
     with full_precision(dev):
         res = measure(model, ds, cfg, untrained_copy(model) if cfg.untrained else None)
@@ -274,17 +275,6 @@ def full_precision(dev: torch.device):
         yield
     finally:
         torch.backends.cudnn.allow_tf32, torch.backends.cuda.matmul.allow_tf32 = saved
-
-
-def measure_device(name: str) -> torch.device:
-    """The device of ``MeasureConfig.device`` ('auto': cuda when available)."""
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    if not (name == "cpu" or name == "cuda" or (name.startswith("cuda:") and name[5:].isdigit())):
-        raise ConfigError(f"measure device must be auto, cpu, cuda or cuda:N, got {name!r}")
-    if name != "cpu" and not torch.cuda.is_available():
-        raise ConfigError(f"measure device {name!r} asked for, but this machine has no CUDA device")
-    return torch.device(name)
 
 
 def summary_line(res: dict) -> str:

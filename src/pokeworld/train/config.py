@@ -14,6 +14,7 @@ from typing import Any
 import torch
 
 from ..config import from_preset, to_dict
+from ..devices import pick_device
 from ..errors import ConfigError
 from ..losses import SIGREG_POOLS
 from ..models.xjepa import GNLL_HEADS, OBJECTIVES, check_gnll_variance, check_variant
@@ -297,12 +298,7 @@ def auto_threads() -> int:
 
 def resolve_device(cfg: TrainConfig, local_rank: int = 0) -> torch.device:
     """The device ``cfg.device`` names ('auto': the GPU of ``local_rank`` when CUDA is available, else the CPU)."""
-    if cfg.device == "auto":
-        return torch.device(f"cuda:{local_rank}" if torch.cuda.is_available() else "cpu")
-    dev = torch.device(cfg.device)
-    if dev.type == "cuda" and not torch.cuda.is_available():
-        raise ConfigError(f"device {cfg.device!r} requested but CUDA is not available")
-    return dev
+    return pick_device(cfg.device, local_rank)
 
 
 __all__ = ["TrainConfig", "PRESETS", "RESUMABLE_FIELDS", "RETIRED_FIELDS", "field_defaults", "make_config", "validate",
