@@ -53,6 +53,10 @@ def _oracle(monkeypatch):
         return live["sim"], obs
 
     class Oracle:
+        @staticmethod
+        def live():
+            return live["sim"]
+
         def score(self, hist, cand, goal):
             return SimulatorScorer(live["sim"]).score(hist, cand, goal)
 
@@ -137,6 +141,35 @@ def test_rank_test_reads_zero_for_shuffled_and_minus_one_for_negated_scores(monk
     assert abs(shuffled["topk_overlap"] - 8 / 64) < 0.06
     negated = _rank(monkeypatch, lambda s: -s)
     assert negated["spearman"] == pytest.approx(-1.0) and negated["topk_overlap"] == 0.0
+
+
+def test_rank_test_reads_the_counterfactual_fit_of_a_scorer_that_predicts_positions(monkeypatch):
+    """The simulator's own end positions fit perfectly; positions that ignore the program (the object left where
+    it starts) have no spread: the two readings a model's low rank ρ is told apart by."""
+    import pokeworld.plan as plan
+
+    oracle = _oracle(monkeypatch)
+
+    class Positions:
+        def __init__(self, blind):
+            self.blind = blind
+
+        def positions(self, hist, cand):
+            path = oracle.rollout(cand)
+            return {d: (path[:, :, 0] if self.blind else path[:, :, d])
+                    for d, _ in plan.COST_TERMS}
+
+        def score(self, hist, cand, goal):
+            pos = self.positions(hist, cand)
+            return sum(w * np.linalg.norm(pos[d] - goal[:, None], axis=-1) for d, w in plan.COST_TERMS)
+
+    oracle.rollout = lambda cand: SimulatorScorer(oracle.live()).rollout(cand)
+    cfg = make_config("cpu", episodes=20)
+    truth = plan.rank_test(cfg, episode_setup(cfg), Positions(blind=False))
+    assert truth["spread_ratio"] == pytest.approx(1.0) and truth["within_r2"] == pytest.approx(1.0)
+    assert truth["spearman"] == pytest.approx(1.0)
+    blind = plan.rank_test(cfg, episode_setup(cfg), Positions(blind=True))
+    assert blind["spread_ratio"] == pytest.approx(0.0, abs=1e-9) and blind["within_r2"] == pytest.approx(0.0)
 
 
 def test_rank_test_scores_every_controller_on_the_same_candidates_from_the_same_starts(monkeypatch):

@@ -25,6 +25,7 @@ import torch
 from .config import from_preset, to_dict
 from .data import load
 from .errors import ConfigError
+from .evaluate.counterfactual import counterfactual_fit
 from .evaluate.measure import EpisodeLatents, position_decoder
 from .evaluate.ranking import agreement
 from .io import atomic_path, save_figure, write_json
@@ -116,8 +117,9 @@ class LatentScorer:
         self._encoded: tuple[dict, torch.Tensor] | None = None  # (history, its latents): one encode per replan
 
     @torch.no_grad()
-    def score(self, hist: dict, cand: np.ndarray, goal: np.ndarray) -> np.ndarray:
-        """hist: frames (E, C, H, W), proprio, touch (E, C, .), actions (E, C-1, 2); cand (E, P, 16, 2) -> (E, P)."""
+    def positions(self, hist: dict, cand: np.ndarray) -> dict[int, np.ndarray]:
+        """hist: frames (E, C, H, W), proprio, touch (E, C, .), actions (E, C-1, 2); cand (E, P, 16, 2) ->
+        {Δ: (E, P, 2) decoded object position Δ steps into each program} for the Δ of COST_TERMS."""
         E, P = cand.shape[:2]
         m = self.model
         # the history is the same for every CEM iteration of a replan (control() builds it once), so its
@@ -132,12 +134,13 @@ class LatentScorer:
         h = m.trunk(zc, np.concatenate([past, first], 1).astype(np.float32))[:, -1:]
         h16 = torch.cat([h, h.new_zeros(E * P, PROGRAM - 1, h.shape[-1])], 1)
         acts = cand.reshape(E * P, PROGRAM, 2).astype(np.float32)
-        out = 0.0
-        for delta, weight in COST_TERMS:
-            zh = m.predict(h16, acts, delta)[:, 0].float().numpy()
-            pos = self.decoder.predict(zh).reshape(E, P, 2)
-            out = out + weight * np.linalg.norm(pos - goal[:, None], axis=-1)
-        return out
+        return {delta: self.decoder.predict(m.predict(h16, acts, delta)[:, 0].float().numpy()).reshape(E, P, 2)
+                for delta, _ in COST_TERMS}
+
+    def score(self, hist: dict, cand: np.ndarray, goal: np.ndarray) -> np.ndarray:
+        """:meth:`positions` -> (E, P) planning cost (COST_TERMS)."""
+        pos = self.positions(hist, cand)
+        return sum(w * np.linalg.norm(pos[d] - goal[:, None], axis=-1) for d, w in COST_TERMS)
 
 
 class SimulatorScorer:
@@ -211,7 +214,9 @@ def rank_test(cfg: PlanConfig, setup: dict, scorer) -> dict:
 
     The model sees what the planner sees at its first replan (one observation, no past actions). Returns
     :func:`pokeworld.evaluate.ranking.agreement` plus ``moved``: the share of candidates whose true rollout moves
-    the object (the rest tie at the start distance, which bounds how much of the order is decidable).
+    the object (the rest tie at the start distance, which bounds how much of the order is decidable). A scorer
+    with a ``positions`` method (:class:`LatentScorer`) also gets :func:`~pokeworld.evaluate.counterfactual.
+    counterfactual_fit` of its Δ = 16 positions (``spread_ratio``, ``within_r2``): why its order is what it is.
     """
     sim, obs = start_sim(cfg, setup)
     hist = {"frames": obs["vision"][:, None], "proprio": obs["proprio"][:, None], "touch": obs["touch"][:, None],
@@ -221,7 +226,11 @@ def rank_test(cfg: PlanConfig, setup: dict, scorer) -> dict:
     truth = cost(path, goal)
     model = np.asarray(scorer.score(hist, cand, goal), float)
     moved = (path != path[:, :, :1]).any(-1).any(-1)  # an untouched object at rest stays exactly where it was
-    return agreement(model, truth, cfg.rank_topk) | {"moved": float(moved.mean())}
+    out = agreement(model, truth, cfg.rank_topk) | {"moved": float(moved.mean())}
+    if hasattr(scorer, "positions"):
+        fit = counterfactual_fit(scorer.positions(hist, cand)[PROGRAM], path[:, :, PROGRAM], path[:, 0, 0])
+        out |= {k: fit[k] for k in COUNTERFACTUAL_METRICS}
+    return out
 
 
 def control(cfg: PlanConfig, setup: dict, scorer: LatentScorer | None, simulator: bool = False) -> dict:
@@ -279,7 +288,10 @@ def control(cfg: PlanConfig, setup: dict, scorer: LatentScorer | None, simulator
 
 METRICS = ("reach", "median_improvement", "mean_improvement", "object_moved")
 """Per-controller planning metrics (:func:`control`); the paper reports the first two."""
-RANK_METRICS = ("spearman", "topk_overlap", "topk_chance", "moved")
+COUNTERFACTUAL_METRICS = ("spread_ratio", "within_r2", "miss_displacement", "hit_displacement",
+                          "hit_true_displacement")
+"""Per-model counterfactual fit of the rank test's Δ = 16 positions (:mod:`pokeworld.evaluate.counterfactual`)."""
+RANK_METRICS = ("spearman", "topk_overlap", "topk_chance", "moved", *COUNTERFACTUAL_METRICS)
 """Per-model rank-test metrics (:func:`rank_test`); None for the random controller, which scores nothing."""
 
 PAPER = PLANNING
@@ -311,10 +323,15 @@ def plan_runs(cfg: PlanConfig, runs: dict[str, list[str]], data: str = "") -> di
             res = control(cfg, setup, scorer)
             rank = rank_test(cfg, setup, scorer)
             episodes.setdefault(label, res)
-            per[Path(r).name] = {k: res[k] for k in METRICS} | {k: rank[k] for k in RANK_METRICS}
+            per[Path(r).name] = {k: res[k] for k in METRICS} | {k: rank.get(k, float("nan")) for k in RANK_METRICS}
             print(f"[plan] {label} ({Path(r).name}): reach {res['reach']:.0%}, "
                   f"median improvement {res['median_improvement']:+.3f}, rank ρ {rank['spearman']:+.2f}, "
-                  f"top-{cfg.rank_topk} overlap {rank['topk_overlap']:.2f} (chance {rank['topk_chance']:.2f})")
+                  f"top-{cfg.rank_topk} overlap {rank['topk_overlap']:.2f} (chance {rank['topk_chance']:.2f}), "
+                  f"Δ=16 spread ratio {rank.get('spread_ratio', float('nan')):.2f}, "
+                  f"within-start R² {rank.get('within_r2', float('nan')):+.2f}, predicted displacement on "
+                  f"misses {rank.get('miss_displacement', float('nan')):.3f} / on hits "
+                  f"{rank.get('hit_displacement', float('nan')):.3f} "
+                  f"(true {rank.get('hit_true_displacement', float('nan')):.3f})")
         summary[label] = {k: float(np.mean([v[k] for v in per.values()])) for k in (*METRICS, *RANK_METRICS)}
         summary[label]["per_run"] = per
     return {"summary": summary, "episodes": episodes, "setup": setup}
@@ -381,8 +398,9 @@ def write_outputs(planned: dict, out: Path, goal_radius: float) -> list[Path]:
 def table_lines(summary: dict) -> list[str]:
     """Markdown rows: controller, reach and median improvement, ours beside the paper's, then the rank test."""
     lines = ["| controller | goal-region reach (ours / paper) | median distance improvement (ours / paper) | "
-             "mean improvement | object moved | rank ρ (model vs simulator) | top-k overlap (chance) |",
-             "|---|---|---|---|---|---|---|"]
+             "mean improvement | object moved | rank ρ (model vs simulator) | top-k overlap (chance) | "
+             "Δ=16 spread ratio | within-start R² | predicted displacement: misses / hits (true) |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for k, v in summary.items():
         p = PAPER.get(k)
         extra = " | ".join("—" if v.get(m) is None else (f"{v[m]:+.3f}" if m == "mean_improvement" else f"{v[m]:.0%}")
@@ -390,8 +408,13 @@ def table_lines(summary: dict) -> list[str]:
         # summaries written before the rank test have no rank keys; the random controller has them as None
         rank = ("— | —" if v.get("spearman") is None else
                 f"{v['spearman']:+.2f} | {v['topk_overlap']:.2f} ({v['topk_chance']:.2f})")
+        # the counterfactual fit (evaluate.counterfactual) came later than the rank test: older summaries lack it
+        cf = " | ".join("—" if v.get(m) is None or not np.isfinite(v[m]) else f"{v[m]:+.2f}"
+                        for m in ("spread_ratio", "within_r2"))
+        disp = ("—" if v.get("miss_displacement") is None or not np.isfinite(v["miss_displacement"]) else
+                f"{v['miss_displacement']:.3f} / {v['hit_displacement']:.3f} ({v['hit_true_displacement']:.3f})")
         lines.append(f"| {k} | {v['reach']:.0%} / {f'{p[0]:.0%}' if p else '—'} | "
-                     f"{v['median_improvement']:+.3f} / {f'{p[1]:.2f}' if p else '—'} | {extra} | {rank} |")
+                     f"{v['median_improvement']:+.3f} / {f'{p[1]:.2f}' if p else '—'} | {extra} | {rank} | {cf} | {disp} |")
     return lines
 
 

@@ -75,7 +75,10 @@ def planning_table(results: dict) -> list[str]:
             f" × {cfg['iterations']} iterations; reach = the object's centre enters the goal radius "
             f"{cfg['goal_radius']:g}; improvement = initial minus final object-goal distance (median over episodes). "
             f"Representations are {trained} (mean over seeds; per seed in results.json); rank ρ and top-k overlap: "
-            "how each model orders the CEM's candidate programs against the true simulator. Figure: "
+            "how each model orders the CEM's candidate programs against the true simulator; Δ=16 spread ratio and "
+            "within-start R²: how much its predicted end positions vary across those programs against the true "
+            "spread, and how much of the programs' true counterfactual outcomes they explain "
+            "(`pokeworld.evaluate.counterfactual`). Figure: "
             + ", ".join(f"`{f}`" for f in pl.get("figure", [])[:1]) + ".", "",
             *table_lines(pl["summary"]), ""]
 
