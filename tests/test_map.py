@@ -173,11 +173,13 @@ def test_map_budget_knobs_reach_generation_training_and_measurement(tmp_path):
 def test_map_wide_sigreg_pool_and_gnll_variance_rename_only_the_runs_they_apply_to():
     base = experiment.make_config("cpu", experiments=("lambda", "controls"), seeds=(0,))
     c = experiment.make_config("cpu", experiments=("lambda", "controls"), seeds=(0,), sigreg_pool="pooled",
-                               gnll_variance="bounded")
+                               gnll_variance="free")
     names = {s.name: s for s in experiment.all_specs(c)}
     old = {s.name for s in experiment.all_specs(base)}
     assert "VFX-h1-4-16-lam0.3-standard-sigreg_poolpooled-s0" in names
-    assert "VFX-h1-4-16-lam0.02-standard-gnll_variancebounded-objectivegnll-sigreg_poolpooled-s0" in names
+    assert "VFX-h1-4-16-lam0.02-standard-gnll_variancefree-objectivegnll-sigreg_poolpooled-s0" in names
+    # the default map's NLL control is the bounded one, named without a tag
+    assert "VFX-h1-4-16-lam0.02-standard-objectivegnll-s0" in old
     # token and reconstruction runs have no global SIGReg to pool: unchanged, shared with the default map
     for s in names.values():
         if s.train.get("tokens") or s.train.get("objective") == "recon":

@@ -157,10 +157,12 @@ def test_sigreg_pool_and_gnll_variance_options_validate_and_reach_the_loss():
 
     cfg = make_config("tiny")
     assert (cfg.sigreg_pool, cfg.sigreg_rows, cfg.gnll_variance, cfg.gnll_beta, cfg.gnll_logvar_bound) == (
-        "step", 4096, "free", 0.5, 2.0)
+        "step", 4096, "bounded", 0.5, 2.0)
     kw = loss_kwargs(make_config("tiny", sigreg_pool="pooled", sigreg_rows=768))
     assert (kw["sigreg_pool"], kw["sigreg_rows"]) == ("pooled", 768)
     assert loss_kwargs(make_config("tiny", objective="gnll", gnll_variance="beta", gnll_beta=1.0))["gnll_beta"] == 1.0
+    # 'free' was the default before 'bounded': configs and checkpoints of latent-objective runs written then record it
+    assert model_kwargs(make_config("tiny", gnll_variance="free"), (4, 7, 2))["gnll_variance"] == "free"
     mk = model_kwargs(make_config("tiny", objective="gnll", gnll_variance="bounded", gnll_logvar_bound=3.0), (4, 7, 2))
     assert (mk["gnll_variance"], mk["gnll_logvar_bound"]) == ("bounded", 3.0)
     for bad, match in ((dict(sigreg_pool="window"), "unknown sigreg_pool"),
@@ -172,7 +174,8 @@ def test_sigreg_pool_and_gnll_variance_options_validate_and_reach_the_loss():
                        (dict(objective="gnll", gnll_variance="student"), "unknown gnll_variance"),
                        (dict(objective="gnll", gnll_variance="beta", gnll_beta=1.5), r"gnll_beta must lie in \[0, 1\]"),
                        (dict(objective="gnll", gnll_beta=0.9), "applies to gnll_variance='beta' only"),
-                       (dict(objective="gnll", gnll_logvar_bound=3.0), "applies to gnll_variance='bounded' only"),
+                       (dict(objective="gnll", gnll_variance="free", gnll_logvar_bound=3.0),
+                        "applies to gnll_variance='bounded' only"),
                        (dict(objective="gnll", gnll_variance="bounded", gnll_logvar_bound=0.0), "positive")):
         with pytest.raises(ConfigError, match=match):
             make_config("tiny", **bad)

@@ -243,6 +243,9 @@ LOGVAR_RANGE = (-8.0, 8.0)
 """Clamp of the belief objective's log-variances, shared by the KL and the reparameterised sample."""
 
 GNLL_VARIANCES = ("free", "bounded", "beta", "per_head")
+DEFAULT_GNLL_VARIANCE = "bounded"
+"""The NLL heads' variance unless a run names another: free precisions ran to their clamp and reweighted frames
+~2,000× (docs/results/deviations_cpu.md §5; docs/design.md "Gaussian NLL: variance parameterisation")."""
 """How the ``gnll`` objective parameterises its variances (docs/design.md "Gaussian NLL: variance
 parameterisation"): 'free' — a per-element, per-frame log-variance head output clamped to
 :data:`LOGVAR_RANGE` (:func:`gaussian_nll`); 'bounded' — the same output squashed smoothly into
@@ -370,5 +373,5 @@ def expected_null_ep(num_knots: int = 17, t_max: float = 3.0) -> float:
 
 __all__ = ["sigreg", "epps_pulley", "random_directions", "ep_knots", "masked_mse", "gaussian_nll", "gaussian_kl",
            "glide_weights", "motion_weights", "glide_loss_share", "expected_null_ep", "subsample_index",
-           "sigreg_rows_of", "SIGREG_POOLS", "GNLL_VARIANCES", "bounded_logvar", "beta_nll", "beta_nll_weight",
+           "sigreg_rows_of", "SIGREG_POOLS", "GNLL_VARIANCES", "DEFAULT_GNLL_VARIANCE", "bounded_logvar", "beta_nll", "beta_nll_weight",
            "head_logvar_nll", "nll_precision"]

@@ -54,9 +54,9 @@ class MapConfig(LaunchOptions):
     sigreg_pool: str = "step"
     """SIGReg rows of every global-latent run (``pokeworld train --sigreg-pool``): 'step' or 'pooled'; runs it
     does not apply to (token, reconstruction) keep theirs. A non-default value is part of each run's name."""
-    gnll_variance: str = "free"
-    """Variance parameterisation of every Gaussian-NLL run (``pokeworld train --gnll-variance``: free, bounded,
-    beta, per_head); part of those runs' names when not 'free'."""
+    gnll_variance: str = "bounded"
+    """Variance parameterisation of every Gaussian-NLL run (``pokeworld train --gnll-variance``: bounded, free,
+    beta, per_head); part of those runs' names when not the training default ('bounded')."""
     train_preset: str = ""
     """Training preset of every run (empty: ``preset``); the demo trains with ``pokeworld train``'s ``demo``
     preset (the cpu model at batch 8 with 64-wide vector encoders) and measures as ``preset``."""

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..evaluate.measure import measure_path
+from ..losses import DEFAULT_GNLL_VARIANCE
 from ..train.config import field_defaults
 
 if TYPE_CHECKING:
@@ -53,7 +54,7 @@ def with_map_training(c: MapConfig, run: RunSpec) -> RunSpec:
     extra = {}
     if c.sigreg_pool != "step" and not t.get("tokens") and t.get("objective", "latent") != "recon":
         extra["sigreg_pool"] = c.sigreg_pool
-    if c.gnll_variance != "free" and t.get("objective") == "gnll":
+    if c.gnll_variance != DEFAULT_GNLL_VARIANCE and t.get("objective") == "gnll":
         extra["gnll_variance"] = c.gnll_variance
     if not extra:
         return run

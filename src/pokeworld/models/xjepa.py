@@ -31,6 +31,7 @@ from torch import nn
 
 from ..errors import ConfigError
 from ..losses import (
+    DEFAULT_GNLL_VARIANCE,
     GNLL_VARIANCES,
     LOGVAR_RANGE,
     beta_nll,
@@ -70,11 +71,12 @@ def check_variant(variant: str) -> None:
 
 
 def check_gnll_variance(variance: str, objective: str, bound: float) -> None:
-    """ConfigError unless ``variance`` is one of :data:`~pokeworld.losses.GNLL_VARIANCES`, non-'free' ones come
-    with objective='gnll', and the 'bounded' log-variance bound is positive and finite."""
+    """ConfigError unless ``variance`` is one of :data:`~pokeworld.losses.GNLL_VARIANCES`, one that is neither the
+    default nor 'free' comes with objective='gnll', and the 'bounded' log-variance bound is positive and finite.
+    ('free' was the default before 'bounded': every config and checkpoint written then records it, NLL or not.)"""
     if variance not in GNLL_VARIANCES:
         raise ConfigError(f"unknown gnll_variance {variance!r}; choose one of {list(GNLL_VARIANCES)}")
-    if variance != "free" and objective != "gnll":
+    if variance not in (DEFAULT_GNLL_VARIANCE, "free") and objective != "gnll":
         raise ConfigError(f"gnll_variance={variance!r} needs objective='gnll'")
     if not (0.0 < float(bound) < float("inf")):
         raise ConfigError(f"gnll_logvar_bound must be positive and finite, got {bound}")
@@ -182,7 +184,7 @@ class XJEPA(nn.Module):
                  horizons: tuple[int, ...] = (1, 4, 16), objective: str = "latent", tokens: bool = False,
                  sysid: bool = False, max_len: int = 128, vec_dim: int = 64, contact_channel: int = 6,
                  recon_positions: int = 8, pool: bool = False, belief_dim: int = 8, motion_channel: bool = True,
-                 gnll_heads: str = "latent", gnll_variance: str = "free", gnll_logvar_bound: float = 2.0):
+                 gnll_heads: str = "latent", gnll_variance: str = DEFAULT_GNLL_VARIANCE, gnll_logvar_bound: float = 2.0):
         super().__init__()
         check_variant(variant)
         if objective not in OBJECTIVES:

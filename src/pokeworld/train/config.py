@@ -55,11 +55,12 @@ class TrainConfig:
     """objective='gnll': which heads are Gaussian NLL — 'latent' (the latent Δ-heads; proprio/touch stay MSE)
     or 'all' (proprio/touch heads also predict a log-variance, so no target gains weight over another through
     its learned precision; docs/model.md "The Gaussian-NLL control")."""
-    gnll_variance: str = "free"
+    gnll_variance: str = "bounded"
     """objective='gnll': variance parameterisation of every NLL head (the paper gives none; docs/design.md
-    "Gaussian NLL: variance parameterisation"). 'free' (the runs so far): a per-element, per-frame log-variance
-    output clamped to [−8, 8], so a precision can reach e^8 ≈ 2,981; 'bounded': that output squashed smoothly
-    into (−b, b), b = ``gnll_logvar_bound``, so no precision exceeds e^b; 'beta': β-NLL (Seitzer et al. 2022),
+    "Gaussian NLL: variance parameterisation"). 'bounded' (the default): a per-element, per-frame log-variance
+    output squashed smoothly into (−b, b), b = ``gnll_logvar_bound``, so no precision exceeds e^b; 'free': that
+    output clamped to [−8, 8] only, so a precision can reach e^8 ≈ 2,981 (and does: docs/results/deviations_cpu.md
+    §5); 'beta': β-NLL (Seitzer et al. 2022),
     each element's NLL times stop_gradient(σ^{2β}), β = ``gnll_beta``; 'per_head': heads output the mean only
     and each head (horizon; proprio/touch too with gnll_heads='all') learns one log-variance scalar, so heads are
     rescaled against each other but no frame is reweighted against another (adds parameters)."""
