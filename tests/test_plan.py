@@ -199,7 +199,7 @@ def test_plan_runs_reports_the_rank_test_per_model_and_in_the_table(monkeypatch,
     oracle = _oracle(monkeypatch)
 
     class FakeLatent:  # stands in for a trained run: "good" scores like the simulator, "bad" the reverse
-        def __init__(self, run_dir, data):
+        def __init__(self, run_dir, data, heads="direct"):
             self.sign = 1.0 if "good" in run_dir else -1.0
 
         def score(self, hist, cand, goal):

@@ -39,3 +39,30 @@ def test_tiny_map_with_planning_writes_the_table(tmp_path, capsys):
     capsys.readouterr()
     experiment.run(c)
     assert "skipping planning" in capsys.readouterr().out
+    _rollout_scorer_composes_the_one_step_head(out / "runs" / "V-h1-4-16-lam0.02-standard-s0")
+
+
+def _rollout_scorer_composes_the_one_step_head(run):
+    """heads='rollout' scores a program by the model's own autoregressive rollout through it (checked against
+    XJEPA.rollout called directly), and predicts something other than the direct heads."""
+    import numpy as np
+    import torch
+
+    from pokeworld import plan
+
+    cfg = plan.make_config("tiny")
+    sim, obs = plan.start_sim(cfg, plan.episode_setup(cfg))
+    hist = {"frames": obs["vision"][:, None], "proprio": obs["proprio"][:, None], "touch": obs["touch"][:, None],
+            "actions": np.zeros((cfg.episodes, 0, 2), np.float32)}
+    cand = plan.rank_candidates(cfg)
+    direct, roll = plan.LatentScorer(str(run), ""), plan.LatentScorer(str(run), "", heads="rollout")
+    pd, pr = direct.positions(hist, cand), roll.positions(hist, cand)
+    assert pd[16].shape == pr[16].shape == (cfg.episodes, cfg.population, 2)
+    assert not np.allclose(pd[16], pr[16])
+    m = roll.model
+    with torch.no_grad():
+        z = m.encode(hist["frames"], hist["proprio"], hist["touch"])  # every start, each with its first candidate
+        zr = m.rollout(z, cand[:, 0].astype(np.float32), 16, actions_context=hist["actions"])
+    np.testing.assert_allclose(roll.decoder.predict(zr[:, 15].numpy()), pr[16][:, 0], rtol=1e-4, atol=1e-4)
+    with pytest.raises(Exception, match="heads must be one of"):
+        plan.make_config("tiny", heads="lookahead")

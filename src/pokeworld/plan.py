@@ -34,6 +34,8 @@ from .rundir import load_model
 from .sim import PhysicsConfig, PokeWorldSim
 from .sim.policy import KNOT_SD, PROGRAM, programs
 
+PLANNING_HEADS = ("direct", "rollout")
+"""How a :class:`LatentScorer` predicts a program's outcome (``PlanConfig.heads``)."""
 COST_TERMS = ((16, 1.0), (4, 0.5))
 """The planning cost: Σ weight · ‖object position Δ steps into the program − goal‖ over (Δ, weight)."""
 OBJECT_BOX, GOAL_BOX = (0.25, 0.75), (0.15, 0.85)
@@ -75,6 +77,11 @@ class PlanConfig:
     docs/design.md, "Planning: open-loop behaviour data and the rank test")."""
     rank_topk: int = 8
     """k of the rank test's top-k overlap (of ``population`` candidates per start; chance k / population)."""
+    heads: str = "direct"
+    """How a model predicts where a program sends the object: 'direct' (the paper's planner: the direct Δ = 4 / 16
+    heads read the whole program at once) or 'rollout' (the Δ = 1 head composed step by step through the program,
+    each prediction fed back into the predictor; docs/design.md, "Planning: open-loop behaviour data and the rank
+    test")."""
     simulator_controller: bool = False
     """Also plan with the true simulator as the scorer (:class:`SimulatorScorer`): the same CEM with candidates
     ranked perfectly, the planner's ceiling on these starts. Runs may then be empty."""
@@ -89,6 +96,8 @@ class PlanConfig:
         if not 0 < self.goal_distance <= MAX_GOAL_DISTANCE:
             raise ConfigError(f"goal_distance must be in (0, {MAX_GOAL_DISTANCE}] (objects start in {OBJECT_BOX}², "
                               f"goals lie in {GOAL_BOX}²), got {self.goal_distance}")
+        if self.heads not in PLANNING_HEADS:
+            raise ConfigError(f"heads must be one of {list(PLANNING_HEADS)}, got {self.heads!r}")
         if not 1 <= self.rank_topk <= self.population:
             raise ConfigError(f"rank_topk must be in [1, population={self.population}], got {self.rank_topk}")
 
@@ -104,7 +113,10 @@ def make_config(preset: str = "cpu", **overrides) -> PlanConfig:
 class LatentScorer:
     """Scores action programs with one model's direct heads and its position decoder."""
 
-    def __init__(self, run_dir: str, data: str):
+    def __init__(self, run_dir: str, data: str, heads: str = "direct"):
+        if heads not in PLANNING_HEADS:
+            raise ConfigError(f"heads must be one of {list(PLANNING_HEADS)}, got {heads!r}")
+        self.heads = heads
         self.model = load_model(run_dir, map_location="cpu")
         if not {4, 16} <= set(self.model.horizons):
             raise ConfigError(f"{run_dir}: planning needs Δ=4 and Δ=16 heads, model has {self.model.horizons}")
@@ -131,9 +143,13 @@ class LatentScorer:
         zc = z[:, None].expand(E, P, *z.shape[1:]).reshape(E * P, C, -1)
         past = np.repeat(hist["actions"][:, None], P, 1).reshape(E * P, C - 1, 2)
         first = cand[:, :, 0].reshape(E * P, 1, 2)
+        acts = cand.reshape(E * P, PROGRAM, 2).astype(np.float32)
+        if self.heads == "rollout":  # z at C .. C+15: the latent after each of the program's 16 actions
+            zr = m.rollout(zc, acts, PROGRAM, actions_context=past.astype(np.float32))
+            return {delta: self.decoder.predict(zr[:, delta - 1].float().numpy()).reshape(E, P, 2)
+                    for delta, _ in COST_TERMS}
         h = m.trunk(zc, np.concatenate([past, first], 1).astype(np.float32))[:, -1:]
         h16 = torch.cat([h, h.new_zeros(E * P, PROGRAM - 1, h.shape[-1])], 1)
-        acts = cand.reshape(E * P, PROGRAM, 2).astype(np.float32)
         return {delta: self.decoder.predict(m.predict(h16, acts, delta)[:, 0].float().numpy()).reshape(E, P, 2)
                 for delta, _ in COST_TERMS}
 
@@ -319,7 +335,7 @@ def plan_runs(cfg: PlanConfig, runs: dict[str, list[str]], data: str = "") -> di
     for label, dirs in runs.items():
         per = {}
         for r in dirs:
-            scorer = LatentScorer(r, data or cfg.data)
+            scorer = LatentScorer(r, data or cfg.data, cfg.heads)
             res = control(cfg, setup, scorer)
             rank = rank_test(cfg, setup, scorer)
             episodes.setdefault(label, res)
