@@ -170,6 +170,16 @@ def test_rank_test_reads_the_counterfactual_fit_of_a_scorer_that_predicts_positi
     assert truth["spearman"] == pytest.approx(1.0)
     blind = plan.rank_test(cfg, episode_setup(cfg), Positions(blind=True))
     assert blind["spread_ratio"] == pytest.approx(0.0, abs=1e-9) and blind["within_r2"] == pytest.approx(0.0)
+    assert truth["miss_displacement"] == 0.0 and blind["hit_displacement"] == 0.0
+
+    class FingerDecoder(Positions):  # a decoder that reads the finger where the object should be
+        def decode(self, obs):
+            return obs["proprio"][:, :2]
+
+    leaky = plan.rank_test(cfg, episode_setup(cfg), FingerDecoder(blind=False))
+    assert leaky["within_r2"] == pytest.approx(1.0)  # the heads are perfect ...
+    assert leaky["decoded_truth_miss_displacement"] > 0.1  # ... the decoder moves objects that stayed put
+    assert leaky["decoded_truth_within_r2"] < 0.5
 
 
 def test_rank_test_scores_every_controller_on_the_same_candidates_from_the_same_starts(monkeypatch):

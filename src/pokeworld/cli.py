@@ -14,7 +14,7 @@ import sys
 import typing
 from dataclasses import dataclass
 
-from .errors import PokeworldError
+from .errors import ConfigError, PokeworldError
 
 
 @dataclass(frozen=True)
@@ -24,6 +24,7 @@ class Command:
     help: str
     positional: str | None = None
     make: str = "make_config"
+    """The module's ``make(preset) -> config``; empty for a config without presets (its defaults)."""
     runner: str = "run"
     cost: str = ""
     """What the command costs when that does not follow from the preset's per-model cost (the demo)."""
@@ -55,6 +56,18 @@ COMMANDS: dict[str, Command] = {
                     "out"),
     "real-eval": Command("pokeworld.real.evaluate", "RealEvalConfig", "real-robot metrics of one trained run",
                          "run_dir"),
+    # the stable-worldmodel bridge (the swm extra; docs/stable_worldmodel.md)
+    "swm-collect": Command("pokeworld.swm.env", "CollectConfig",
+                           "record PokeWorld episodes with a stable-worldmodel policy through swm.World", make=""),
+    "swm-export": Command("pokeworld.swm.dataset", "ExportConfig",
+                          "export a store to stable-worldmodel's HDF5 format (touch, labels, parameters as columns)",
+                          "store", make="", runner="run_export"),
+    "swm-import": Command("pokeworld.swm.dataset", "ImportConfig",
+                          "import a stable-worldmodel PokeWorld dataset (HDF5 or Lance) into a store", "source",
+                          make="", runner="run_import"),
+    "swm-plan": Command("pokeworld.swm.costable", "SwmPlanConfig",
+                        "push-to-goal with stable-worldmodel's CEM / iCEM / MPPI on X-JEPA costs, beside our planner",
+                        "out"),
 }
 
 #: What ``--preset`` costs, shown by ``pokeworld --help`` and each command's ``--help`` (timings:
@@ -159,7 +172,9 @@ def main(argv: list[str] | None = None) -> int:
         mod = importlib.import_module(cmd.module)
         cls = getattr(mod, cmd.config)
         preset, rest = split_args(argv, cmd.positional, _flag_arity(cls))
-        default = getattr(mod, cmd.make)(preset)
+        if not cmd.make and preset != "cpu":
+            raise ConfigError(f"{name} has no presets; drop --preset {preset}")
+        default = getattr(mod, cmd.make)(preset) if cmd.make else cls()
         # the costs are per trained model, so only the commands that train quote them
         cost = cmd.cost or (PRESET_COSTS.get(preset) if cmd.config in ("TrainConfig", "MapConfig", "RealConfig")
                             else None)

@@ -153,6 +153,16 @@ class LatentScorer:
         return {delta: self.decoder.predict(m.predict(h16, acts, delta)[:, 0].float().numpy()).reshape(E, P, 2)
                 for delta, _ in COST_TERMS}
 
+    @torch.no_grad()
+    def decode(self, obs: dict) -> np.ndarray:
+        """Observations (N, ...) -> (N, 2): the object position this model's encoder and decoder read from them
+        (what a perfect head's prediction would decode to: the rank test's decoder control)."""
+        out = []
+        for i in range(0, len(obs["vision"]), 1024):
+            z = self.model.encode(*(obs[k][i:i + 1024, None] for k in ("vision", "proprio", "touch")))
+            out.append(self.decoder.predict(z[:, 0].float().numpy()))
+        return np.concatenate(out)
+
     def score(self, hist: dict, cand: np.ndarray, goal: np.ndarray) -> np.ndarray:
         """:meth:`positions` -> (E, P) planning cost (COST_TERMS)."""
         pos = self.positions(hist, cand)
@@ -179,6 +189,16 @@ class SimulatorScorer:
             b.step(acts[:, t], render=False)
             pos.append(b.state[:, 4:6].copy())
         return np.stack(pos, 1).reshape(E, P, PROGRAM + 1, 2)
+
+    def end_observations(self, cand: np.ndarray) -> dict:
+        """cand (E, P, 16, 2) -> the true observations after each whole program, flattened to (E·P, ...)."""
+        sim, (E, P) = self.sim, cand.shape[:2]
+        b = PokeWorldSim(E * P, sim.cfg, seed=0)
+        b.state[:], b.params[:] = np.repeat(sim.state, P, 0), np.repeat(sim.params, P, 0)
+        acts = cand.reshape(E * P, PROGRAM, 2)
+        for t in range(PROGRAM):
+            obs = b.step(acts[:, t], render=t == PROGRAM - 1)
+        return obs
 
     def score(self, hist: dict, cand: np.ndarray, goal: np.ndarray) -> np.ndarray:
         """cand (E, P, 16, 2), goal (E, 2) -> (E, P) planning cost; ``hist`` is unused (the state is known)."""
@@ -232,7 +252,10 @@ def rank_test(cfg: PlanConfig, setup: dict, scorer) -> dict:
     :func:`pokeworld.evaluate.ranking.agreement` plus ``moved``: the share of candidates whose true rollout moves
     the object (the rest tie at the start distance, which bounds how much of the order is decidable). A scorer
     with a ``positions`` method (:class:`LatentScorer`) also gets :func:`~pokeworld.evaluate.counterfactual.
-    counterfactual_fit` of its Δ = 16 positions (``spread_ratio``, ``within_r2``): why its order is what it is.
+    counterfactual_fit` of its Δ = 16 positions (``spread_ratio``, ``within_r2``, the displacements it predicts
+    on misses and hits): why its order is what it is; with a ``decode`` method, the same fit of the true end
+    frames read through the model's encoder and decoder (``decoded_truth_*``), which tells a head that predicts
+    phantom pushes from a decoder that reads them into frames where nothing moved.
     """
     sim, obs = start_sim(cfg, setup)
     hist = {"frames": obs["vision"][:, None], "proprio": obs["proprio"][:, None], "touch": obs["touch"][:, None],
@@ -246,6 +269,10 @@ def rank_test(cfg: PlanConfig, setup: dict, scorer) -> dict:
     if hasattr(scorer, "positions"):
         fit = counterfactual_fit(scorer.positions(hist, cand)[PROGRAM], path[:, :, PROGRAM], path[:, 0, 0])
         out |= {k: fit[k] for k in COUNTERFACTUAL_METRICS}
+    if hasattr(scorer, "decode"):  # the same fit for the true end frames read through the model's own decoder
+        decoded = scorer.decode(SimulatorScorer(sim).end_observations(cand)).reshape(path[:, :, PROGRAM].shape)
+        fit = counterfactual_fit(decoded, path[:, :, PROGRAM], path[:, 0, 0])
+        out |= {f"decoded_truth_{k}": fit[k] for k in COUNTERFACTUAL_METRICS}
     return out
 
 
@@ -307,7 +334,8 @@ METRICS = ("reach", "median_improvement", "mean_improvement", "object_moved")
 COUNTERFACTUAL_METRICS = ("spread_ratio", "within_r2", "miss_displacement", "hit_displacement",
                           "hit_true_displacement")
 """Per-model counterfactual fit of the rank test's Δ = 16 positions (:mod:`pokeworld.evaluate.counterfactual`)."""
-RANK_METRICS = ("spearman", "topk_overlap", "topk_chance", "moved", *COUNTERFACTUAL_METRICS)
+RANK_METRICS = ("spearman", "topk_overlap", "topk_chance", "moved", *COUNTERFACTUAL_METRICS,
+                *(f"decoded_truth_{k}" for k in COUNTERFACTUAL_METRICS))
 """Per-model rank-test metrics (:func:`rank_test`); None for the random controller, which scores nothing."""
 
 PAPER = PLANNING
@@ -347,7 +375,9 @@ def plan_runs(cfg: PlanConfig, runs: dict[str, list[str]], data: str = "") -> di
                   f"within-start R² {rank.get('within_r2', float('nan')):+.2f}, predicted displacement on "
                   f"misses {rank.get('miss_displacement', float('nan')):.3f} / on hits "
                   f"{rank.get('hit_displacement', float('nan')):.3f} "
-                  f"(true {rank.get('hit_true_displacement', float('nan')):.3f})")
+                  f"(true {rank.get('hit_true_displacement', float('nan')):.3f}); the true end frames decoded: "
+                  f"misses {rank.get('decoded_truth_miss_displacement', float('nan')):.3f}, within-start R² "
+                  f"{rank.get('decoded_truth_within_r2', float('nan')):+.2f}")
         summary[label] = {k: float(np.mean([v[k] for v in per.values()])) for k in (*METRICS, *RANK_METRICS)}
         summary[label]["per_run"] = per
     return {"summary": summary, "episodes": episodes, "setup": setup}
@@ -415,8 +445,9 @@ def table_lines(summary: dict) -> list[str]:
     """Markdown rows: controller, reach and median improvement, ours beside the paper's, then the rank test."""
     lines = ["| controller | goal-region reach (ours / paper) | median distance improvement (ours / paper) | "
              "mean improvement | object moved | rank ρ (model vs simulator) | top-k overlap (chance) | "
-             "Δ=16 spread ratio | within-start R² | predicted displacement: misses / hits (true) |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "Δ=16 spread ratio | within-start R² | predicted displacement: misses / hits (true) | "
+             "true end frames decoded: misses |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for k, v in summary.items():
         p = PAPER.get(k)
         extra = " | ".join("—" if v.get(m) is None else (f"{v[m]:+.3f}" if m == "mean_improvement" else f"{v[m]:.0%}")
@@ -429,6 +460,8 @@ def table_lines(summary: dict) -> list[str]:
                         for m in ("spread_ratio", "within_r2"))
         disp = ("—" if v.get("miss_displacement") is None or not np.isfinite(v["miss_displacement"]) else
                 f"{v['miss_displacement']:.3f} / {v['hit_displacement']:.3f} ({v['hit_true_displacement']:.3f})")
+        control = v.get("decoded_truth_miss_displacement")
+        disp += " | " + ("—" if control is None or not np.isfinite(control) else f"{control:.3f}")
         lines.append(f"| {k} | {v['reach']:.0%} / {f'{p[0]:.0%}' if p else '—'} | "
                      f"{v['median_improvement']:+.3f} / {f'{p[1]:.2f}' if p else '—'} | {extra} | {rank} | {cf} | {disp} |")
     return lines
