@@ -1,0 +1,356 @@
+"""pokeworld stores <-> stable-worldmodel datasets, both ways.
+
+Export (:func:`export_store`, ``pokeworld swm-export``) writes a pokeworld store as swm's HDF5 format: one ``.h5``
+file with one dataset per column (first axis: every step of every episode, episodes back to back) plus ``ep_len`` /
+``ep_offset``, the layout ``stable_worldmodel.data.HDF5Dataset`` reads. HDF5 rather than Lance (``World.collect``'s
+default) because at this size it is the exact one: it keeps every array bit for bit in its own dtype, where swm's
+Lance writer JPEG-compresses pixel columns and casts every number to float32; it is one file; and pokeworld already
+reads and writes HDF5 (h5py), so nothing new is needed to write it.
+
+Columns, in swm's names (those ``swm/PokeWorld-v0`` and ``World.collect`` produce): ``pixels`` (H, W, 3) uint8 (the
+grayscale frame in all three channels, what swm's image pipeline expects), ``proprio``, ``touch``, ``action`` (the
+action taken after the row's observation; NaN in an episode's last row, swm's mark for "no action"), every
+``labels/<name>`` as ``<name>`` per step, every hidden parameter ``params/<name>`` as ``<name>`` repeated along its
+episode (the hidden physics as columns), ``split`` and ``step_idx``. The root attribute ``pokeworld`` (JSON) records
+which columns are labels and params and the source manifest, so an import restores the store exactly.
+
+Import (:func:`import_dataset`, ``pokeworld swm-import``) reads an swm PokeWorld dataset — our export, or what
+``World`` collected from ``swm/PokeWorld-v0`` in HDF5 or Lance — into a pokeworld store (``pokeworld.data.save``:
+manifest, content hash, splits) that ``pokeworld.data.load`` and the protocol tools open. It treats the file as
+untrusted: HDF5 is read with h5py and Lance through swm's reader (arrow), neither of which runs code; anything
+malformed is a :class:`DataError`.
+
+``World.collect`` (swm 0.1.1) records the observation after every step, not the one reset returns, and rotates the
+action column so a row holds the action taken after its observation, except the last, which holds the episode's
+first action. Either way the last row's action is not a transition of the episode, so an episode of L rows imports
+as L observations and the first L-1 actions.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections import Counter
+from dataclasses import dataclass
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from ..data import SPLITS, Dataset, assign_splits, load, save
+from ..errors import ConfigError, DataError
+from ..io import atomic_path
+from ..sim.core import PARAM_NAMES
+
+EXPORT_FORMAT = "pokeworld-swm-hdf5"
+EXPORT_VERSION = 1
+INDEX = ("ep_len", "ep_offset")
+"""swm's HDF5 episode index datasets."""
+STEP_COLUMNS = {"pixels": "frames", "proprio": "proprio", "touch": "touch"}
+"""swm column -> pokeworld stream, for the per-observation streams."""
+RESERVED = (*STEP_COLUMNS, "action", "split", "step_idx", *INDEX)
+LABEL_COLUMNS = ("object_pos", "object_vel", "finger_pos", "finger_vel", "contact", "goal_pos", "distance")
+"""Per-step columns of a ``World``-collected PokeWorld dataset kept as store labels."""
+MAX_COLUMN_BYTES = 4 << 30
+"""Largest column an import reads into memory (a guard against a hostile file's declared shapes)."""
+
+
+# ---------------------------------------------------------------------- export
+def _episode_rows(ds: Dataset) -> tuple[np.ndarray, np.ndarray]:
+    E, T1 = ds.frames.shape[:2]
+    return np.full(E, T1, np.int32), (np.arange(E, dtype=np.int64) * T1)
+
+
+def export_columns(ds: Dataset) -> dict[str, np.ndarray]:
+    """The store's arrays as swm columns (one row per observation, episodes back to back)."""
+    E, T1 = ds.frames.shape[:2]
+    flat = lambda a: a.reshape(E * T1, *a.shape[2:])
+    per_step = lambda a: np.repeat(a, T1, axis=0)
+    action = np.full((E, T1, ds.actions.shape[2]), np.nan, np.float32)
+    action[:, :-1] = ds.actions
+    cols = {"pixels": flat(np.repeat(ds.frames[..., None], 3, axis=-1)), "proprio": flat(ds.proprio),
+            "touch": flat(ds.touch), "action": flat(action)}
+    for group in (ds.labels, ds.params):
+        clash = sorted(set(group) & (set(cols) | set(RESERVED)))
+        if clash:
+            raise DataError(f"store labels/params {clash} collide with swm column names; rename them before export")
+    clash = sorted(set(ds.labels) & set(ds.params))
+    if clash:
+        raise DataError(f"{clash} is both a label and a param; swm has one column namespace")
+    cols.update({k: flat(v) for k, v in ds.labels.items()})
+    cols.update({k: per_step(v) for k, v in ds.params.items()})
+    cols["split"] = per_step(ds.split)
+    cols["step_idx"] = np.tile(np.arange(T1, dtype=np.int64), E)
+    return cols
+
+
+def export_store(ds: Dataset, out: str | os.PathLike) -> Path:
+    """Write ``ds`` as an swm HDF5 dataset at ``out`` (an ``.h5`` file, written atomically)."""
+    out = Path(out)
+    if out.suffix not in (".h5", ".hdf5"):
+        raise ConfigError(f"the swm HDF5 format needs a .h5 or .hdf5 file name, got {out}")
+    cols = export_columns(ds)
+    lengths, offsets = _episode_rows(ds)
+    meta = {"format": EXPORT_FORMAT, "version": EXPORT_VERSION, "labels": sorted(ds.labels),
+            "params": sorted(ds.params), "source_manifest": ds.manifest}
+    with atomic_path(out) as tmp, h5py.File(tmp, "w", track_order=True) as f:
+        for name, a in cols.items():
+            # a row per chunk, as swm's HDF5Writer lays them out (its reader slices clips of rows)
+            f.create_dataset(name, data=a, chunks=(1, *a.shape[1:]), compression="gzip", compression_opts=1,
+                             track_times=False)
+        f.create_dataset("ep_len", data=lengths, track_times=False)
+        f.create_dataset("ep_offset", data=offsets, track_times=False)
+        f.attrs["pokeworld"] = json.dumps(meta, sort_keys=True, default=str)
+    return out
+
+
+# ---------------------------------------------------------------------- import: readers
+def _checked_index(lengths, offsets, rows: int, where: str) -> tuple[np.ndarray, np.ndarray]:
+    lengths, offsets = np.asarray(lengths), np.asarray(offsets)
+    if lengths.ndim != 1 or lengths.shape != offsets.shape or lengths.size == 0:
+        raise DataError(f"{where}: episode index must be two equal-length 1-d arrays with at least one episode, "
+                        f"got ep_len {lengths.shape}, ep_offset {offsets.shape}")
+    if lengths.dtype.kind not in "iu" or offsets.dtype.kind not in "iu":
+        raise DataError(f"{where}: ep_len / ep_offset must be integers, got {lengths.dtype} / {offsets.dtype}")
+    lengths, offsets = lengths.astype(np.int64), offsets.astype(np.int64)
+    if (lengths < 1).any() or (offsets < 0).any() or (offsets + lengths > rows).any():
+        raise DataError(f"{where}: episode index points outside the {rows} stored rows (or has empty episodes)")
+    return lengths, offsets
+
+
+def _read_h5(path: Path) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, dict]:
+    """Columns, ep_len, ep_offset and our export metadata (empty for other writers) of an swm HDF5 file."""
+    try:
+        with h5py.File(path, "r") as f:
+            missing = [k for k in INDEX if k not in f]
+            if missing:
+                raise DataError(f"{path} is not an swm HDF5 dataset: no {missing} (swm's episode index)")
+            cols = {}
+            for name in f:
+                if not isinstance(f.get(name, getlink=True), h5py.HardLink):
+                    raise DataError(f"{path}: {name!r} is a link to elsewhere; an swm dataset holds its own columns")
+                node = f[name]
+                if not isinstance(node, h5py.Dataset):
+                    raise DataError(f"{path}: {name!r} is a group; swm HDF5 datasets hold only flat columns")
+                if node.is_virtual or node.external:  # data kept in other files: refuse to read them
+                    raise DataError(f"{path}: column {name!r} stores its data outside the file")
+                if node.dtype.kind not in "biuf":  # strings / objects / compounds are no PokeWorld column
+                    continue
+                if node.size * node.dtype.itemsize > MAX_COLUMN_BYTES:
+                    raise DataError(f"{path}: column {name!r} declares {node.shape} {node.dtype}, larger than "
+                                    f"{MAX_COLUMN_BYTES >> 30} GiB")
+                cols[name] = node[()]
+            raw = f.attrs.get("pokeworld")
+            meta = json.loads(raw) if raw is not None else {}
+    except DataError:
+        raise
+    except (OSError, KeyError, ValueError, TypeError) as e:  # json.JSONDecodeError is a ValueError
+        raise DataError(f"cannot read {path} as an swm HDF5 dataset: {e}") from None
+    if meta and meta.get("format") != EXPORT_FORMAT:
+        raise DataError(f"{path}: attribute 'pokeworld' is not a {EXPORT_FORMAT} record")
+    lengths, offsets = cols.pop("ep_len"), cols.pop("ep_offset")
+    return cols, lengths, offsets, meta
+
+
+def _read_lance(path: Path, swm) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, dict]:
+    """Columns of an swm Lance table through swm's own reader; JPEG pixel blobs decoded to (H, W, 3) uint8."""
+    import io
+
+    from PIL import Image
+
+    try:
+        reader = swm.data.get_format("lance").open_reader(path)
+        lengths, offsets = np.asarray(reader.lengths), np.asarray(reader.offsets)
+        cols = {}
+        for name in reader.column_names:
+            data = reader.get_col_data(name)
+            if name == "pixels":
+                data = np.stack([np.asarray(Image.open(io.BytesIO(bytes(b))).convert("RGB")) for b in data])
+            elif data.dtype.kind not in "biuf":
+                continue
+            elif data.ndim == 2 and data.shape[1] == 1:  # Lance stores every number as a list; scalars as [x]
+                data = data[:, 0]
+            cols[name] = data
+    except DataError:
+        raise
+    except Exception as e:  # noqa: BLE001 -- lancedb, arrow and PIL raise many types on a malformed table or image
+        raise DataError(f"cannot read {path} as an swm Lance dataset: {type(e).__name__}: {e}") from None
+    return cols, lengths, offsets, {}
+
+
+def read_swm(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, dict]:
+    """(columns, ep_len, ep_offset, export metadata) of an swm HDF5 file or Lance table; DataError if malformed."""
+    path = Path(path)
+    if not path.exists():
+        raise DataError(f"{path} does not exist")
+    if path.suffix in (".h5", ".hdf5"):
+        cols, lengths, offsets, meta = _read_h5(path)
+    elif str(path).rstrip("/").endswith(".lance"):
+        from .require import stable_worldmodel
+
+        cols, lengths, offsets, meta = _read_lance(path, stable_worldmodel())
+    else:
+        raise DataError(f"{path}: expected an swm .h5/.hdf5 file or a .lance table")
+    rows = {len(a) for a in cols.values()}
+    if len(rows) > 1:
+        raise DataError(f"{path}: columns have different numbers of rows {sorted(rows)}")
+    lengths, offsets = _checked_index(lengths, offsets, rows.pop() if rows else 0, str(path))
+    return cols, lengths, offsets, meta
+
+
+# ---------------------------------------------------------------------- import: to a store
+def _pixels_to_frames(pixels: np.ndarray, where: str) -> tuple[np.ndarray, str]:
+    if pixels.dtype != np.uint8 or pixels.ndim != 4 or pixels.shape[-1] != 3:
+        raise DataError(f"{where}: pixels must be (rows, H, W, 3) uint8, got {pixels.shape} {pixels.dtype}")
+    if (pixels[..., 1] == pixels[..., 0]).all() and (pixels[..., 2] == pixels[..., 0]).all():
+        return pixels[..., 0], "channel0"  # PokeWorld renders gray in all three channels
+    luma = pixels.astype(np.float32) @ np.array([0.299, 0.587, 0.114], np.float32)
+    return np.clip(np.rint(luma), 0, 255).astype(np.uint8), "luma"  # e.g. JPEG-decoded (Lance) frames
+
+
+def _episode_length(lengths: np.ndarray, steps: int) -> int:
+    """Observations per imported episode: ``steps + 1``, or the commonest episode length when ``steps`` is 0."""
+    if steps:
+        return steps + 1
+    counts = Counter(lengths.tolist())
+    return max(counts, key=lambda n: (counts[n], n))
+
+
+def _gather(cols: dict, lengths: np.ndarray, offsets: np.ndarray, keep: np.ndarray, T1: int) -> dict:
+    rows = (offsets[keep][:, None] + np.arange(T1)[None]).reshape(-1)
+    E = int(keep.size)
+    return {k: v[rows].reshape(E, T1, *v.shape[1:]) for k, v in cols.items()}
+
+
+def to_store(cols: dict, lengths: np.ndarray, offsets: np.ndarray, meta: dict, cfg: ImportConfig) -> Dataset:
+    """An in-memory pokeworld :class:`Dataset` from swm columns (see the module docstring for the mapping)."""
+    where = cfg.source
+    missing = [k for k in (*STEP_COLUMNS, "action") if k not in cols]
+    if missing:
+        raise DataError(f"{where}: not a PokeWorld dataset, missing columns {missing}")
+    T1 = _episode_length(lengths, cfg.steps)
+    keep = np.flatnonzero(lengths >= T1)
+    if T1 < 2 or keep.size == 0:
+        raise DataError(f"{where}: no episode has {T1} observations ({T1 - 1} steps); episode lengths "
+                        f"{sorted(set(lengths.tolist()))}")
+    labels = meta.get("labels", [k for k in LABEL_COLUMNS if k in cols])
+    params = meta.get("params", [k for k in PARAM_NAMES if k in cols])
+    wanted = [*STEP_COLUMNS, "action", *labels, *params, *(["split"] if "split" in cols else [])]
+    absent = [k for k in wanted if k not in cols]
+    if absent:
+        raise DataError(f"{where}: columns {absent} named in its pokeworld record are missing")
+    ep = _gather({k: cols[k] for k in wanted}, lengths, offsets, keep, T1)
+    frames, how = _pixels_to_frames(ep["pixels"].reshape(-1, *ep["pixels"].shape[2:]), where)
+    E = keep.size
+    per_episode = {}
+    for name in [*params, *(["split"] if "split" in ep else [])]:
+        v = ep[name]
+        if v.ndim != 2 or not (v == v[:, :1]).all():
+            raise DataError(f"{where}: column {name!r} is not constant within episodes; not a per-episode value")
+        per_episode[name] = v[:, 0]
+    if "split" in per_episode:
+        split = per_episode.pop("split")
+        if split.dtype.kind not in "iu" or not np.isin(split, list(SPLITS.values())).all():
+            raise DataError(f"{where}: split column holds values outside {sorted(SPLITS.values())}")
+        split = split.astype(np.int8)
+    else:
+        split = assign_splits(E, tuple(cfg.split_fractions), np.random.default_rng(cfg.seed))
+    if not meta:  # a World-collected dataset: derive the log-parameters the probes read, as generate does
+        per_episode = {k: v.astype(np.float32) for k, v in per_episode.items()}
+        for src, dst in (("mass", "log_m"), ("stiffness", "log_k")):
+            if src in per_episode and (per_episode[src] > 0).all():
+                per_episode[dst] = np.log(per_episode[src]).astype(np.float32)
+    step = lambda k: ep[k] if meta else ep[k].astype(np.float32)
+    manifest = {"kind": "swm-import", "source": str(cfg.source), "frames_from_pixels": how,
+                "swm_episodes": int(lengths.size), "dropped_short_episodes": int(lengths.size - E),
+                "source_manifest": meta.get("source_manifest")}
+    return Dataset(frames=frames.reshape(E, T1, *frames.shape[1:]), proprio=step("proprio"), touch=step("touch"),
+                   actions=step("action")[:, :-1], labels={k: step(k) for k in labels}, params=per_episode,
+                   split=split, manifest=manifest)
+
+
+def import_dataset(cfg: ImportConfig) -> Dataset:
+    """Read ``cfg.source`` (swm HDF5 or Lance) into a validated in-memory pokeworld Dataset."""
+    cols, lengths, offsets, meta = read_swm(cfg.source)
+    return to_store(cols, lengths, offsets, meta, cfg)
+
+
+# ---------------------------------------------------------------------- configs / CLI
+@dataclass
+class ExportConfig:
+    """Export a pokeworld store to stable-worldmodel's HDF5 dataset format (``pokeworld swm-export STORE OUT``)."""
+
+    store: str = ""
+    """pokeworld store directory (data.h5 + manifest.json) to export."""
+    out: str = "out/swm/pokeworld.h5"
+    """Output .h5 file (swm's HDF5 format; written atomically)."""
+    overwrite: bool = False
+    """Replace an existing output file."""
+
+
+@dataclass
+class ImportConfig:
+    """Import a stable-worldmodel PokeWorld dataset into a pokeworld store (``pokeworld swm-import SWMDATA OUT``)."""
+
+    source: str = ""
+    """swm dataset: an .h5/.hdf5 file (exact) or a .lance table (frames come back JPEG-decoded)."""
+    out: str = "out/swm/store"
+    """Output pokeworld store directory (written atomically)."""
+    steps: int = 0
+    """Control steps per imported episode (a store has one length): longer episodes are cut, shorter dropped;
+    0 takes the commonest episode length (World's truncation length)."""
+    split_fractions: tuple[float, float, float] = (0.6, 0.2, 0.2)
+    """Train / probe-fit / probe-test fractions, for sources without a split column (World-collected data)."""
+    seed: int = 0
+    """Seed of that split assignment."""
+    overwrite: bool = False
+    """Replace an existing output store."""
+
+    def __post_init__(self) -> None:
+        if self.steps < 0:
+            raise ConfigError(f"steps must be >= 0, got {self.steps}")
+
+
+def _refuse_existing(out: Path, overwrite: bool) -> None:
+    if out.exists() and not overwrite:
+        raise ConfigError(f"{out} exists; pass --overwrite or choose another --out")
+
+
+def run_export(cfg: ExportConfig) -> Path:
+    """Load ``cfg.store`` (hash-verified) and write it as swm HDF5 to ``cfg.out``."""
+    if not cfg.store:
+        raise ConfigError("swm-export needs the store to export")
+    out = Path(cfg.out)
+    _refuse_existing(out, cfg.overwrite)
+    ds = load(cfg.store)
+    export_store(ds, out)
+    print(f"[swm-export] wrote {ds.num_episodes} episodes x {ds.num_steps + 1} rows to {out} "
+          f"(columns: pixels, proprio, touch, action, {len(ds.labels)} labels, {len(ds.params)} params)")
+    return out
+
+
+def run_import(cfg: ImportConfig) -> Path:
+    """Import ``cfg.source`` and save it as a pokeworld store at ``cfg.out``."""
+    if not cfg.source:
+        raise ConfigError("swm-import needs the swm dataset to import")
+    out = Path(cfg.out)
+    _refuse_existing(out, cfg.overwrite)
+    ds = import_dataset(cfg)
+    save(ds, out)
+    m = ds.manifest
+    print(f"[swm-import] wrote {ds.num_episodes} episodes x {ds.num_steps} steps to {out} "
+          f"({m['dropped_short_episodes']} shorter episodes dropped; splits {m['split_counts']})")
+    return out
+
+
+__all__ = [
+    "ExportConfig",
+    "ImportConfig",
+    "export_columns",
+    "export_store",
+    "import_dataset",
+    "read_swm",
+    "run_export",
+    "run_import",
+    "to_store",
+]
