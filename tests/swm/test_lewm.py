@@ -66,7 +66,7 @@ def test_interrupted_run_resumes_to_the_same_weights(store, tmp_path, monkeypatc
     assert a["step"] == b["step"] == 40 and a["done"] and b["done"]
     for k in a["model"]:
         assert torch.equal(a["model"][k], b["model"][k]), k
-    strip = lambda rows: [{k: v for k, v in r.items() if k != "seconds"} for r in rows]
+    strip = lambda rows: [{k: v for k, v in r.items() if k != "seconds"} for r in rows]  # noqa: E731
     assert strip(read_jsonl(tmp_path / "cut" / "metrics.jsonl")) == strip(read_jsonl(tmp_path / "whole" / "metrics.jsonl"))
 
 

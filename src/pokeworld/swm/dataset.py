@@ -64,8 +64,8 @@ def _episode_rows(ds: Dataset) -> tuple[np.ndarray, np.ndarray]:
 def export_columns(ds: Dataset) -> dict[str, np.ndarray]:
     """The store's arrays as swm columns (one row per observation, episodes back to back)."""
     E, T1 = ds.frames.shape[:2]
-    flat = lambda a: a.reshape(E * T1, *a.shape[2:])
-    per_step = lambda a: np.repeat(a, T1, axis=0)
+    flat = lambda a: a.reshape(E * T1, *a.shape[2:])  # noqa: E731
+    per_step = lambda a: np.repeat(a, T1, axis=0)  # noqa: E731
     action = np.full((E, T1, ds.actions.shape[2]), np.nan, np.float32)
     action[:, :-1] = ds.actions
     cols = {"pixels": flat(np.repeat(ds.frames[..., None], 3, axis=-1)), "proprio": flat(ds.proprio),
@@ -260,7 +260,7 @@ def to_store(cols: dict, lengths: np.ndarray, offsets: np.ndarray, meta: dict, c
         for src, dst in (("mass", "log_m"), ("stiffness", "log_k")):
             if src in per_episode and (per_episode[src] > 0).all():
                 per_episode[dst] = np.log(per_episode[src]).astype(np.float32)
-    step = lambda k: ep[k] if meta else ep[k].astype(np.float32)
+    step = lambda k: ep[k] if meta else ep[k].astype(np.float32)  # noqa: E731
     manifest = {"kind": "swm-import", "source": str(cfg.source), "frames_from_pixels": how,
                 "swm_episodes": int(lengths.size), "dropped_short_episodes": int(lengths.size - E),
                 "source_manifest": meta.get("source_manifest")}

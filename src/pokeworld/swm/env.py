@@ -105,7 +105,7 @@ class PokeWorldGoalEnv(gym.Env):
 
     def _variation_space(self):
         swm, c, r = _swm(), self.cfg, self.ranges
-        geo = lambda lo_hi: float(np.sqrt(lo_hi[0] * lo_hi[1]))
+        geo = lambda lo_hi: float(np.sqrt(lo_hi[0] * lo_hi[1]))  # noqa: E731
         lo_f, hi_f = c.finger_radius + 0.02, c.arena - c.finger_radius - 0.02
         lo_o, hi_o = c.object_radius + 0.02, c.arena - c.object_radius - 0.02
         clearance = START_CLEARANCE * (c.finger_radius + c.object_radius)
