@@ -218,24 +218,32 @@ def test_tiny_runs_with_the_new_options_train_record_and_load(data_dir, tmp_path
         assert rows[-1]["latent_precision"] > 0
         assert ("latent_weight" in rows[-1]) == (kw["gnll_variance"] == "beta")
     m = load_model(out)
-    assert m.gnll_variance == kw.get("gnll_variance", "free")
+    assert m.gnll_variance == kw.get("gnll_variance", "bounded")
     assert (m.latent_logvar is not None) == (kw.get("gnll_variance") == "per_head")
 
 
 def test_runs_recorded_before_the_options_resume_unchanged(data_dir, tmp_path):
-    """A config.json written before sigreg_pool / gnll_variance existed lacks them: it means the defaults
-    (per-step SIGReg, free variances), so it resumes without a conflict; asking it for another reading
-    conflicts."""
-    kw = dict(data=data_dir, out=str(tmp_path / "old"), steps=4, objective="gnll")
+    """A config.json written before sigreg_pool / gnll_variance existed lacks them: it means per-step SIGReg
+    (still the default) and free variances (the default then; 'bounded' now), so it resumes with
+    gnll_variance='free' and conflicts with any other reading, the new default included."""
+    kw = dict(data=data_dir, out=str(tmp_path / "old"), steps=4, objective="gnll", gnll_variance="free")
     run(make_config("tiny", stop_at=2, **kw))
     path = tmp_path / "old" / "config.json"
     old = json.loads(path.read_text())
     new_fields = ("sigreg_pool", "sigreg_rows", "gnll_variance", "gnll_beta", "gnll_logvar_bound")
     path.write_text(json.dumps({k: v for k, v in old.items() if k not in new_fields}))
-    for bad in (dict(sigreg_pool="pooled"), dict(gnll_variance="bounded")):
+    for bad in (dict(sigreg_pool="pooled"), dict(gnll_variance="bounded"), dict(gnll_variance="beta")):
         with pytest.raises(ConfigError, match="different config"):
             run(make_config("tiny", **{**kw, **bad}))
     assert (run(make_config("tiny", **kw)) / "DONE").exists()
+    # its checkpoint, written before the kwarg existed, loads as the free-variance model it is
+    from pokeworld import checkpoint
+
+    for name in ("final.pt", "ckpt.pt"):
+        ck = checkpoint.load(tmp_path / "old" / name)
+        del ck["model_kwargs"]["gnll_variance"]
+        torch.save(ck, tmp_path / "old" / name)
+    assert load_model(tmp_path / "old").gnll_variance == "free"
 
 
 def test_status_lines_report_step_loss_speed_and_time_left(data_dir, tmp_path, capsys):

@@ -24,7 +24,7 @@ import torch
 from . import checkpoint
 from .errors import ConfigError
 from .io import append_jsonl, read_jsonl
-from .models.xjepa import XJEPA
+from .models.xjepa import VALUES_BEFORE_THE_FIELD, XJEPA
 
 
 class MetricsLog:
@@ -83,7 +83,8 @@ def load_model(run_dir: str | os.PathLike, map_location: str | torch.device = "c
     if not path.exists():
         raise FileNotFoundError(f"{run_dir} holds no final.pt or ckpt.pt; train it with `pokeworld train`")
     ck = checkpoint.load(path, map_location=map_location)
-    model = XJEPA(**ck["model_kwargs"])
+    # a checkpoint written before a kwarg existed means that kwarg's value then, not today's default
+    model = XJEPA(**{**VALUES_BEFORE_THE_FIELD, **ck["model_kwargs"]})
     model.load_state_dict(ck["model"])
     return model.to(map_location).eval()
 

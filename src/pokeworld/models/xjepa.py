@@ -65,6 +65,12 @@ GNLL_HEADS = ("latent", "all")
 SYSID_PARAMS = ("log_m", "gamma", "log_k")
 
 
+VALUES_BEFORE_THE_FIELD = {"gnll_variance": "free"}
+"""Model kwargs / TrainConfig fields whose default changed after runs were recorded without them -> the value such
+a record means (it was the default then). Every other field added later is read at its default, which reproduces
+the behaviour before it existed."""
+
+
 def check_variant(variant: str) -> None:
     if variant not in VARIANTS:
         raise ConfigError(f"unknown variant {variant!r}; choose one of {list(VARIANTS)}")

@@ -17,7 +17,7 @@ from ..config import from_preset, to_dict
 from ..devices import pick_device
 from ..errors import ConfigError
 from ..losses import SIGREG_POOLS
-from ..models.xjepa import GNLL_HEADS, OBJECTIVES, check_gnll_variance, check_variant
+from ..models.xjepa import GNLL_HEADS, OBJECTIVES, VALUES_BEFORE_THE_FIELD, check_gnll_variance, check_variant
 
 
 @dataclass
@@ -204,7 +204,8 @@ RESUMABLE_FIELDS = ("steps", "stop_at", "ckpt_every", "log_every", "tensorboard"
 
 #: Fields removed from TrainConfig -> the value with which a run made before the removal behaves
 #: exactly like the current code; a run that set anything else conflicts. (Fields added later are
-#: compared at their default, which by convention reproduces the behaviour before they existed.)
+#: compared at their default, which by convention reproduces the behaviour before they existed, except
+#: those in models.xjepa.VALUES_BEFORE_THE_FIELD, whose default changed since.)
 RETIRED_FIELDS: dict[str, Any] = {"glide_episode_weight": 1.0}
 
 def field_defaults() -> dict[str, Any]:
@@ -283,7 +284,7 @@ def check_existing(cfg: TrainConfig) -> None:
     if not (out / "config.json").exists():
         return
     old = json.loads((out / "config.json").read_text())
-    default = to_dict(TrainConfig())
+    default = {**to_dict(TrainConfig()), **VALUES_BEFORE_THE_FIELD}  # what a config.json without a field means
     diff = {k: (old.get(k, default[k]), v) for k, v in to_dict(cfg).items()
             if k not in RESUMABLE_FIELDS and old.get(k, default[k]) != v}
     diff.update({k: (old[k], "(removed)") for k, same in RETIRED_FIELDS.items() if old.get(k, same) != same})
