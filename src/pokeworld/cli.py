@@ -70,7 +70,7 @@ COMMANDS: dict[str, Command] = {
                                 "data"),
     "swm-plan": Command("pokeworld.swm.costable", "SwmPlanConfig",
                         "push-to-goal with stable-worldmodel's CEM / iCEM / MPPI on X-JEPA costs, beside our planner",
-                        "out"),
+                        "plan.out"),
 }
 
 #: What ``--preset`` costs, shown by ``pokeworld --help`` and each command's ``--help`` (timings:

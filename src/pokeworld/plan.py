@@ -319,14 +319,19 @@ def control(cfg: PlanConfig, setup: dict, scorer: LatentScorer | None, simulator
         finger_path.append(sim.state[:, 0:2].copy())
     d = np.stack(dist, 1)
     paths = np.stack(obj_path, 1)
+    return episode_metrics(d, paths, cfg.goal_radius) | {
+        "distance": d, "finger_final": sim.state[:, 0:2].copy(), "object_path": paths,
+        "finger_path": np.stack(finger_path, 1)}
+
+
+def episode_metrics(dist: np.ndarray, object_path: np.ndarray, goal_radius: float) -> dict:
+    """:data:`METRICS` from object-goal distances (E, T+1) and object paths (E, T+1, 2) of a controller's episodes."""
     # the median improvement is exactly 0 whenever most episodes never touch the object; the mean and the
     # share of episodes whose object moved say whether that is what happened
-    moved = np.linalg.norm(paths - paths[:, :1], axis=-1).max(1) > 0.01
-    return {"reach": float((d.min(1) < cfg.goal_radius).mean()),
-            "median_improvement": float(np.median(d[:, 0] - d[:, -1])),
-            "mean_improvement": float(np.mean(d[:, 0] - d[:, -1])), "object_moved": float(moved.mean()), "distance": d,
-            "finger_final": sim.state[:, 0:2].copy(), "object_path": paths,
-            "finger_path": np.stack(finger_path, 1)}
+    moved = np.linalg.norm(object_path - object_path[:, :1], axis=-1).max(1) > 0.01
+    return {"reach": float((dist.min(1) < goal_radius).mean()),
+            "median_improvement": float(np.median(dist[:, 0] - dist[:, -1])),
+            "mean_improvement": float(np.mean(dist[:, 0] - dist[:, -1])), "object_moved": float(moved.mean())}
 
 
 METRICS = ("reach", "median_improvement", "mean_improvement", "object_moved")

@@ -37,10 +37,10 @@ class ShuffledScorer:
 
 
 def _info(cfg):
-    setup = episode_setup(cfg.plan_config())
-    sim, obs = start_sim(cfg.plan_config(), setup)
+    setup = episode_setup(cfg.plan)
+    sim, obs = start_sim(cfg.plan, setup)
     hist = {"frames": [obs["vision"]], "proprio": [obs["proprio"]], "touch": [obs["touch"]], "actions": []}
-    return sim, info_for(hist, setup["goal"], cfg.context), setup
+    return sim, info_for(hist, setup["goal"], cfg.plan.context), setup
 
 
 @pytest.mark.parametrize("search", ["knots", "actions"])
@@ -49,7 +49,7 @@ def test_cost_has_the_shapes_swm_solvers_expect(tiny_run, search, solver):
     run_dir, data = tiny_run
     from pokeworld.plan import LatentScorer
 
-    cfg = make_config("tiny", episodes=3, population=6, elites=2, search=search)
+    cfg = make_config("tiny", plan={"episodes": 3, "population": 6, "elites": 2, "rank_topk": 2}, search=search)
     _sim, info, _ = _info(cfg)
     cost = PlanningCost(LatentScorer(run_dir, data), search)
     cand = torch.randn(3, 6, cost.horizon, 2)
@@ -65,8 +65,8 @@ def test_cost_has_the_shapes_swm_solvers_expect(tiny_run, search, solver):
 
 def test_simulator_cost_makes_swm_cem_push_objects_to_goals_a_shuffled_cost_does_not():
     """Planted: the same solver and budget, one cost ranks candidates truly and one in random order."""
-    cfg = make_config("tiny", episodes=10, steps=48, population=32, elites=4, iterations=2)
-    setup = episode_setup(cfg.plan_config())
+    cfg = make_config("tiny", plan={"episodes": 10, "steps": 48, "population": 32, "elites": 4, "iterations": 2})
+    setup = episode_setup(cfg.plan)
     true = solver_control(cfg, setup, "cem", SimulatorScorer)
     shuffled = solver_control(cfg, setup, "cem", ShuffledScorer)
     assert true["mean_improvement"] > shuffled["mean_improvement"] + 0.15
@@ -77,7 +77,7 @@ def test_simulator_cost_makes_swm_cem_push_objects_to_goals_a_shuffled_cost_does
 
 def test_comparison_runs_end_to_end_on_a_tiny_trained_run(tiny_run, tmp_path):
     run_dir, data = tiny_run
-    cfg = make_config("tiny", runs=(run_dir,), data=data, out=str(tmp_path / "cmp"))
+    cfg = make_config("tiny", plan={"runs": (run_dir,), "data": data, "out": str(tmp_path / "cmp")})
     path = costable.run(cfg)
     rep = json.loads(path.read_text())
     label = costable.run_label(run_dir)
@@ -96,8 +96,8 @@ def test_bad_configs_raise():
     with pytest.raises(ConfigError, match="search"):
         make_config("tiny", search="joints")
     with pytest.raises(ConfigError, match="elites"):
-        make_config("tiny", elites=99)
-    with pytest.raises(ConfigError, match="--runs"):
+        make_config("tiny", plan={"elites": 99})
+    with pytest.raises(ConfigError, match="--plan.runs"):  # the runs are the shared PlanConfig's
         costable.run(make_config("tiny", simulator_ceiling=False))
 
 
@@ -115,7 +115,7 @@ def test_one_solve_hands_the_scorer_one_history_and_every_candidate_as_a_program
             self.cands.append(cand)
             return np.linalg.norm(cand[:, :, -1] - goal[:, None], axis=-1)  # wants the last action at the goal
 
-    cfg = make_config("tiny", episodes=2, population=16, elites=4, iterations=3)
+    cfg = make_config("tiny", plan={"episodes": 2, "population": 16, "elites": 4, "iterations": 3})
     _, info, setup = _info(cfg)
     rec = Recording()
     cost = PlanningCost(rec, "knots")

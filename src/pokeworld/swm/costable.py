@@ -19,7 +19,7 @@ import contextlib
 import io
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -28,7 +28,18 @@ import torch
 from ..config import from_preset, to_dict
 from ..errors import ConfigError
 from ..io import atomic_path, write_json
-from ..plan import LatentScorer, PlanConfig, SimulatorScorer, control, episode_setup, rank_test, start_sim
+from ..plan import (
+    METRICS,
+    PRESETS as PLAN_PRESETS,
+    LatentScorer,
+    PlanConfig,
+    SimulatorScorer,
+    control,
+    episode_metrics,
+    episode_setup,
+    rank_test,
+    start_sim,
+)
 from ..sim import PokeWorldSim
 from ..sim.policy import KNOT_SD, PROGRAM, programs
 from .require import stable_worldmodel
@@ -105,40 +116,20 @@ def info_for(hist: dict, goal: np.ndarray, context: int) -> dict:
 class SwmPlanConfig:
     """Push-to-goal with stable-worldmodel's solvers on our planning cost, beside our own planner."""
 
-    out: str = "out/swm_plan"
-    """Output directory for swm_plan.json and swm_plan.md."""
-    runs: tuple[str, ...] = ()
-    """Trained X-JEPA run directories (with Δ=4 and Δ=16 heads) whose planning cost the solvers use."""
-    data: str = ""
-    """Dataset for fitting each model's position decoder (default: each run's training data)."""
+    plan: PlanConfig = field(default_factory=lambda: PlanConfig(out="out/swm_plan"))
+    """What every controller shares with ``pokeworld plan``: the runs (``--plan.runs``) and their decoder corpus
+    (``--plan.data``), the starts and goals, the budget (population = swm num_samples, elites = topk, iterations =
+    n_steps, replanning), and the output directory (``--plan.out``: swm_plan.json, swm_plan.md)."""
     solvers: tuple[str, ...] = SOLVERS
     """stable-worldmodel solvers to plan with (subset of cem, icem, mppi)."""
     search: str = "knots"
     """What the solvers optimise: "knots" (our two-knot program family, horizon 2) or "actions" (16 raw actions)."""
-    episodes: int = 50
-    """Planning episodes (identical starts and goals for every controller)."""
-    steps: int = 48
-    """Control steps per episode."""
-    replan: int = 4
-    """Steps executed between replans."""
-    population: int = 64
-    """Candidates per iteration (swm num_samples)."""
-    elites: int = 8
-    """Elites per iteration (swm topk)."""
-    iterations: int = 3
-    """Iterations per replan (swm n_steps)."""
-    context: int = 8
-    """Observations of history fed to the model."""
-    goal_radius: float = 0.1
-    """A success is the object's centre entering this radius around the goal."""
-    goal_distance: float = 0.55
-    """Initial object-goal distance of every episode."""
     icem_noise_beta: float = 2.0
     """iCEM colored-noise exponent (swm default)."""
     icem_alpha: float = 0.1
     """iCEM momentum of the mean/std update (swm default)."""
     icem_elite_keep: int = 5
-    """iCEM elites carried to the next iteration (swm default; at most ``elites``)."""
+    """iCEM elites carried to the next iteration (swm default; at most ``plan.elites``)."""
     mppi_temperature: float = 0.1
     """MPPI softmax temperature over the elites' costs (swm default 0.5 is flat at our cost scale, ~0.1 apart)."""
     ours: bool = True
@@ -147,8 +138,6 @@ class SwmPlanConfig:
     """Also plan with swm CEM on the true simulator's cost (SimulatorScorer): the ceiling on these starts."""
     random_floor: bool = True
     """Also run the random controller (pokeworld.plan.control without a scorer): the floor."""
-    seed: int = 0
-    """Seed of starts, goals and solver noise."""
 
     def __post_init__(self) -> None:
         bad = sorted(set(self.solvers) - set(SOLVERS))
@@ -156,20 +145,9 @@ class SwmPlanConfig:
             raise ConfigError(f"unknown solvers {bad}; choose from {list(SOLVERS)}")
         if self.search not in SEARCH:
             raise ConfigError(f"search must be one of {sorted(SEARCH)}, got {self.search!r}")
-        if self.episodes < 1 or self.steps < 1 or self.iterations < 1:
-            raise ConfigError("episodes, steps and iterations must be >= 1")
-        self.plan_config()  # PlanConfig validates elites, replan and goal distance
-
-    def plan_config(self) -> PlanConfig:
-        """The pokeworld.plan config with the same starts, budget and environment."""
-        return PlanConfig(episodes=self.episodes, steps=self.steps, replan=self.replan, population=self.population,
-                          elites=self.elites, iterations=self.iterations, context=self.context,
-                          goal_radius=self.goal_radius, goal_distance=self.goal_distance,
-                          rank_topk=min(8, self.population), seed=self.seed)
 
 
-PRESETS = {"tiny": {"episodes": 3, "steps": 8, "population": 8, "elites": 2, "iterations": 1, "icem_elite_keep": 1},
-           "cpu": {}}
+PRESETS = {"tiny": {"plan": PLAN_PRESETS["tiny"], "icem_elite_keep": 1}, "cpu": {}}
 
 
 def make_config(preset: str = "cpu", **overrides) -> SwmPlanConfig:
@@ -182,47 +160,39 @@ def make_solver(name: str, cost: PlanningCost, cfg: SwmPlanConfig):
     swm = stable_worldmodel()
     from gymnasium.spaces import Box
 
-    common = {"batch_size": cfg.episodes, "num_samples": cfg.population, "var_scale": KNOT_SD,
-              "n_steps": cfg.iterations, "topk": cfg.elites, "device": "cpu", "seed": cfg.seed}
+    common = {"batch_size": cfg.plan.episodes, "num_samples": cfg.plan.population, "var_scale": KNOT_SD,
+              "n_steps": cfg.plan.iterations, "topk": cfg.plan.elites, "device": "cpu", "seed": cfg.plan.seed}
     if name == "cem":
         solver = swm.solver.CEMSolver(cost, **common)
     elif name == "icem":
         solver = swm.solver.ICEMSolver(cost, noise_beta=cfg.icem_noise_beta, alpha=cfg.icem_alpha,
-                                       n_elite_keep=min(cfg.icem_elite_keep, cfg.elites), **common)
+                                       n_elite_keep=min(cfg.icem_elite_keep, cfg.plan.elites), **common)
     elif name == "mppi":
         solver = swm.solver.MPPISolver(cost, temperature=cfg.mppi_temperature, **common)
     else:
         raise ConfigError(f"unknown solver {name!r}; choose from {list(SOLVERS)}")
-    receding = cfg.replan if cfg.search == "actions" else 1
-    solver.configure(action_space=Box(-1.0, 1.0, (cfg.episodes, 2), np.float32), n_envs=cfg.episodes,
+    receding = cfg.plan.replan if cfg.search == "actions" else 1
+    solver.configure(action_space=Box(-1.0, 1.0, (cfg.plan.episodes, 2), np.float32), n_envs=cfg.plan.episodes,
                      config=swm.PlanConfig(horizon=cost.horizon, receding_horizon=receding, warm_start=False))
     return solver
-
-
-def episode_metrics(dist: np.ndarray, object_path: np.ndarray, goal_radius: float) -> dict:
-    """The planning metrics of pokeworld.plan.control from distances (E, T+1) and object paths (E, T+1, 2)."""
-    moved = np.linalg.norm(object_path - object_path[:, :1], axis=-1).max(1) > 0.01
-    return {"reach": float((dist.min(1) < goal_radius).mean()),
-            "median_improvement": float(np.median(dist[:, 0] - dist[:, -1])),
-            "mean_improvement": float(np.mean(dist[:, 0] - dist[:, -1])), "object_moved": float(moved.mean())}
 
 
 def solver_control(cfg: SwmPlanConfig, setup: dict, solver_name: str,
                    scorer_for: Callable[[PokeWorldSim], object]) -> dict:
     """Run every episode in the true simulator, replanning every ``replan`` steps with an swm solver on
     PlanningCost(scorer_for(sim)) and executing the first actions of the program its mean stands for."""
-    sim, obs = start_sim(cfg.plan_config(), setup)
+    sim, obs = start_sim(cfg.plan, setup)
     cost = PlanningCost(scorer_for(sim), cfg.search)
     solver = make_solver(solver_name, cost, cfg)
     goal = setup["goal"]
     hist = {"frames": [obs["vision"]], "proprio": [obs["proprio"]], "touch": [obs["touch"]], "actions": []}
     dist, obj_path = [np.linalg.norm(sim.state[:, 4:6] - goal, axis=1)], [sim.state[:, 4:6].copy()]
-    plan = np.zeros((cfg.episodes, PROGRAM, 2))
-    for t in range(cfg.steps):
-        k = t % cfg.replan
+    plan = np.zeros((cfg.plan.episodes, PROGRAM, 2))
+    for t in range(cfg.plan.steps):
+        k = t % cfg.plan.replan
         if k == 0:
             with contextlib.redirect_stdout(io.StringIO()):  # every swm solve prints its time
-                solved = solver.solve(info_for(hist, goal, cfg.context))
+                solved = solver.solve(info_for(hist, goal, cfg.plan.context))
             plan = cost.programs(solved["actions"][:, None])[:, 0]
         a = plan[:, k]
         obs = sim.step(a)
@@ -232,7 +202,7 @@ def solver_control(cfg: SwmPlanConfig, setup: dict, solver_name: str,
         dist.append(np.linalg.norm(sim.state[:, 4:6] - goal, axis=1))
         obj_path.append(sim.state[:, 4:6].copy())
     d = np.stack(dist, 1)
-    return episode_metrics(d, np.stack(obj_path, 1), cfg.goal_radius) | {"distance": d}
+    return episode_metrics(d, np.stack(obj_path, 1), cfg.plan.goal_radius) | {"distance": d}
 
 
 def timed(cfg: SwmPlanConfig, fn: Callable[[], dict]) -> dict:
@@ -241,10 +211,10 @@ def timed(cfg: SwmPlanConfig, fn: Callable[[], dict]) -> dict:
     t0 = time.perf_counter()
     res = fn()
     wall = time.perf_counter() - t0
-    decisions = -(-cfg.steps // cfg.replan)
-    return ({k: res[k] for k in ("reach", "median_improvement", "mean_improvement", "object_moved")}
+    decisions = -(-cfg.plan.steps // cfg.plan.replan)
+    return ({k: res[k] for k in METRICS}
             | {"wall_s": wall, "s_per_decision": wall / decisions,
-               "ms_per_episode_decision": 1e3 * wall / decisions / cfg.episodes})
+               "ms_per_episode_decision": 1e3 * wall / decisions / cfg.plan.episodes})
 
 
 def run_label(run_dir: str) -> str:
@@ -253,7 +223,7 @@ def run_label(run_dir: str) -> str:
 
 def compare(cfg: SwmPlanConfig) -> dict:
     """Every controller on one start/goal set: {label: metrics}, plus each run's rank test."""
-    pc, setup = cfg.plan_config(), episode_setup(cfg.plan_config())
+    pc, setup = cfg.plan, episode_setup(cfg.plan)
     results, ranks = {}, {}
 
     def record(label: str, fn: Callable[[], dict]) -> None:
@@ -266,8 +236,8 @@ def compare(cfg: SwmPlanConfig) -> dict:
         record("random", lambda: control(pc, setup, None))
     if cfg.simulator_ceiling:
         record("simulator/swm-cem", lambda: solver_control(cfg, setup, "cem", SimulatorScorer))
-    for r in cfg.runs:
-        label, scorer = run_label(r), LatentScorer(r, cfg.data)
+    for r in cfg.plan.runs:
+        label, scorer = run_label(r), LatentScorer(r, cfg.plan.data)
         ranks[label] = rank_test(pc, setup, scorer)
         if cfg.ours:
             record(f"{label}/ours", lambda s=scorer: control(pc, setup, s))
@@ -287,12 +257,13 @@ def table_lines(results: dict) -> list[str]:
 
 
 def run(cfg: SwmPlanConfig) -> Path:
-    """Plan with every controller, write swm_plan.json and swm_plan.md under ``cfg.out``; returns the JSON path."""
-    if not cfg.runs and not cfg.simulator_ceiling:
-        raise ConfigError("give at least one trained run directory with --runs (or keep --simulator-ceiling)")
+    """Plan with every controller, write swm_plan.json and swm_plan.md under ``cfg.plan.out``; returns the JSON
+    path."""
+    if not cfg.plan.runs and not cfg.simulator_ceiling:
+        raise ConfigError("give at least one trained run directory with --plan.runs (or keep --simulator-ceiling)")
     stable_worldmodel()
     torch.set_num_threads(1)
-    out = Path(cfg.out)
+    out = Path(cfg.plan.out)
     out.mkdir(parents=True, exist_ok=True)
     compared = compare(cfg)
     lines = table_lines(compared["results"])
@@ -305,12 +276,13 @@ def run(cfg: SwmPlanConfig) -> Path:
 
 def solver_notes(cfg: SwmPlanConfig) -> list[str]:
     """How the swm solvers' budget and update rules differ from our CEM's (pokeworld.plan.control)."""
-    return [(f"all controllers: {cfg.population} candidates x {cfg.iterations} iterations, {cfg.elites} elites, "
-            f"replanning every {cfg.replan} of {cfg.steps} steps, 16-step programs, initial std {KNOT_SD} around 0"),
+    p = cfg.plan
+    return [(f"all controllers: {p.population} candidates x {p.iterations} iterations, {p.elites} elites, "
+            f"replanning every {p.replan} of {p.steps} steps, 16-step programs, initial std {KNOT_SD} around 0"),
             f"swm search space: {cfg.search} (horizon {SEARCH[cfg.search]} x 2)",
             ("ours: std floor +0.05 per iteration, fresh proposals every iteration; swm CEM: no std floor, candidate 0 "
             "is the current mean"),
             (f"swm iCEM: colored noise beta {cfg.icem_noise_beta}, momentum {cfg.icem_alpha}, keeps "
-            f"{min(cfg.icem_elite_keep, cfg.elites)} elites, clamps candidates to [-1, 1]"),
-            f"swm MPPI: softmax(-cost / {cfg.mppi_temperature}) over the top {cfg.elites}, std never updated",
+            f"{min(cfg.icem_elite_keep, cfg.plan.elites)} elites, clamps candidates to [-1, 1]"),
+            f"swm MPPI: softmax(-cost / {cfg.mppi_temperature}) over the top {cfg.plan.elites}, std never updated",
             "no controller warm-starts from its previous plan (our planner does not)"]
