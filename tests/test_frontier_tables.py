@@ -98,136 +98,17 @@ def test_controls_table_shows_the_mlp_probe_in_parentheses(tmp_path):
     assert "| VFX-gnll | +0.30 / +0.49 |" in t  # no MLP fit: ridge alone
 
 
-def test_token_factorial_shares_the_controls_token_run_and_reads_beside_the_global_factorial(tmp_path):
-    from pokeworld.experiments.controls import specs as exp_controls
-    from pokeworld.experiments.tokens import specs as exp_tokens
+def test_controls_rows_name_a_gnll_variance_other_than_the_default():
+    """A Gaussian-NLL run trained with a non-default variance (``pokeworld map --gnll-variance free``) gets a row
+    that says which, with no paper value beside it; the default's row is the paper's control."""
+    from pokeworld.experiments.runs import with_map_training
 
-    c = map_config("tiny", out=str(tmp_path), experiments=("factorial", "controls", "tokens"), variants=("VF", "VFX"))
-    tok = exp_tokens(c)
-    assert [s.train["variant"] for s in tok] == ["VF", "VFX"] and all(s.train["tokens"] for s in tok)
-    assert tok[1].name in {s.name for s in exp_controls(c)}  # trained once
-    assert len({s.name for s in all_specs(c)}) == 2 + 6 + 1  # factorial, controls, the VF token run
-    runs = {s.name: _run(s, {"contact": {"log_k": 0.1 * i, "object_pos": 0.9}}) for i, s in enumerate(tok, 5)}
-    runs.update({s.name: _run(s, {"contact": {"log_k": 0.2}}) for s in exp_factorial(c)})
-    results = {"runs": runs, "certificates": {},
-               "experiments": {"tokens": [s.name for s in tok], "factorial": [s.name for s in exp_factorial(c)]}}
-    t = "\n".join(tokens.token_factorial_table(results))
-    assert "| VFX | +0.60 / +0.62 | +0.20 | — | +0.90 / +0.98 | — |" in t
-    assert "| VF | +0.50 / — | +0.20 |" in t
-    # MLP probes, where fit, in parentheses beside ridge in both log k columns
-    runs[tok[0].name]["probes"]["mlp"] = {"contact": {"log_k": 0.45}}
-    for s in exp_factorial(c):
-        runs[s.name]["probes"]["mlp"] = {"contact": {"log_k": 0.25}}
-    t = "\n".join(tokens.token_factorial_table(results))
-    assert "| VF | +0.50 (+0.45) / — | +0.20 (+0.25) |" in t and "| VFX | +0.60 / +0.62 | +0.20 (+0.25) |" in t
-
-
-def test_lambda_sweep_trains_every_seed_and_reports_their_mean(tmp_path):
-    from pokeworld.experiments.lambda_sweep import specs as exp_lambda
-
-    c = map_config("tiny", out=str(tmp_path), experiments=("factorial", "lambda"), seeds=(0, 1), variants=("VFX",),
-                   lambdas=(0.3, 0.02))
-    specs = exp_lambda(c)
-    assert sorted((s.train["sigreg_weight"], s.train["seed"]) for s in specs) == [(0.02, 0), (0.02, 1), (0.3, 0), (0.3, 1)]
-    # λ = 0.02 is the operating point: its runs are the factorial's VFX, not retrained
-    assert {s.name for s in specs if s.train["sigreg_weight"] == 0.02} <= {s.name for s in exp_factorial(c)}
-    runs = {}
-    for s in specs:
-        k = {0.3: 0.1, 0.02: 0.4}[s.train["sigreg_weight"]] + 0.1 * s.train["seed"]
-        runs[s.name] = {**_run(s, {"contact": {"log_k": k, "log_m": 0.2, "object_vel": 0.5}}),
-                        "prediction": {"direct16": 0.1}}
-    t = "\n".join(lambda_sweep.lambda_table({"runs": runs, "experiments": {"lambda": [s.name for s in specs]},
-                                       "certificates": {}}))
-    assert "| 0.3 | 2 | +0.15 / +0.12 | +0.20 / +0.12 | +0.50 / +0.54 | 0.100 / 0.128 |" in t
-    assert "| 0.02 | 2 | +0.45 / +0.50 |" in t
-    assert t.index("| 0.3 |") < t.index("| 0.02 |")  # heaviest regularizer first, as in the paper
-
-
-def test_an_attribute_corpus_certifies_its_attribute_and_inherits_the_standard_gate():
-    from pokeworld.certify import certificate_table, gate
-    from pokeworld.experiments.stages import with_standard_gate
-
-    std_est = {"gru": {"contact": {"log_m": 0.66, "gamma": 0.28, "log_k": 0.71}}, "drag": {"contact": {"gamma": 0.83}}}
-    std = {"estimators": std_est, "counts": {"contact": {"fit": 10, "test": 9}}}
-    std["gate"] = gate(certificate_table(std_est, ("log_m", "gamma", "log_k")), std_est)
-    own = {"estimators": {"gru": {"contact": {"bias_x": 0.8, "bias_y": 0.82}}, "linear": {"contact": {"bias_x": 0.1}}},
-           "config": {"targets": ["bias_x", "bias_y"]}, "counts": {"contact": {"fit": 7, "test": 6}}}
-    merged = with_standard_gate(std, own)
-    assert merged["gate"] == std["gate"] and merged["gate_from"] == "standard"
-    assert merged["estimators"]["gru"]["contact"] == {"log_m": 0.66, "gamma": 0.28, "log_k": 0.71,
-                                                      "bias_x": 0.8, "bias_y": 0.82}
-    assert merged["certificate"]["contact"]["gamma"] == {"r2": 0.83, "estimator": "drag"}
-    assert merged["certificate"]["contact"]["bias_x"] == {"r2": 0.8, "estimator": "gru"}
-    # a failed standard gate is stated once, on the standard corpus, not again per attribute corpus
-    std_fail = {**std, "gate": {"log_k": {**std["gate"]["log_k"], "passed": False}}}
-    lines = tables.no_claim_lines({"certificates": {"standard": std_fail, "bias0.5": with_standard_gate(std_fail, own)}})
-    assert sum("no claim" in ln for ln in lines) == 1
-
-
-def test_frame_averaged_section_sets_the_model_beside_the_factorial_vfx(tmp_path):
-    c = map_config("tiny", out=str(tmp_path), experiments=("factorial", "frame_averaged"), variants=("VFX",),
-                   seeds=(0, 1))
-    specs = {s.name: s for s in all_specs(c)}
-    runs = {}
-    for name, s in specs.items():
-        k = 0.2 if s.corpus == "frame_averaged" else 0.3 + 0.1 * s.seed  # factorial seeds read 0.3 and 0.4
-        runs[name] = _run(s, {"contact": {"log_k": k, "gamma": 0.0}})
-        runs[name]["prediction"]["direct16"] = 0.1
-    est = lambda k_lin, k_gru: {"linear": {"contact": {"log_k": k_lin}}, "gru": {"contact": {"log_k": k_gru}}}  # noqa: E731
-    cert = lambda k: {"contact": {"log_k": {"r2": k}}}  # noqa: E731
-    results = {"runs": runs, "experiments": {e: [n for n, s in specs.items() if s.experiment == e]
-                                             for e in ("factorial", "frame_averaged")},
-               "certificates": {"standard": {"certificate": cert(0.8), "estimators": est(0.2, 0.8)},
-                                "frame_averaged": {"certificate": cert(0.6), "estimators": est(0.05, 0.6)}}}
-    t = "\n".join(frame_averaged.frame_averaged_lines(results))
-    assert "sub-step touch: ours +0.80 (paper 0.87); with frame-averaged touch: ours +0.60" in t
-    assert "| linear | +0.20 | +0.05 |" in t and "| gru | +0.80 | +0.60 |" in t
-    assert "| sub-step touch (factorial) | +0.35 | — | +0.00 | — | — | 0.100 |" in t  # mean over the two seeds
-    assert "| frame-averaged touch | +0.20 | — | +0.00 | — | — | 0.100 |" in t
-    assert frame_averaged.frame_averaged_lines({"certificates": {}, "runs": {}, "experiments": {}}) == []
-
-
-def test_merge_script_folds_in_reproduced_runs_and_refuses_ones_that_do_not_reproduce(tmp_path):
-    """pokeworld.experiments.merge (scripts/merge_map_results.py): a re-trained run replaces the base's only when
-    its ridge numbers agree; new runs and experiments are added; one mismatch writes nothing."""
-
-    def run(k, mlp=None):
-        r = {"train": {"variant": "VFX", "seed": 0}, "probes": {"ridge": {"contact": {"log_k": k, "log_m": 0.1}}}}
-        if mlp is not None:
-            r["probes"]["mlp"] = {"contact": {"log_k": mlp}}
-        return r
-
-    base = {"runs": {"a": run(0.35), "b": run(0.2)}, "experiments": {"controls": ["a", "b"]}, "certificates": {"x": 1},
-            "map_config": {"experiments": ["controls"]}, "provenance": {"command": "old", "git": "g0"}}
-    new = {"runs": {"a": run(0.35 + 1e-6, mlp=0.37), "c": run(0.5)}, "experiments": {"controls": ["a"], "tokens": ["c"]},
-           "certificates": {"x": 2}, "map_config": {"experiments": ["controls", "tokens"]},
-           "provenance": {"command": "new", "git": "g1"}}
-    merged, rec = merge.merge(base, new, ["controls", "tokens"], 1e-4)
-    assert merged["runs"]["a"]["probes"]["mlp"]["contact"]["log_k"] == 0.37  # the MLP numbers came in
-    assert merged["runs"]["b"] == base["runs"]["b"] and merged["certificates"] == {"x": 1}
-    assert merged["experiments"] == {"controls": ["a", "b"], "tokens": ["c"]}
-    assert rec["runs_replaced_reproduced"] == ["a"] and rec["runs_added"] == ["c"]
-    assert merged["provenance"]["merged"][0]["git"] == "g1" and "merged" not in base["provenance"]
-    new_pl = {**new, "experiments": {**new["experiments"], "planning": ["a"]}, "planning": {"summary": 1},
-              "runs": {"a": run(0.35)}}  # a ridge-only re-run of a run whose MLP numbers the merged record holds
-    again = merge.merge(merged, new_pl, ["planning"], 1e-4)[0]
-    assert again["planning"] == {"summary": 1} and again["runs"]["a"]["probes"]["mlp"]["contact"]["log_k"] == 0.37
-    line = report.merged_lines(merged["provenance"])[0]
-    assert line.startswith("Merged in from `new` (git g1), experiments controls, tokens: 1 re-trained run reproduced")
-    assert line.endswith("1 run added.")
-
-    bj, nj, out = tmp_path / "base.json", tmp_path / "new.json", tmp_path / "merged.json"
-    bj.write_text(json.dumps(base))
-    new["runs"]["a"] = run(0.30)  # does not reproduce
-    nj.write_text(json.dumps(new))
-    with pytest.raises(SystemExit, match="do not reproduce"):
-        merge.main([str(bj), str(nj), "--experiments", "controls", "--out", str(out)])
-    assert not out.exists()
-    assert merge.main([str(bj), str(tmp_path / "nope.json"), "--experiments", "controls", "--out", str(out)]) == 2
-    # asked to, a differing run replaces the record's whole row and the report names it with its difference
-    assert merge.main([str(bj), str(nj), "--experiments", "controls", "--out", str(out), "--replace-differing"]) == 0
-    got = json.loads(out.read_text())
-    assert got["runs"]["a"]["probes"]["ridge"]["contact"]["log_k"] == 0.30
-    rec = got["provenance"]["merged"][0]
-    assert rec["runs_replaced_differing"] == {"a": pytest.approx(0.05)} and rec["runs_replaced_reproduced"] == []
-    assert "`a` did not reproduce (largest ridge difference 0.0500)" in report.merged_lines(got["provenance"])[0]
+    gnll = {"objective": "gnll", "variant": "VFX"}
+    assert controls.control_key({"train": gnll}) == "VFX-gnll"
+    assert controls.control_key({"train": {**gnll, "gnll_heads": "all"}}) == "VFX-gnll (every head)"
+    assert controls.control_key({"train": {**gnll, "gnll_variance": "free"}}) == "VFX-gnll (free variance)"
+    assert (controls.control_key({"train": {**gnll, "gnll_heads": "all", "gnll_variance": "beta"}})
+            == "VFX-gnll (every head, beta variance)")
+    c = map_config("tiny", experiments=("controls",), gnll_variance="free")
+    rows = {controls.control_key({"train": with_map_training(c, s).train}) for s in controls.specs(c)}
+    assert {"VFX-gnll (free variance)", "VFX-gnll (every head, free variance)"} <= rows

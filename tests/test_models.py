@@ -450,3 +450,30 @@ def test_gnll_variance_per_head_owns_one_log_variance_per_head():
         make("VFX", gnll_variance="per_head")
     with pytest.raises(ConfigError, match="unknown gnll_variance"):
         make("VFX", objective="gnll", gnll_variance="student")
+
+
+def test_head_layers_deepens_every_direct_head_and_trains(tmp_path):
+    """``head_layers`` sets the hidden layers of every direct Δ head (latent, touch, proprio); the default keeps
+    the one-hidden-layer heads every recorded run has, a deeper model trains and reloads, and 0 is refused."""
+    from pokeworld.data import save
+    from pokeworld.errors import ConfigError
+    from pokeworld.train import load_model, make_config, run, synthetic_dataset
+
+    def linears(head):
+        return sum(isinstance(x, torch.nn.Linear) for x in head.net)
+
+    shallow, deep = make("VFX"), make("VFX", head_layers=3)
+    for d in ("1", "4", "16"):
+        assert linears(shallow.latent_heads[d]) == 2
+        for heads in (deep.latent_heads, deep.modal_heads["touch"], deep.modal_heads["proprio"]):
+            assert linears(heads[d]) == 4
+    loss, _ = deep.train().loss(batch(), sigreg_dirs=8)
+    loss.backward()
+    assert all(p.grad is not None for p in deep.latent_heads["16"].parameters())
+    save(synthetic_dataset(num_episodes=6, steps=24, size=16, seed=0), tmp_path / "syn")
+    out = run(make_config("tiny", head_layers=2, data=str(tmp_path / "syn"), out=str(tmp_path / "r"), steps=2))
+    assert linears(load_model(out).latent_heads["16"]) == 3
+    with pytest.raises(ConfigError, match="head_layers"):
+        make_config("tiny", head_layers=0)
+    with pytest.raises(ConfigError, match="hidden layer"):
+        XJEPA("VFX", **{**SMALL, "head_layers": 0})

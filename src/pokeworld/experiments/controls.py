@@ -6,6 +6,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from ..evaluate.tables import simple_table
+from ..losses import DEFAULT_GNLL_VARIANCE
 from .runs import RunSpec, spec
 
 if TYPE_CHECKING:
@@ -37,7 +38,13 @@ def control_key(r: dict) -> str:
     if t.get("sysid_weight"):
         return "VFX+sysid"
     if t.get("objective") == "gnll":
-        return "VFX-gnll" + (" (every head)" if t.get("gnll_heads", "latent") == "all" else "")
+        # a map run carries gnll_variance only when it is not the default (runs.with_map_training); such a row
+        # says which variance it used and gets no paper value beside it. (Records made before the field existed
+        # used the free variance but cannot say so here: their rows read as the default; frontier_cpu.md says so.)
+        variance = t.get("gnll_variance", DEFAULT_GNLL_VARIANCE)
+        notes = [*(["every head"] if t.get("gnll_heads", "latent") == "all" else []),
+                 *([f"{variance} variance"] if variance != DEFAULT_GNLL_VARIANCE else [])]
+        return "VFX-gnll" + (f" ({', '.join(notes)})" if notes else "")
     if t.get("objective") == "recon":
         return f"{t['variant']}-recon"
     if t.get("tokens"):

@@ -104,12 +104,17 @@ def area_downsample(frames: torch.Tensor, size: int) -> torch.Tensor:
 
 
 class DeltaHead(nn.Module):
-    """Direct Δ-step head: MLP([h_t, flattened actions t..t+Δ-1]) -> out_dim."""
+    """Direct Δ-step head: MLP([h_t, flattened actions t..t+Δ-1]) -> out_dim, ``layers`` hidden GELU layers."""
 
-    def __init__(self, width: int, act_in: int, out_dim: int, hidden: int | None = None):
+    def __init__(self, width: int, act_in: int, out_dim: int, hidden: int | None = None, layers: int = 1):
         super().__init__()
+        if layers < 1:
+            raise ConfigError(f"a Δ head needs at least one hidden layer, got head_layers={layers}")
         hidden = hidden or width
-        self.net = nn.Sequential(nn.Linear(width + act_in, hidden), nn.GELU(), nn.Linear(hidden, out_dim))
+        mods: list[nn.Module] = [nn.Linear(width + act_in, hidden), nn.GELU()]
+        for _ in range(layers - 1):
+            mods += [nn.Linear(hidden, hidden), nn.GELU()]
+        self.net = nn.Sequential(*mods, nn.Linear(hidden, out_dim))
 
     def forward(self, h: torch.Tensor, a: torch.Tensor) -> torch.Tensor:
         return self.net(torch.cat([h, a], -1) if a.shape[-1] else h)
@@ -190,7 +195,8 @@ class XJEPA(nn.Module):
                  horizons: tuple[int, ...] = (1, 4, 16), objective: str = "latent", tokens: bool = False,
                  sysid: bool = False, max_len: int = 128, vec_dim: int = 64, contact_channel: int = 6,
                  recon_positions: int = 8, pool: bool = False, belief_dim: int = 8, motion_channel: bool = True,
-                 gnll_heads: str = "latent", gnll_variance: str = DEFAULT_GNLL_VARIANCE, gnll_logvar_bound: float = 2.0):
+                 gnll_heads: str = "latent", gnll_variance: str = DEFAULT_GNLL_VARIANCE, gnll_logvar_bound: float = 2.0,
+                 head_layers: int = 1):
         super().__init__()
         check_variant(variant)
         if objective not in OBJECTIVES:
@@ -213,7 +219,7 @@ class XJEPA(nn.Module):
             heads=heads, dropout=dropout, horizons=horizons, objective=objective, tokens=tokens, sysid=sysid,
             max_len=max_len, vec_dim=vec_dim, contact_channel=contact_channel, recon_positions=recon_positions,
             pool=pool, belief_dim=belief_dim, motion_channel=motion_channel, gnll_heads=gnll_heads,
-            gnll_variance=gnll_variance, gnll_logvar_bound=gnll_logvar_bound)
+            gnll_variance=gnll_variance, gnll_logvar_bound=gnll_logvar_bound, head_layers=head_layers)
         self.motion_channel = motion_channel
         self.modal_gnll = objective == "gnll" and gnll_heads == "all"  # proprio/touch heads output (mean, log σ²)
         self.gnll_variance, self.gnll_logvar_bound = gnll_variance, float(gnll_logvar_bound)
@@ -234,13 +240,15 @@ class XJEPA(nn.Module):
         self.num_tokens = self.encoder.num_tokens if tokens else 1
         self.predictor = CausalPredictor(latent_dim, action_dim, width, depth, heads, dropout, max_len,
                                          self.num_tokens)
-        self.latent_heads = nn.ModuleDict({str(d): DeltaHead(width, d * action_dim, latent_dim * lv_out)
+        self.latent_heads = nn.ModuleDict({str(d): DeltaHead(width, d * action_dim, latent_dim * lv_out,
+                                                                     layers=head_layers)
                                            for d in horizons})
         self.modal_heads = nn.ModuleDict()
         for m in ("proprio", "touch"):
             if m in self.targets:
                 self.modal_heads[m] = nn.ModuleDict(
-                    {str(d): DeltaHead(width, d * action_dim, self.dims[m] * (lv_out if self.modal_gnll else 1))
+                    {str(d): DeltaHead(width, d * action_dim, self.dims[m] * (lv_out if self.modal_gnll else 1),
+                              layers=head_layers)
                      for d in horizons})
         self.latent_logvar = self.modal_logvar = None
         if per_head:  # log σ² = 0 at init: the NLL starts as ½·MSE, near where the free heads' initial outputs sit

@@ -46,6 +46,12 @@ class TrainConfig:
     """Observations per training window; must exceed the largest horizon."""
     horizons: tuple[int, ...] = (1, 4, 16)
     """Direct prediction horizons Δ; (1,) is the single-horizon mode."""
+    head_layers: int = 1
+    """Hidden layers of every direct Δ head (latent, proprio, touch), each ``width`` wide. The paper gives none;
+    1 (the default, every recorded run's). Whether a program touches the object is a gate on the finger's path
+    that one hidden layer fits poorly even from the true state (``pokeworld.diagnostics.head_capacity``); 2
+    did not lower the phantom pushes of a trained model at the demo budget (docs/design.md, "Planning: head
+    depth")."""
     objective: str = "latent"
     """'latent' (MSE to latent targets), 'gnll' (latent heads also predict a log-variance), 'recon'
     (pixel-reconstruction control: shared deconv decoder replaces latent targets, SIGReg omitted) or 'belief'
@@ -230,6 +236,8 @@ def validate(cfg: TrainConfig) -> None:
         raise ConfigError(f"window {cfg.window} must exceed the largest horizon {max(hs)}")
     if cfg.tokens and cfg.objective != "latent":
         raise ConfigError("tokens=True supports objective='latent' only")
+    if cfg.head_layers < 1:
+        raise ConfigError(f"head_layers must be ≥ 1, got {cfg.head_layers}")
     if cfg.objective == "belief" and cfg.belief_dim < 1:
         raise ConfigError(f"belief_dim must be ≥ 1, got {cfg.belief_dim}")
     if cfg.gnll_heads not in GNLL_HEADS:

@@ -96,7 +96,7 @@ def model_kwargs(cfg: TrainConfig, dims: tuple[int, int, int]) -> dict[str, Any]
                 sysid=cfg.sysid_weight > 0, max_len=max(128, cfg.window), vec_dim=cfg.vec_dim,
                 contact_channel=cfg.contact_channel, pool=cfg.pool, belief_dim=cfg.belief_dim,
                 motion_channel=cfg.motion_channel, gnll_heads=cfg.gnll_heads, gnll_variance=cfg.gnll_variance,
-                gnll_logvar_bound=cfg.gnll_logvar_bound)
+                gnll_logvar_bound=cfg.gnll_logvar_bound, head_layers=cfg.head_layers)
 
 def lr_lambda(step: int, warmup: int, total: int) -> float:
     """Linear warm-up to 1, then cosine decay to 0 at ``total``."""
