@@ -242,3 +242,14 @@ def test_the_simulator_controller_is_the_planners_ceiling(tmp_path):
     assert "| simulator |" in (tmp_path / "p" / "plan.md").read_text()
     with pytest.raises(ConfigError, match="--runs"):
         plan.run(make_config("tiny", out=str(tmp_path / "q")))
+
+
+def test_planning_table_rows_follow_the_papers_order_whatever_the_summary_order():
+    """A summary read back from a record written with sorted keys is alphabetical; the table still lists random,
+    V, VX_t, VX_p, VFX (the paper's order), then any other controller."""
+    from pokeworld import plan
+
+    row = {"reach": 0.0, "median_improvement": 0.0, "mean_improvement": 0.0, "object_moved": 0.0}
+    summary = {k: dict(row) for k in sorted(["VFX", "VX_p", "VX_t", "V", "random", "simulator"])}
+    labels = [line.split(" | ")[0].lstrip("| ") for line in plan.table_lines(summary)[2:]]
+    assert labels == ["random", "V", "VX_t", "VX_p", "VFX", "simulator"]

@@ -453,7 +453,10 @@ def table_lines(summary: dict) -> list[str]:
              "Δ=16 spread ratio | within-start R² | predicted displacement: misses / hits (true) | "
              "true end frames decoded: misses |",
              "|---|---|---|---|---|---|---|---|---|---|---|"]
-    for k, v in summary.items():
+    # the paper's order (random, V, VX_t, VX_p, VFX), then any other controller as given: records are written
+    # with sorted keys, so a summary read back from JSON is alphabetical
+    order = [k for k in PAPER if k in summary] + [k for k in summary if k not in PAPER]
+    for k, v in ((k, summary[k]) for k in order):
         p = PAPER.get(k)
         extra = " | ".join("—" if v.get(m) is None else (f"{v[m]:+.3f}" if m == "mean_improvement" else f"{v[m]:.0%}")
                            for m in ("mean_improvement", "object_moved"))
