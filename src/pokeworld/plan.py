@@ -28,6 +28,7 @@ from .errors import ConfigError
 from .evaluate.counterfactual import counterfactual_fit
 from .evaluate.measure import EpisodeLatents, position_decoder
 from .evaluate.ranking import agreement
+from .evaluate.state import encode_observations
 from .io import atomic_path, save_figure, write_json
 from .paper_values import PLANNING
 from .rundir import load_model
@@ -153,15 +154,10 @@ class LatentScorer:
         return {delta: self.decoder.predict(m.predict(h16, acts, delta)[:, 0].float().numpy()).reshape(E, P, 2)
                 for delta, _ in COST_TERMS}
 
-    @torch.no_grad()
     def decode(self, obs: dict) -> np.ndarray:
         """Observations (N, ...) -> (N, 2): the object position this model's encoder and decoder read from them
         (what a perfect head's prediction would decode to: the rank test's decoder control)."""
-        out = []
-        for i in range(0, len(obs["vision"]), 1024):
-            z = self.model.encode(*(obs[k][i:i + 1024, None] for k in ("vision", "proprio", "touch")))
-            out.append(self.decoder.predict(z[:, 0].float().numpy()))
-        return np.concatenate(out)
+        return self.decoder.predict(encode_observations(self.model, obs))
 
     def score(self, hist: dict, cand: np.ndarray, goal: np.ndarray) -> np.ndarray:
         """:meth:`positions` -> (E, P) planning cost (COST_TERMS)."""
@@ -176,14 +172,18 @@ class SimulatorScorer:
     def __init__(self, sim: PokeWorldSim):
         self.sim = sim
 
+    def replica(self, cand: np.ndarray, render: bool = False) -> tuple[PokeWorldSim, np.ndarray]:
+        """One copy of the live simulator per candidate, and the candidates as (E·P, 16, 2). The dynamics read
+        only state, parameters and actions (noise enters the touch sensor alone), so a copy rolls out exactly as
+        the live simulator would; without ``render`` its frames are never drawn, so they are kept tiny."""
+        sim, (E, P) = self.sim, cand.shape[:2]
+        b = PokeWorldSim(E * P, sim.cfg if render else replace(sim.cfg, image_size=8), seed=0)
+        b.state[:], b.params[:] = np.repeat(sim.state, P, 0), np.repeat(sim.params, P, 0)
+        return b, cand.reshape(E * P, PROGRAM, 2)
+
     def rollout(self, cand: np.ndarray) -> np.ndarray:
         """cand (E, P, 16, 2) -> (E, P, 17, 2): the object's true positions before and after every action."""
-        sim, (E, P) = self.sim, cand.shape[:2]
-        # the dynamics read only state, parameters and actions (noise enters the touch sensor alone), so a copy
-        # rolls out exactly as the live simulator would; its frames are never drawn, so keep them tiny
-        b = PokeWorldSim(E * P, replace(sim.cfg, image_size=8), seed=0)
-        b.state[:], b.params[:] = np.repeat(sim.state, P, 0), np.repeat(sim.params, P, 0)
-        acts = cand.reshape(E * P, PROGRAM, 2)
+        (E, P), (b, acts) = cand.shape[:2], self.replica(cand)
         pos = [b.state[:, 4:6].copy()]
         for t in range(PROGRAM):
             b.step(acts[:, t], render=False)
@@ -192,10 +192,7 @@ class SimulatorScorer:
 
     def end_observations(self, cand: np.ndarray) -> dict:
         """cand (E, P, 16, 2) -> the true observations after each whole program, flattened to (E·P, ...)."""
-        sim, (E, P) = self.sim, cand.shape[:2]
-        b = PokeWorldSim(E * P, sim.cfg, seed=0)
-        b.state[:], b.params[:] = np.repeat(sim.state, P, 0), np.repeat(sim.params, P, 0)
-        acts = cand.reshape(E * P, PROGRAM, 2)
+        b, acts = self.replica(cand, render=True)
         for t in range(PROGRAM):
             obs = b.step(acts[:, t], render=t == PROGRAM - 1)
         return obs

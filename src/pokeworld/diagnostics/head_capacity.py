@@ -31,13 +31,11 @@ from dataclasses import asdict, dataclass
 import numpy as np
 import torch
 
+from ..evaluate.state import encode_observations
 from ..io import write_json
 from ..models.xjepa import DeltaHead
 from ..sim import PhysicsConfig, PokeWorldSim
-from ..sim.policy import KNOT_SD, PROGRAM, programs
-
-AIM = 0.89
-"""Aim of the aimed half of the programs (``PolicyConfig.open_loop_aim``'s default)."""
+from ..sim.policy import PROGRAM, PolicyConfig, aimed_knots, programs
 
 
 @dataclass
@@ -69,11 +67,9 @@ def sample(n: int, seed: int, observe: bool = False) -> tuple[np.ndarray, ...]:
     fp, op = rng.uniform(0.15, 0.85, (n, 2)), rng.uniform(0.25, 0.75, (n, 2))
     obs = sim.reset(finger_pos=fp, object_pos=op)
     start = sim.state[:, :8].copy()
-    knots = rng.normal(0.0, KNOT_SD, (n, 4))
     u = (op - fp) / np.maximum(np.linalg.norm(op - fp, axis=1, keepdims=True), 1e-9)
-    aimed = rng.random(n) < 0.5
-    knots[aimed] += AIM * np.concatenate([u, u], 1)[aimed]
-    acts = programs(knots)
+    aimed = rng.random(n) < 0.5  # half like the open-loop slots, half like the CEM's first proposal (aim 0)
+    acts = programs(aimed_knots(u, PolicyConfig().open_loop_aim * aimed[:, None], rng))
     for t in range(PROGRAM):
         sim.step(acts[:, t], render=False)
     out = (start, acts, sim.state[:, 4:6] - start[:, 4:6])
@@ -86,11 +82,8 @@ def frozen_states(run_dir: str, obs: dict, acts: np.ndarray) -> np.ndarray:
     from ..rundir import load_model
 
     model = load_model(run_dir, map_location="cpu").eval()
-    out = []
-    for i in range(0, len(acts), 1024):
-        z = model.encode(*(obs[k][i:i + 1024, None] for k in ("vision", "proprio", "touch")))
-        out.append(model.trunk(z, acts[i:i + 1024, :1].astype(np.float32))[:, 0].float().numpy())
-    return np.concatenate(out)
+    z = torch.as_tensor(encode_observations(model, obs, keep_tokens=True))[:, None]
+    return model.trunk(z, acts[:, :1].astype(np.float32))[:, 0].float().numpy()
 
 
 def fit_head(layers: int, x: np.ndarray, a: np.ndarray, y: np.ndarray, cfg: HeadCapacityConfig) -> DeltaHead:
@@ -119,27 +112,28 @@ def score(pred: np.ndarray, true: np.ndarray) -> dict:
             "hit_share": float((~miss).mean()), "r2": float(r2)}
 
 
+def fit_and_score(layers: int, fit: tuple, test: tuple, cfg: HeadCapacityConfig) -> dict:
+    """Fit one head on ``fit`` = (features (n, F), programs (n, 16, 2), displacements (n, 2)), both inputs
+    standardised with the fit set's statistics, and :func:`score` it on ``test`` (same layout)."""
+    (xs, acts, ys), (xt, actt, yt) = fit, test
+    flat, flatt = acts.reshape(len(acts), -1), actt.reshape(len(actt), -1)
+    mu, sd, amu, asd = xs.mean(0), xs.std(0) + 1e-6, flat.mean(0), flat.std(0) + 1e-6
+    head = fit_head(layers, (xs - mu) / sd, (flat - amu) / asd, ys, cfg)
+    with torch.no_grad():
+        pred = head(torch.tensor((xt - mu) / sd, dtype=torch.float32),
+                    torch.tensor((flatt - amu) / asd, dtype=torch.float32)).numpy() / 10
+    return score(pred, yt)
+
+
 def run(cfg: HeadCapacityConfig) -> dict:
     fit, test = sample(cfg.fit_samples, cfg.seed, bool(cfg.run)), sample(cfg.test_samples, cfg.seed + 1, bool(cfg.run))
-    (xs, acts, ys), (xt, actt, yt) = fit[:3], test[:3]
     if cfg.run:  # the frozen model state replaces the true one
-        xs, xt = frozen_states(cfg.run, fit[3], acts), frozen_states(cfg.run, test[3], actt)
-    mu, sd = xs.mean(0), xs.std(0) + 1e-6
-    amu, asd = acts.reshape(len(acts), -1).mean(0), acts.reshape(len(acts), -1).std(0) + 1e-6
-
-    def inputs(x, a):
-        return (x - mu) / sd, (a.reshape(len(a), -1) - amu) / asd
-
-    fx, fa = inputs(xs, acts)
-    tx, ta = inputs(xt, actt)
+        fit, test = ((frozen_states(cfg.run, d[3], d[1]), *d[1:3]) for d in (fit, test))
     out = {"config": asdict(cfg), "input": f"frozen trunk state of {cfg.run}" if cfg.run else "true state",
            "heads": {}}
     for layers in cfg.layers:
         t0 = time.time()
-        head = fit_head(layers, fx, fa, ys, cfg)
-        with torch.no_grad():
-            pred = head(torch.tensor(tx, dtype=torch.float32), torch.tensor(ta, dtype=torch.float32)).numpy() / 10
-        res = score(pred, yt) | {"seconds": round(time.time() - t0, 1)}
+        res = fit_and_score(layers, fit[:3], test[:3], cfg) | {"seconds": round(time.time() - t0, 1)}
         out["heads"][str(layers)] = res
         print(f"[head_capacity] {out['input']}, {layers} hidden layer(s): predicted displacement on misses "
               f"{res['miss_displacement']:.3f}, on hits {res['hit_displacement']:.3f} (true "
@@ -163,4 +157,4 @@ def main(argv: list[str] | None = None) -> None:
     write_json(a.out, run(cfg))
 
 
-__all__ = ["HeadCapacityConfig", "sample", "frozen_states", "fit_head", "score", "run", "main"]
+__all__ = ["HeadCapacityConfig", "sample", "frozen_states", "fit_head", "fit_and_score", "score", "run", "main"]

@@ -30,6 +30,17 @@ def as_model_input(model, x) -> torch.Tensor:
 
 
 @torch.no_grad()
+def encode_observations(model, obs: dict, batch: int = 1024, keep_tokens: bool = False) -> np.ndarray:
+    """Single observations {"vision" (N, H, W), "proprio" (N, P), "touch" (N, T)} -> (N, D) float32 encoder
+    latents, ``batch`` at a time; token models give the mean over tokens, or with ``keep_tokens`` (N, S, D)."""
+    out = []
+    for i in range(0, len(obs["vision"]), batch):
+        z = model.encode(*(obs[k][i:i + batch, None] for k in ("vision", "proprio", "touch")))[:, 0]
+        out.append(z.mean(1) if z.dim() == 3 and not keep_tokens else z)
+    return torch.cat(out).float().cpu().numpy()
+
+
+@torch.no_grad()
 def encode_episodes(model, ds: Dataset, episodes: np.ndarray, batch: int = 64, keep_tokens: bool = False) -> np.ndarray:
     """Encoder latents for whole episodes: (E', T+1, D) float32; token models give the mean over tokens, or
     with ``keep_tokens`` every token, (E', T+1, S, D)."""

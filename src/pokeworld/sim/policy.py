@@ -36,6 +36,13 @@ def programs(knots: np.ndarray) -> np.ndarray:
     return np.clip(a, -1.0, 1.0)
 
 
+def aimed_knots(direction: np.ndarray, aim, rng: np.random.Generator) -> np.ndarray:
+    """(n, 2) unit directions -> (n, 4) knots N(aim · direction, KNOT_SD²) per coordinate (both knots aimed the
+    same way): the open-loop slots' programs; ``aim`` a scalar or per row ((n, 1); 0 gives the planner's first
+    CEM proposal)."""
+    return aim * np.concatenate([direction, direction], -1) + rng.normal(0.0, KNOT_SD, (len(direction), 4))
+
+
 @dataclass(frozen=True)
 class PolicyConfig:
     """Knobs of the mixed behaviour policy.
@@ -158,9 +165,7 @@ class MixedPolicy:
         self.t += 1
         if c.open_loop_share > 0 and step == 0:
             self.open_loop = ~self.glide & (rng.random(n) < c.open_loop_share)
-            k = int(self.open_loop.sum())
-            aim = c.open_loop_aim * np.concatenate([u, u], 1)[self.open_loop]
-            self.knots[self.open_loop] = aim + rng.normal(0.0, KNOT_SD, (k, 4))
+            self.knots[self.open_loop] = aimed_knots(u[self.open_loop], c.open_loop_aim, rng)
         if self.open_loop.any():  # the program exactly, as the planner executes it
             a[self.open_loop] = programs(self.knots[self.open_loop])[:, step]
         return a
