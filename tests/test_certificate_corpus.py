@@ -85,3 +85,20 @@ def test_plateau_is_where_more_episodes_stop_helping():
     assert plateau([(240, 0.80), (480, 0.84), (960, 0.85), (1920, 0.85)], 0.02) == 480
     assert plateau([(240, 0.05), (480, 0.44), (960, 0.67), (1920, 0.81), (3840, 0.89)], 0.02) is None  # rising
     assert plateau([(240, 0.84), (480, 0.83)], 0.02) == 240
+
+
+def test_a_window_cap_below_the_certificate_corpus_is_recorded_not_silent(store, capsys):
+    """A cap undoes the corpus (the GRU oracle is fit-set limited below its plateau): a capped fit on a certificate
+    corpus says how many windows it kept of how many, in certificates.json and on stdout; an uncapped one does not."""
+    ds = load(store)
+    fit = certificate_corpus.ensure(ds, store, 40)
+    capped = certify.certify(ds, certify.make_config("tiny", estimators=("linear",), kinds=("contact",),
+                                                     fit_episodes=40, max_windows=50), fit)
+    counts = capped["counts"]["contact"]
+    assert counts["fit"] == 50 < counts["fit_available"]
+    assert len(capped["warnings"]) == 1 and "keeps 50 of the 40-episode" in capped["warnings"][0]
+    assert f"--max-windows to at least {counts['fit_available']}" in capped["warnings"][0]
+    assert "warning" in capsys.readouterr().out
+    whole = certify.certify(ds, certify.make_config("tiny", estimators=("linear",), kinds=("contact",),
+                                                    fit_episodes=40, max_windows=10**6), fit)
+    assert whole["warnings"] == [] and whole["counts"]["contact"]["fit"] == counts["fit_available"]

@@ -193,6 +193,19 @@ def test_map_wide_sigreg_pool_and_gnll_variance_rename_only_the_runs_they_apply_
         experiment.make_config("cpu", gnll_variance="wild")
 
 
+def test_control_runs_subset_re_runs_only_the_named_cells():
+    """`--control-runs gnll gnll_every_head` (the NLL rows after a change of the variance) trains those two runs
+    only, with the names the full controls map gives them; an unknown name is refused before anything runs."""
+    full = {s.name for s in experiment.all_specs(experiment.make_config("cpu", experiments=("controls",), seeds=(0,)))}
+    sub = experiment.make_config("cpu", experiments=("controls",), seeds=(0,), control_runs=("gnll", "gnll_every_head"))
+    names = [s.name for s in experiment.all_specs(sub)]
+    assert len(full) == 6 and set(names) < full
+    assert names == ["VFX-h1-4-16-lam0.02-standard-objectivegnll-s0",
+                     "VFX-h1-4-16-lam0.02-standard-gnll_headsall-objectivegnll-s0"]
+    with pytest.raises(ConfigError, match="unknown control runs"):
+        experiment.make_config("cpu", control_runs=("gnll", "dropout"))
+
+
 @pytest.mark.slow
 def test_stacked_map_trains_its_runs_as_one_group_and_measures_each(tmp_path, capsys):
     """The GPU options (stack, certify_alongside) on the tiny map: the runs train as one stacked group, the

@@ -303,11 +303,15 @@ def certify(ds: Dataset, cfg: CertifyConfig, fit_ds: Dataset | None = None) -> d
         test_state = observed_state(ds, test_eps, pixels, cfg.pixel_size)
     Y_fit_all = np.stack([fit_ds.params[t] for t in cfg.targets], 1).astype(np.float64)
     Y_test_all = np.stack([ds.params[t] for t in cfg.targets], 1).astype(np.float64)
-    results: dict = {"estimators": {}, "counts": {}}
+    results: dict = {"estimators": {}, "counts": {}, "warnings": []}
     for kind in cfg.kinds:
-        w_fit = make_windows(fit_ds, fit_eps, cfg.window, cfg.stride).kind(kind).subsample(cfg.max_windows, rng)
+        available = make_windows(fit_ds, fit_eps, cfg.window, cfg.stride).kind(kind)
+        w_fit = available.subsample(cfg.max_windows, rng)
         w_test = make_windows(ds, test_eps, cfg.window, cfg.stride).kind(kind)
-        results["counts"][kind] = {"fit": len(w_fit), "test": len(w_test)}
+        results["counts"][kind] = {"fit": len(w_fit), "fit_available": len(available), "test": len(w_test)}
+        if cfg.fit_episodes and len(w_fit) < len(available):
+            results["warnings"].append(capped_corpus_warning(kind, len(w_fit), len(available), cfg))
+            print(f"[certify] warning: {results['warnings'][-1]}")
         if len(w_fit) < 10 or len(w_test) < 10:
             print(f"[certify] too few {kind} windows ({len(w_fit)} fit / {len(w_test)} test); skipping")
             continue
@@ -363,6 +367,15 @@ def certify(ds: Dataset, cfg: CertifyConfig, fit_ds: Dataset | None = None) -> d
                               "seed": fit_ds.manifest.get("seed"),
                               "content_sha256": fit_ds.manifest.get("content_sha256")})
     return results
+
+
+def capped_corpus_warning(kind: str, kept: int, available: int, cfg: CertifyConfig) -> str:
+    """Why a window cap on a certificate corpus matters: the corpus exists so that the GRU oracle is not fit-set
+    limited, and a cap below its window count brings that limit back (docs/design.md, "Certificates")."""
+    return (f"max_windows={cfg.max_windows} keeps {kept} of the {cfg.fit_episodes}-episode certificate corpus's "
+            f"{available} {kind} windows: the certificate may be fit-set limited again (the GRU oracle's gamma "
+            f"rises with the fit windows); raise --max-windows to at least {available} for a certificate at the "
+            "plateau")
 
 
 def certificate_table(estimators: dict, targets) -> dict:

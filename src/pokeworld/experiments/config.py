@@ -47,6 +47,10 @@ class MapConfig(LaunchOptions):
     attribute_corpora: tuple[str, ...] = ("bias0.5", "bias1.5", "bias2.5", "gain")
     """Corpora of the attribute matrix (``attributes``): persistent force bias ±0.5 / ±1.5 / ±2.5 and the
     actuator gain; a subset re-runs some cells (e.g. to add MLP probes) without re-training the others."""
+    control_runs: tuple[str, ...] = ("sysid", "gnll", "gnll_every_head", "V_recon", "VFX_recon", "tokens")
+    """Runs of the objective-attribution controls (``controls``): the system-ID head, Gaussian NLL on the latent
+    heads / on every head, V and VFX with reconstruction, spatial tokens; a subset re-runs some cells (e.g. the
+    NLL rows after a change of its variance) without re-training the others."""
     lazy_variants: tuple[str, ...] = ("V", "VX_p", "VX_t", "VX", "VFX")
     """Variants trained single-horizon (Δ = 1 only) in the lazy-equilibrium experiment."""
     sigreg_weight: float = 0.02

@@ -24,12 +24,19 @@ CONTROLS = {  # Table "controls" (ridge)
 NAME = "controls"
 
 
+CONTROL_RUNS = ("sysid", "gnll", "gnll_every_head", "V_recon", "VFX_recon", "tokens")
+"""Names of the controls' runs (``MapConfig.control_runs`` picks a subset, to re-run some cells alone)."""
+
+
 def specs(c: MapConfig) -> list[RunSpec]:
     s, lam = c.seeds[0], c.sigreg_weight
-    return [spec("controls", "VFX", s, lam, sysid_weight=0.5), spec("controls", "VFX", s, lam, objective="gnll"),
-            spec("controls", "VFX", s, lam, objective="gnll", gnll_heads="all"),
-            spec("controls", "V", s, lam, objective="recon"), spec("controls", "VFX", s, lam, objective="recon"),
-            spec("controls", "VFX", s, lam, tokens=True)]
+    runs = {"sysid": spec("controls", "VFX", s, lam, sysid_weight=0.5),
+            "gnll": spec("controls", "VFX", s, lam, objective="gnll"),
+            "gnll_every_head": spec("controls", "VFX", s, lam, objective="gnll", gnll_heads="all"),
+            "V_recon": spec("controls", "V", s, lam, objective="recon"),
+            "VFX_recon": spec("controls", "VFX", s, lam, objective="recon"),
+            "tokens": spec("controls", "VFX", s, lam, tokens=True)}
+    return [runs[k] for k in c.control_runs]
 
 
 def control_key(r: dict) -> str:
@@ -57,4 +64,4 @@ def section(results: dict) -> list[str]:
     return simple_table(results, NAME, "Objective-attribution controls", lambda r: control_key(r), CONTROLS)
 
 
-__all__ = ['NAME', 'CONTROLS', 'specs', 'section', 'control_key']
+__all__ = ['NAME', 'CONTROLS', 'CONTROL_RUNS', 'specs', 'section', 'control_key']

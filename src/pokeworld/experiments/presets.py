@@ -9,6 +9,7 @@ from ..config import from_preset
 from ..errors import ConfigError
 from .attributes import CORPUS_TARGETS
 from .config import MapConfig
+from .controls import CONTROL_RUNS
 from .registry import EXPERIMENTS
 
 PRESETS: dict[str, dict] = {
@@ -51,13 +52,16 @@ def make_demo_config(preset: str = "cpu", **overrides) -> MapConfig:
 
 
 def check_names(c: MapConfig) -> MapConfig:
-    """``c``, after checking its experiment and attribute-corpus names against the registry (ConfigError)."""
+    """``c``, after checking its experiment, attribute-corpus and control-run names (ConfigError)."""
     bad = set(c.experiments) - set(EXPERIMENTS)
     if bad:
         raise ConfigError(f"unknown experiments {sorted(bad)}; choose from {sorted(EXPERIMENTS)}")
     bad_corpora = set(c.attribute_corpora) - set(CORPUS_TARGETS)
     if bad_corpora:
         raise ConfigError(f"unknown attribute corpora {sorted(bad_corpora)}; choose from {sorted(CORPUS_TARGETS)}")
+    bad_controls = set(c.control_runs) - set(CONTROL_RUNS)
+    if bad_controls:
+        raise ConfigError(f"unknown control runs {sorted(bad_controls)}; choose from {list(CONTROL_RUNS)}")
     return c
 
 
