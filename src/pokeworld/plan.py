@@ -39,9 +39,9 @@ PLANNING_HEADS = ("direct", "rollout")
 """How a :class:`LatentScorer` predicts a program's outcome (``PlanConfig.heads``)."""
 COST_TERMS = ((16, 1.0), (4, 0.5))
 """The planning cost: Σ weight · ‖object position Δ steps into the program − goal‖ over (Δ, weight)."""
-OBJECT_BOX, GOAL_BOX = (0.25, 0.75), (0.15, 0.85)
-"""Where episodes start the object and where goals may lie (goals clear of the walls by more than the object's
-radius, so every goal region can be reached)."""
+FINGER_BOX, OBJECT_BOX, GOAL_BOX = (0.15, 0.85), (0.25, 0.75), (0.15, 0.85)
+"""Where episodes start the finger and the object, and where goals may lie (goals clear of the walls by more than
+the object's radius, so every goal region can be reached)."""
 MAX_GOAL_DISTANCE = 0.65
 """Largest ``goal_distance``: beyond it start/goal pairs crowd into opposite corners (2.5 % of uniform draws fit
 the boxes at 0.65, 14 % at 0.55, 0.2 % at 0.75)."""
@@ -213,7 +213,7 @@ def episode_setup(cfg: PlanConfig) -> dict:
     the goal lies inside GOAL_BOX: clipping it there instead would shorten the distance."""
     rng = np.random.default_rng(cfg.seed)
     n = cfg.episodes
-    fp = rng.uniform(0.15, 0.85, (n, 2))
+    fp = rng.uniform(*FINGER_BOX, (n, 2))
     op = rng.uniform(*OBJECT_BOX, (n, 2))
     goal = np.full((n, 2), np.nan)
     for _ in range(1000):

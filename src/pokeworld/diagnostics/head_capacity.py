@@ -31,9 +31,12 @@ from dataclasses import asdict, dataclass
 import numpy as np
 import torch
 
+from ..evaluate.counterfactual import counterfactual_fit
 from ..evaluate.state import encode_observations
 from ..io import write_json
 from ..models.xjepa import DeltaHead
+from ..plan import FINGER_BOX, OBJECT_BOX
+from ..rundir import load_model
 from ..sim import PhysicsConfig, PokeWorldSim
 from ..sim.policy import PROGRAM, PolicyConfig, aimed_knots, programs
 
@@ -64,7 +67,7 @@ def sample(n: int, seed: int, observe: bool = False) -> tuple[np.ndarray, ...]:
     ``observe`` also the start observation (rendered frames, proprio, touch)."""
     rng = np.random.default_rng(seed)
     sim = PokeWorldSim(n, PhysicsConfig() if observe else PhysicsConfig(image_size=8), seed=seed)
-    fp, op = rng.uniform(0.15, 0.85, (n, 2)), rng.uniform(0.25, 0.75, (n, 2))
+    fp, op = rng.uniform(*FINGER_BOX, (n, 2)), rng.uniform(*OBJECT_BOX, (n, 2))
     obs = sim.reset(finger_pos=fp, object_pos=op)
     start = sim.state[:, :8].copy()
     u = (op - fp) / np.maximum(np.linalg.norm(op - fp, axis=1, keepdims=True), 1e-9)
@@ -79,8 +82,6 @@ def sample(n: int, seed: int, observe: bool = False) -> tuple[np.ndarray, ...]:
 @torch.no_grad()
 def frozen_states(run_dir: str, obs: dict, acts: np.ndarray) -> np.ndarray:
     """A trained model's trunk state (n, width) at each start observation, given the program's first action."""
-    from ..rundir import load_model
-
     model = load_model(run_dir, map_location="cpu").eval()
     z = torch.as_tensor(encode_observations(model, obs, keep_tokens=True))[:, None]
     return model.trunk(z, acts[:, :1].astype(np.float32))[:, 0].float().numpy()
@@ -103,13 +104,12 @@ def fit_head(layers: int, x: np.ndarray, a: np.ndarray, y: np.ndarray, cfg: Head
 
 
 def score(pred: np.ndarray, true: np.ndarray) -> dict:
-    """Predicted vs true displacements (n, 2) -> phantom (misses), hit and R² terms."""
-    miss = np.linalg.norm(true, axis=1) == 0  # an untouched object at rest stays exactly where it was
+    """Predicted vs true displacements (n, 2) -> the rank test's miss / hit displacements (every pair its own
+    start, at the origin) and R² of the displacement."""
+    fit = counterfactual_fit(pred[None], true[None], np.zeros((1, 2)))
     r2 = 1 - ((pred - true) ** 2).sum() / ((true - true.mean(0)) ** 2).sum()
-    return {"miss_displacement": float(np.linalg.norm(pred[miss], axis=1).mean()),
-            "hit_displacement": float(np.linalg.norm(pred[~miss], axis=1).mean()),
-            "hit_true_displacement": float(np.linalg.norm(true[~miss], axis=1).mean()),
-            "hit_share": float((~miss).mean()), "r2": float(r2)}
+    return {k: fit[k] for k in ("miss_displacement", "hit_displacement", "hit_true_displacement", "hit_share")} | {
+        "r2": float(r2)}
 
 
 def fit_and_score(layers: int, fit: tuple, test: tuple, cfg: HeadCapacityConfig) -> dict:
