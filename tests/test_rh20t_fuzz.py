@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, Phase, event, given, settings
-from hypothesis import strategies as st
+from hypothesis import HealthCheck, Phase, event, given, settings, strategies as st
+from rh20t_hostile import MEMORY_PRIMITIVES, planted_npy, png_header_only, shared_reference_bomb
 
 from pokeworld.errors import DataError
 from pokeworld.real import rh20t
@@ -111,6 +111,10 @@ META_VARIANTS = ("drop_rating", "rating_str", "rating_inf", "rating_none", "rati
 CALIB_VARIANTS = ("delete_dir", "delete_extrinsics", "delete_tcp", "drop_anchor", "drop_far", "nan_extrinsics",
                   "huge_extrinsics", "tcp_wrong_size")
 
+ESCAPES = ("outside_copy", "device")
+PICKLED = ("tcp_base", "force_torque_base", "gripper", "far_timestamps", "close_timestamps", "extrinsics", "joint")
+HOSTILE_PICKLES = (*sorted(MEMORY_PRIMITIVES), "shared_reference_bomb")
+
 mutation = st.one_of(
     st.tuples(st.just("truncate"), st.sampled_from(FILES), st.floats(0, 0.99)),
     st.tuples(st.just("garbage"), st.sampled_from(FILES), st.integers(0, 2**16),
@@ -130,6 +134,12 @@ mutation = st.one_of(
     st.tuples(st.just("drop_frames"), st.sampled_from(("far", "close")), st.floats(0.05, 1.0), st.integers(0, 2**16)),
     st.tuples(st.just("payload"), st.sampled_from(("tcp_base", "force_torque_base", "gripper", "far_timestamps",
                                                    "extrinsics", "joint"))),
+    # untrusted-input cases (issue #40): special files, links out of the tree, huge declared frames, hostile pickles
+    st.tuples(st.just("special"), st.sampled_from(FILES)),
+    st.tuples(st.just("escape"), st.sampled_from(FILES + ("far_dir", "close_dir")), st.sampled_from(ESCAPES)),
+    st.tuples(st.just("calib_value"), st.sampled_from(("../../..", "/etc", "1/../../../..", "../calib/.."))),
+    st.tuples(st.just("huge_frame"), st.sampled_from(("far", "close")), st.sampled_from((16384, 8192))),
+    st.tuples(st.just("hostile_pickle"), st.sampled_from(PICKLED), st.sampled_from(HOSTILE_PICKLES)),
 )
 
 STREAM_REASONS = {"bad_stream", "nan_stream", "zero_tcp", "overflow_stream", "bad_units", "bad_timestamps",
@@ -186,11 +196,17 @@ def _records(obj: dict) -> list[dict]:
     return [r for items in obj.values() for r in items]
 
 
+def _regular(path: Path | None) -> bool:
+    """A plain file the test may read or write: an earlier mutation may have left a FIFO (opening it would block the
+    test itself) or a link out of the tree in its place."""
+    return path is not None and path.is_file() and not path.is_symlink()
+
+
 def apply(m: tuple, scene: Path, calib: Path, video: str) -> tuple[str, set[str]]:
     kind = m[0]
     if kind in ("truncate", "garbage", "delete"):
         path = _path(scene, calib, m[1], video)
-        if path is None or not path.exists():
+        if path is None or not os.path.lexists(path) or (kind != "delete" and not _regular(path)):
             return "same", set()
         if kind == "truncate":
             raw = path.read_bytes()
@@ -198,7 +214,7 @@ def apply(m: tuple, scene: Path, calib: Path, video: str) -> tuple[str, set[str]
         elif kind == "garbage":
             rng = np.random.default_rng(m[2])
             path.write_bytes(m[3] + rng.integers(0, 256, int(rng.integers(0, 2000)), dtype=np.uint8).tobytes())
-        elif path.is_dir():
+        elif path.is_dir() and not path.is_symlink():
             shutil.rmtree(path)
         else:
             path.unlink()
@@ -227,13 +243,67 @@ def apply(m: tuple, scene: Path, calib: Path, video: str) -> tuple[str, set[str]
         for f in rng.permutation(jpgs)[: int(round(m[2] * len(jpgs)))]:
             f.unlink()
         return "normalised", {"frame_gap", "empty_video", "bad_timestamps"}
+    if kind in ("special", "escape", "calib_value", "huge_frame", "hostile_pickle"):
+        return _untrusted(m, scene, calib, video)
     if kind == "payload":
         path = _path(scene, calib, m[1], video)
-        if path is None or not path.exists():
+        if not _regular(path):
             return "same", set()
         save_dict(path, {FAR: [Payload(scene.parent / MARKER)]})
         return ("same" if m[1] == "joint" else "defect"), {"unsafe_pickle"}
     raise AssertionError(m)
+
+
+def _untrusted(m: tuple, scene: Path, calib: Path, video: str) -> tuple[str, set[str]]:
+    """A FIFO where a file is expected, a symlink out of the root, a metadata calib leading out, frames declaring a
+    huge image, a hostile pickle (a memory primitive, or shared references that expand exponentially)."""
+    kind = m[0]
+    if kind == "calib_value":
+        path = scene / "metadata.json"
+        if not _regular(path):
+            return "same", set()
+        try:
+            meta = json.loads(path.read_text())
+        except (OSError, ValueError):  # deleted, damaged or already a FIFO
+            return "same", set()
+        if not isinstance(meta, dict) or "rating" not in meta or "calib" not in meta:
+            return "same", set()
+        path.write_text(json.dumps({**meta, "calib": m[1]}))
+        return "defect", {"outside_root", "bad_metadata", "low_rating"}
+    if kind == "huge_frame":
+        cam = scene / f"cam_{FAR if m[1] == 'far' else CLOSE}" / "color"
+        frames = sorted(cam.glob("*.jpg")) if video == "jpg" and cam.is_dir() else []
+        for f in frames:
+            f.unlink()
+            f.with_suffix(".png").write_bytes(png_header_only(m[2], m[2]))
+        return ("defect", {"huge_image"} | VIDEO_REASONS) if frames else ("same", set())
+    path = _path(scene, calib, m[1], video)
+    if path is None or not os.path.lexists(path):
+        return "same", set()
+    unread = m[1] == "joint"  # never read by the converter: whatever it holds changes nothing
+    if kind == "hostile_pickle":
+        if not _regular(path):
+            return "same", set()
+        ops = shared_reference_bomb() if m[2] == "shared_reference_bomb" else MEMORY_PRIMITIVES[m[2]]
+        planted_npy(path, ops)
+        return ("same", set()) if unread else ("defect", {"unsafe_pickle", "bad_stream", "camera_frame_ft"})
+    if kind == "special":
+        if path.is_dir() and not path.is_symlink():
+            return "same", set()
+        path.unlink()
+        os.mkfifo(path)
+        return ("same", set()) if unread else ("defect", {"special_file"})
+    outside = scene.parents[2] / f"outside_{scene.parents[1].name}_{scene.name}_{m[1]}"  # beside the root
+    if m[2] == "device":
+        target = Path("/dev/zero")
+    elif path.is_symlink() or not (path.is_file() or path.is_dir()):
+        return "same", set()
+    else:
+        (shutil.copytree if path.is_dir() else shutil.copy)(path, outside)
+        target = outside
+    shutil.rmtree(path) if path.is_dir() and not path.is_symlink() else path.unlink()
+    path.symlink_to(target)
+    return ("same", set()) if unread else ("defect", {"outside_root"} | _file_reasons(m[1]))
 
 
 def _mutate_stream(m: tuple, scene: Path, calib: Path, video: str) -> tuple[str, set[str]]:
@@ -370,7 +440,7 @@ def _mutate_camera_ts(m: tuple, scene: Path, video: str) -> tuple[str, set[str]]
 
 def _mutate_metadata(variant: str, scene: Path, calib: Path) -> tuple[str, set[str]]:
     path = scene / "metadata.json"
-    if not path.exists():
+    if not _regular(path):
         return "same", set()
     try:
         meta = json.loads(path.read_text())
@@ -423,7 +493,7 @@ def _mutate_calib(variant: str, calib: Path) -> tuple[str, set[str]]:
         shutil.rmtree(calib, ignore_errors=True)
     elif variant in ("delete_extrinsics", "delete_tcp"):
         (ext if variant == "delete_extrinsics" else tcp).unlink(missing_ok=True)
-    elif variant == "tcp_wrong_size":
+    elif variant == "tcp_wrong_size" and (_regular(tcp) or not os.path.lexists(tcp)):
         np.save(tcp, np.zeros(5))
     elif (mats := _load(ext)) is not None:
         if variant in ("drop_anchor", "drop_far"):
@@ -525,7 +595,8 @@ def test_a_run_over_corrupted_scenes_completes_and_untouched_scenes_are_byte_ide
             outcomes[name] = [apply(m, work / "RH20T_cfg7" / name, cal, corpus["video"][name]) for m in muts]
         # the calibration folder is shared: a calibration defect planted with one scene may skip another scene
         # whose F/T is camera-frame (untouched scenes have base-frame F/T and never read it)
-        calib_reasons = {"camera_frame_ft", "nan_stream", "overflow_stream", "unsafe_pickle"}
+        calib_reasons = {"camera_frame_ft", "nan_stream", "overflow_stream", "unsafe_pickle", "bad_stream",
+                         "special_file", "outside_root"}
         cfg = rh20t.make_config("tiny", root=str(work), out=str(work / "store"))
         try:
             rh20t.run(cfg)

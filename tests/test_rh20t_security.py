@@ -15,10 +15,21 @@ from pathlib import Path
 import numpy as np
 import pytest
 from numpy.lib import format as npy_format
+from rh20t_hostile import (
+    FORGED_OBJECT_DTYPE,
+    MEMORY_PRIMITIVES,
+    OBJECT_FLAGS,
+    dtype_ops,
+    global_op,
+    int_op,
+    object_array_ops,
+    planted_npy,
+    shared_reference_bomb,
+)
 
-from pokeworld.real import rh20t, synthetic
+from pokeworld.real import npy_child, rh20t, synthetic
 from pokeworld.real.fixtures import make_fixture_root
-from pokeworld.real.safe_pickle import ADMITTED_GLOBALS, UnsafePickleError, load_npy, load_npy_item
+from pokeworld.real.safe_pickle import ADMITTED_GLOBALS, RestrictedUnpickler, UnsafePickleError, load_npy, load_npy_item
 
 
 class SystemPayload:
@@ -290,3 +301,109 @@ def test_safe_loader_returns_what_np_load_returns_on_fixture_and_synthetic_corpo
             assert _deep_equal(got, ref), f
             kinds[type(got).__name__] += 1
     assert kinds["dict"] >= 10 and kinds["ndarray"] >= 2  # pickled dicts and plain arrays (calibration tcp.npy)
+
+
+# ----------------------------------------------------------------------------------- memory primitives (issue #40)
+# (the planted pickles are in rh20t_hostile.py)
+
+
+def test_a_dtype_build_that_rewrites_flags_is_refused():
+    """The step the exploits rest on. numpy's own unpickling accepts it (the control below), and so did this loader
+    before BUILD was checked: it returned an 'object' dtype whose flags no longer say it holds objects."""
+    forged = pickle.loads(FORGED_OBJECT_DTYPE)
+    assert forged == np.dtype("O") and forged.flags == 0 and not forged.hasobject  # the primitive is live in numpy
+    with pytest.raises(UnsafePickleError, match="would change numpy dtype"):
+        RestrictedUnpickler(io.BytesIO(FORGED_OBJECT_DTYPE)).load()
+    # the states numpy itself writes still load: native and swapped byte order, str with its size
+    for dt in (np.dtype("O"), np.dtype(">f8"), np.dtype("<U5"), np.dtype("b1"), np.dtype(">c16")):
+        got = RestrictedUnpickler(io.BytesIO(pickle.dumps(dt, protocol=2))).load()
+        assert got == dt and got.__reduce__() == dt.__reduce__()
+
+
+@pytest.mark.parametrize("name", sorted(MEMORY_PRIMITIVES))
+def test_memory_primitives_are_refused_before_numpy_reads_a_pointer(tmp_path, name):
+    path = planted_npy(tmp_path / "gripper.npy", MEMORY_PRIMITIVES[name])
+    with pytest.raises(UnsafePickleError, match="would change numpy dtype|object dtypes|plain non-object"):
+        load_npy_item(path)
+    with pytest.raises(rh20t.SceneSkip) as e:  # the converter's path: the child refuses it, nothing crashes
+        rh20t.load_pickled_dict(path, "transformed/gripper.npy")
+    assert e.value.reason == "unsafe_pickle" and "killed by signal" not in e.value.message
+
+
+def test_the_planted_memory_primitive_crashes_numpys_own_loader(tmp_path):
+    """Control: under np.load(allow_pickle=True) the same file kills the process with SIGSEGV (in a child here)."""
+    path = planted_npy(tmp_path / "gripper.npy", MEMORY_PRIMITIVES["object_scalar_from_forged_dtype"])
+    proc = subprocess.run([sys.executable, "-c", f"import numpy as np; np.load({str(path)!r}, allow_pickle=True)"],
+                          capture_output=True, timeout=60)
+    assert proc.returncode < 0, proc  # killed by a signal: SIGSEGV (-11) here
+
+
+def test_reconstruct_is_admitted_only_as_numpy_pickles_it(tmp_path):
+    big_shape = (global_op("numpy._core.multiarray", "_reconstruct") + global_op("numpy", "ndarray") + int_op(1 << 30)
+                 + pickle.TUPLE1 + pickle.SHORT_BINBYTES + b"\x01b" + pickle.TUPLE3 + pickle.REDUCE)
+    with pytest.raises(UnsafePickleError, match="shape \\(0,\\)"):
+        load_npy_item(planted_npy(tmp_path / "a.npy", big_shape))
+    # an array BUILD whose data is shorter than its shape needs is refused before numpy allocates it
+    short = object_array_ops(dtype_ops("O8", OBJECT_FLAGS), pickle.EMPTY_LIST)
+    with pytest.raises(UnsafePickleError, match="list of 1 items"):
+        load_npy_item(planted_npy(tmp_path / "b.npy", short))
+
+
+# ----------------------------------------------------------------------------------- the unpickling child
+
+
+def test_a_child_killed_while_unpickling_skips_that_scene_and_the_conversion_completes(tmp_path, monkeypatch):
+    """A crash nobody has found yet (simulated by killing the child with SIGKILL at the fault point
+    ``unpickle:<file>``) costs one scene, counted as unsafe_pickle, instead of ending the conversion."""
+    fx = make_fixture_root(tmp_path / "raw", cfg=7, n_tasks=2, scenes_per_task=2, defects=())
+    victim = sorted(fx["good"])[1]
+    target = (fx["cfg_dir"] / victim / "transformed" / "gripper.npy").resolve()
+    npy_child.close_child()  # the next child starts with the fault point set
+    monkeypatch.setenv("POKEWORLD_KILL_AT", f"unpickle:{target}")
+    try:
+        out = rh20t.run(rh20t.make_config("tiny", root=str(tmp_path / "raw"), out=str(tmp_path / "store")))
+    finally:
+        npy_child.close_child()
+    rep = json.loads((out / "conversion_report.json").read_text())
+    assert rep["skip_counts"] == {"unsafe_pickle": 1}
+    assert [s["scene"] for s in rep["skipped"]] == [victim]
+    assert "killed by signal 9" in rep["skipped"][0]["message"]
+    assert rep["scenes_converted"] == len(fx["good"]) - 1
+
+
+def test_a_child_that_hangs_is_killed_after_the_timeout_and_the_skip_is_not_cached(tmp_path, monkeypatch):
+    path = tmp_path / "gripper.npy"
+    np.save(path, {"a": 1}, allow_pickle=True)
+    npy_child.close_child()
+    monkeypatch.setenv("POKEWORLD_PAUSE_AT", f"unpickle:{path.resolve()}:60")
+    monkeypatch.setattr(npy_child, "PICKLE_TIMEOUT_S", 2.0)
+    start = time.monotonic()
+    try:
+        with pytest.raises(rh20t.SceneSkip) as e:
+            rh20t.load_pickled_dict(path, "transformed/gripper.npy")
+    finally:
+        monkeypatch.delenv("POKEWORLD_PAUSE_AT")
+        npy_child.close_child()
+    assert time.monotonic() - start < 30
+    assert e.value.reason == "unsafe_pickle" and not e.value.cacheable and "within 2 s" in e.value.message
+    assert rh20t.load_pickled_dict(path, "transformed/gripper.npy") == {"a": 1}  # a fresh child serves the next
+
+
+def test_the_child_returns_what_np_load_returns(tmp_path):
+    obj = {"104122061018": [{"timestamp": 1_690_000_000_000, "tcp": np.arange(7.0), "n": np.int64(3),
+                             "f": np.float32(0.5), "ok": np.bool_(True), "s": np.str_("x")}],
+           "gripper": {1_690_000_000_000: {"gripper_info": [80.0, 0.0, 0.0]}}, "ids": {1, 2}, "z": 1 + 2j,
+           "t": (1, "a"), "raw": b"\x00\xff", "nested": np.array([{"k": np.arange(3)}, None], object),
+           "nan": float("nan"), "frozen": frozenset({3}), "big_endian": np.arange(3, dtype=">i4"),
+           "fortran": np.asfortranarray(np.arange(6.0).reshape(2, 3)), "huge_int": 10**30}
+    for protocol in (2, 4):
+        _write_object_npy(tmp_path / "x.npy", obj, protocol)
+        expected = np.load(tmp_path / "x.npy", allow_pickle=True).item()
+        assert _deep_equal(npy_child.load_npy_item_isolated(tmp_path / "x.npy"), expected)
+
+
+def test_a_reply_that_would_expand_shared_references_is_refused(tmp_path):
+    path = planted_npy(tmp_path / "bomb.npy", shared_reference_bomb())
+    with pytest.raises(rh20t.SceneSkip) as e:
+        rh20t.load_pickled_dict(path, "transformed/gripper.npy")
+    assert e.value.reason == "bad_stream" and "too large" in e.value.message

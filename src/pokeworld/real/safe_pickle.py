@@ -14,13 +14,19 @@ numpy's own loader, once pickles are allowed, unpickles with the full :mod:`pick
 What is admitted and why (the opcodes for dict, list, tuple, str, bytes, int, float, bool and None need no global):
 
 * numpy's array and scalar reconstruction, under its numpy 1.x (``numpy.core``) and 2.x (``numpy._core``) module
-  names: ``multiarray._reconstruct`` only with ``numpy.ndarray`` as its subtype (``ndarray`` itself is not
-  callable here: ``np.ndarray(shape, object, buffer)`` would turn raw bytes into object pointers),
-  ``multiarray.scalar`` and ``numpy.dtype`` restricted to bool, integer, float, complex, str/bytes and object
-  dtypes. Object arrays are admitted because the 0-d wrapper ``np.save`` puts around a dict is one; numpy
-  pickles an object array's elements inline in the same stream (``ndarray.__setstate__`` refuses an object
-  array whose data is not a list), so every element of a nested object array passes through the same
-  ``find_class`` (``tests/test_rh20t_security.py`` plants a payload inside one);
+  names: ``multiarray._reconstruct`` only as numpy's pickles call it (``(numpy.ndarray, (0,), b'b')``; ``ndarray``
+  itself is not callable here: ``np.ndarray(shape, object, buffer)`` would turn raw bytes into object pointers),
+  ``multiarray.scalar`` for non-object dtypes only, and ``numpy.dtype`` restricted to bool, integer, float, complex,
+  str/bytes and object dtypes. Object arrays are admitted because the 0-d wrapper ``np.save`` puts around a dict is
+  one; numpy pickles an object array's elements inline in the same stream as a list, so every element of a nested
+  object array passes through the same ``find_class`` (``tests/test_rh20t_security.py`` plants a payload inside one);
+* the BUILD opcode (``__setstate__``) only on a numpy dtype or array made by the names above, and only with a state
+  that cannot change what the object is (:meth:`RestrictedUnpickler.load_build`): a dtype's state must equal the
+  state numpy itself writes for that dtype (the byte order is the one thing it may set), an array's state must hold
+  such a dtype and exactly as many bytes (or, for an object dtype, list items) as its shape needs. numpy's own
+  ``dtype.__setstate__`` accepts any flags, and a dtype whose flags no longer say "holds objects" makes
+  ``multiarray.scalar`` or ``ndarray.__setstate__`` read raw bytes from the file as object pointers: a crash with
+  an arbitrary address, a call of the attacker's choice with a known one;
 * ``builtins`` ``set``, ``frozenset`` and ``complex``: inert value constructors that pickle protocols <= 3 (numpy
   < 2 wrote protocol 3) spell as globals;
 * ``_codecs.encode`` with a ``latin1`` encoding only: how protocol 2 (numpy < 1.17) stores ``bytes``, e.g. the
@@ -29,6 +35,7 @@ What is admitted and why (the opcodes for dict, list, tuple, str, bytes, int, fl
 
 from __future__ import annotations
 
+import math
 import pickle
 import re
 from pathlib import Path
@@ -36,6 +43,8 @@ from typing import Any, BinaryIO
 
 import numpy as np
 from numpy.lib import format as npy_format
+
+from .regular_files import open_regular
 
 try:  # numpy >= 2
     from numpy._core import multiarray as _multiarray
@@ -48,9 +57,14 @@ class UnsafePickleError(pickle.UnpicklingError):
     was called."""
 
 
-ADMITTED_DTYPE_RE = re.compile(r"^(b1|[iu][1248]|f(2|4|8|12|16)|c(8|16|24|32)|[US]\d+|O[48]?)$")
+ADMITTED_DTYPE_RE = re.compile(r"^(b1|[iu][1248]|f(2|4|8|12|16)|c(8|16|24|32)|[US]\d{1,6}|O[48]?)$")
 """dtype specs (the first argument numpy pickles ``numpy.dtype`` with) the unpickler admits: bool, integers,
-floats, complex, fixed-width str/bytes and object. Structured / void, datetime and user dtypes are refused."""
+floats, complex, fixed-width str/bytes (at most 6 digits of width) and object. Structured / void, datetime and user
+dtypes are refused."""
+
+MAX_ITEMSIZE = 1 << 20
+"""Largest admitted dtype item size [bytes]: ``U999999`` is 4 MB per element, and a scalar or array of it is
+allocated before its data is checked."""
 
 
 class _NdarrayType:
@@ -66,20 +80,42 @@ _NDARRAY = _NdarrayType()
 def _reconstruct(subtype: Any, shape: Any, dtype: Any) -> np.ndarray:
     if subtype is not _NDARRAY:
         raise UnsafePickleError(f"_reconstruct called with subtype {subtype!r}; only numpy.ndarray is admitted")
-    return _multiarray._reconstruct(np.ndarray, shape, dtype)
+    # numpy's array_reduce always writes (ndarray, (0,), b'b'): an empty placeholder its BUILD then fills
+    if shape != (0,) or dtype not in (b"b", "b"):
+        raise UnsafePickleError(f"_reconstruct admitted only as numpy pickles it, with shape (0,) and dtype b'b', "
+                                f"got {shape!r:.60}, {dtype!r:.60}")
+    return _multiarray._reconstruct(np.ndarray, (0,), b"b")
 
 
-def _dtype(spec: Any, align: Any = False, copy: Any = False) -> np.dtype:
+def _dtype(spec: Any, align: Any = False, copy: Any = True) -> np.dtype:
     if not isinstance(spec, str) or not ADMITTED_DTYPE_RE.match(spec):
-        raise UnsafePickleError(f"numpy dtype {spec!r} is not admitted (only bool, int, float, complex, str, "
+        raise UnsafePickleError(f"numpy dtype {spec!r:.60} is not admitted (only bool, int, float, complex, str, "
                                 "bytes and object dtypes)")
-    return np.dtype(spec, align=bool(align), copy=bool(copy))
+    dt = np.dtype(spec, align=bool(align), copy=True)  # always a fresh object: its BUILD must not touch numpy's own
+    if dt.itemsize > MAX_ITEMSIZE:
+        raise UnsafePickleError(f"numpy dtype {spec!r} has {dt.itemsize} bytes per item (> {MAX_ITEMSIZE})")
+    return dt
+
+
+def _canonical_state(dt: np.dtype) -> tuple:
+    """The BUILD state numpy writes for a plain dtype equal to ``dt`` with ``dt``'s byte order."""
+    return np.dtype(dt.str).__reduce__()[2]
+
+
+def _plain_dtype(dt: Any) -> bool:
+    """True for a bool / number / str / bytes / object dtype whose flags, size and alignment are numpy's own."""
+    return (isinstance(dt, np.dtype) and dt.names is None and dt.subdtype is None and dt.kind in "biufcUSO"
+            and dt.itemsize <= MAX_ITEMSIZE and dt.__reduce__()[2] == _canonical_state(dt))
 
 
 def _scalar(dtype: Any, data: Any = None) -> Any:
-    if not isinstance(dtype, np.dtype):
-        raise UnsafePickleError(f"numpy scalar reconstruction with a non-dtype {type(dtype).__name__}")
-    return _multiarray.scalar(dtype) if data is None else _multiarray.scalar(dtype, data)
+    if not _plain_dtype(dtype) or dtype.hasobject:
+        raise UnsafePickleError(f"numpy scalar reconstruction admitted only for plain non-object dtypes, got "
+                                f"{dtype!r:.60}")
+    if not isinstance(data, bytes) or len(data) != dtype.itemsize:
+        raise UnsafePickleError(f"numpy scalar of {dtype} needs exactly {dtype.itemsize} bytes of data, got "
+                                f"{type(data).__name__}")
+    return _multiarray.scalar(dtype, data)
 
 
 def _codecs_encode(obj: Any, encoding: Any = "utf-8", errors: Any = "strict") -> bytes:
@@ -108,8 +144,44 @@ ADMITTED_GLOBALS: dict[tuple[str, str], Any] = _admitted()
 """(module, name) -> the object ``find_class`` returns for it; every other global is refused."""
 
 
-class RestrictedUnpickler(pickle.Unpickler):
-    """An unpickler whose globals are exactly :data:`ADMITTED_GLOBALS` (and no persistent ids)."""
+def _check_dtype_state(inst: np.dtype, state: Any) -> None:
+    """A dtype's BUILD may only restate numpy's own state for it, or that of its other byte order."""
+    variants = [inst] + ([inst.newbyteorder("<"), inst.newbyteorder(">")] if inst.byteorder != "|" else [])
+    if not isinstance(state, tuple) or all(state != v.__reduce__()[2] for v in variants):
+        raise UnsafePickleError(f"BUILD state {state!r:.80} would change numpy dtype {inst} (only numpy's own state "
+                                "for a plain dtype is admitted)")
+
+
+def _check_array_state(inst: np.ndarray, state: Any, plain_dtypes: dict[int, np.dtype]) -> None:
+    """An array's BUILD: a fresh placeholder, a plain dtype, and exactly the data its shape needs."""
+    if not isinstance(state, tuple) or len(state) not in (4, 5):
+        raise UnsafePickleError(f"numpy array BUILD state must be a 4- or 5-tuple, got {type(state).__name__}")
+    shape, dt, _, data = state[-4:]
+    if inst.shape != (0,) or inst.dtype != np.int8:
+        raise UnsafePickleError("BUILD on a numpy array that is not a fresh _reconstruct placeholder")
+    if not isinstance(shape, tuple) or not all(type(n) is int and n >= 0 for n in shape):
+        raise UnsafePickleError(f"numpy array shape {shape!r:.60} is not a tuple of non-negative ints")
+    if id(dt) not in plain_dtypes:
+        if not _plain_dtype(dt):
+            raise UnsafePickleError(f"numpy array dtype {dt!r:.60} is not a plain dtype with numpy's own flags")
+        plain_dtypes[id(dt)] = dt
+    size = math.prod(shape)
+    if dt.hasobject:
+        if type(data) is not list or len(data) != size:
+            raise UnsafePickleError(f"object array of shape {shape} needs a list of {size} items, got "
+                                    f"{type(data).__name__}")
+    elif not isinstance(data, (bytes, bytearray)) or len(data) != size * dt.itemsize:
+        got = f"{len(data)} bytes" if isinstance(data, (bytes, bytearray)) else type(data).__name__
+        raise UnsafePickleError(f"{dt} array of shape {shape} needs {size * dt.itemsize} bytes of data, got {got}")
+
+
+class RestrictedUnpickler(pickle._Unpickler):
+    """An unpickler whose globals are exactly :data:`ADMITTED_GLOBALS`, with no persistent ids, and whose BUILD
+    opcode only completes numpy dtypes and arrays with states numpy itself writes (:meth:`load_build`).
+
+    It is the pure-python unpickler (``pickle._Unpickler``), the only one whose opcodes can be overridden: the C
+    unpickler calls ``__setstate__`` directly, and numpy's ``dtype.__setstate__`` admits any flags.
+    """
 
     def find_class(self, module: str, name: str) -> Any:
         try:
@@ -119,6 +191,25 @@ class RestrictedUnpickler(pickle.Unpickler):
 
     def persistent_load(self, pid: Any) -> Any:
         raise UnsafePickleError(f"pickle uses a persistent id ({pid!r:.60}), which is not admitted")
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.plain_dtypes: dict[int, np.dtype] = {}
+        """id -> dtype already checked by :func:`_plain_dtype` (a pickle reuses one dtype object for many arrays;
+        the dtype is held, so its id is not reused, and a later BUILD on it is itself checked)."""
+
+    def load_build(self) -> None:
+        state = self.stack.pop()
+        inst = self.stack[-1]
+        if isinstance(inst, np.dtype):
+            _check_dtype_state(inst, state)
+        elif type(inst) is np.ndarray:
+            _check_array_state(inst, state, self.plain_dtypes)
+        else:
+            raise UnsafePickleError(f"BUILD (__setstate__) on {type(inst).__name__} is not admitted")
+        inst.__setstate__(state)
+
+    dispatch = {**pickle._Unpickler.dispatch, pickle.BUILD[0]: load_build}
 
 
 def _read_header(fp: BinaryIO) -> tuple[tuple[int, ...], bool, np.dtype]:
@@ -140,10 +231,11 @@ def load_npy(path: str | Path) -> np.ndarray:
     the ``.npy`` magic, which numpy's pickle-allowing loader would unpickle, is refused as not an ``.npy``).
     """
     path = Path(path)
-    with open(path, "rb") as fp:
+    with open_regular(path) as fp:
         shape, fortran_order, dtype = _read_header(fp)
         if not dtype.hasobject:
-            return np.load(path, allow_pickle=False)
+            fp.seek(0)
+            return np.load(fp, allow_pickle=False)
         # numpy.lib.format.write_array pickles the whole object array (the outer wrapper included)
         arr = RestrictedUnpickler(fp, fix_imports=True, encoding="ASCII").load()
     if not isinstance(arr, np.ndarray) or arr.dtype != dtype or arr.shape != tuple(shape):
@@ -159,5 +251,5 @@ def load_npy_item(path: str | Path) -> Any:
     return arr.item() if arr.dtype == object and arr.shape == () else arr
 
 
-__all__ = ["UnsafePickleError", "RestrictedUnpickler", "ADMITTED_GLOBALS", "ADMITTED_DTYPE_RE", "load_npy",
-           "load_npy_item"]
+__all__ = ["UnsafePickleError", "RestrictedUnpickler", "ADMITTED_GLOBALS", "ADMITTED_DTYPE_RE", "MAX_ITEMSIZE",
+           "load_npy", "load_npy_item"]

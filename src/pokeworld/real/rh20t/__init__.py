@@ -17,7 +17,11 @@ Pipeline, one scene at a time (docs/rh20t.md lists every format fact and choice)
    labels (raw force, contact onset, TCP pose), then :func:`pokeworld.data.save`.
 
 Pickled ``.npy`` files are read by :mod:`pokeworld.real.safe_pickle`'s restricted unpickler (a pickle naming
-anything but numpy arrays and python containers skips the scene as ``unsafe_pickle`` before it runs).
+anything but numpy arrays and python containers, or rewriting a numpy dtype's state, skips the scene as
+``unsafe_pickle`` before it runs), in a child process (:mod:`pokeworld.real.npy_child`: a child killed by a signal
+or timing out skips the scene as ``unsafe_pickle`` too). Every file read must be a regular file inside the dataset
+root (:mod:`.files`: FIFOs and devices skip as ``special_file``, symlinks or a metadata ``calib`` leading out as
+``outside_root``), and a frame declaring more than ``MAX_FRAME_PIXELS`` skips as ``huge_image`` before decoding.
 Isolated bad records (NaN, overflowed ~1e36, all-zero TCP, out-of-range values) are dropped and
 counted; a camera role falls back along its ordered serial list, then (external roles only) to another
 external camera present in the scene; a missing base-frame F/T file is
@@ -40,8 +44,9 @@ Streams written to the store (``manifest["columns"]`` names every column):
 available as ``labels`` (``force``, ``torque``, ``tcp_pos``, ``tcp_quat``, ``gripper_width``).
 
 Modules, in pipeline order: :mod:`.format` (RH20T layout facts), :mod:`.skips` (skip reasons), :mod:`.config`,
-:mod:`.folders` (scene names, scan), :mod:`.records` (numeric streams), :mod:`.rotations`, :mod:`.calibration`
-(camera-frame F/T), :mod:`.cameras` (serial choice), :mod:`.video` (frames), :mod:`.scene` (one scene),
+:mod:`.folders` (scene names, scan), :mod:`.files` (which files may be read), :mod:`.records` (numeric streams),
+:mod:`.rotations`, :mod:`.calibration` (camera-frame F/T), :mod:`.cameras` (serial choice), :mod:`.video` (frames),
+:mod:`.scene` (one scene),
 :mod:`.cache`, :mod:`.splits`, :mod:`.assembly` (the dataset) and :mod:`.convert` (the command).
 """
 
@@ -66,6 +71,7 @@ from .cameras import (
                        other_external_serials,
 )
 from .config import PRESETS, ConvertConfig, content_config, make_config, out_dir
+from .files import calibration_folder, dataset_file, open_dataset_file, read_dataset_file, scene_root
 from .convert import corpus_source, run
 from .folders import SceneRef, check_scene_name, parse_scene_name, scan
 from .format import (
@@ -84,6 +90,7 @@ from .records import (
                        classify_records,
                        clean_records,
                        load_pickled_dict,
+                       load_untrusted_npy,
                        read_ft,
                        read_gripper,
                        read_records,
@@ -96,10 +103,10 @@ from .rotations import (
                        quat_to_rotvec,
                        rotvec_to_mat,
 )
-from .scene import interp_columns, process_scene
+from .scene import MAX_METADATA_BYTES, interp_columns, process_scene, read_metadata
 from .skips import SKIP_REASONS, SceneSkip
 from .splits import split_scenes, stratified_indices, stratified_subset
-from .video import crop_resize, read_camera
+from .video import MAX_FRAME_PIXELS, MAX_IMAGE_FILE_BYTES, check_image_header, crop_resize, read_camera
 
 __all__ = [
     "ConvertConfig", "PRESETS", "make_config", "run", "scan", "parse_scene_name", "process_scene", "SceneSkip",
@@ -113,4 +120,6 @@ __all__ = [
     "euler_sxyz_to_mat", "interp_columns", "load_pickled_dict", "other_external_serials", "out_dir", "quat_mul",
     "quat_to_mat", "quat_to_rotvec", "read_camera", "read_ft", "read_gripper", "read_records", "robust_whiten_stats",
     "rotvec_to_mat", "stratified_indices", "tcp_actions",
+    "MAX_FRAME_PIXELS", "MAX_IMAGE_FILE_BYTES", "MAX_METADATA_BYTES", "calibration_folder", "check_image_header",
+    "dataset_file", "load_untrusted_npy", "open_dataset_file", "read_dataset_file", "read_metadata", "scene_root",
 ]

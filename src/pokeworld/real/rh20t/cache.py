@@ -14,10 +14,12 @@ from .folders import SceneRef, check_scene_name
 from .scene import process_scene
 from .skips import SceneSkip
 
-PIPELINE_VERSION = 3
+PIPELINE_VERSION = 4
 """Bumped whenever per-scene processing changes, so stale scene caches are never reused. 3: a scene without any
 of its role's serials falls back to another external camera (cached ``missing_camera`` skips are stale), camera
-rows carry ``fallback_kind``, pickles are read by the restricted unpickler (``unsafe_pickle``)."""
+rows carry ``fallback_kind``, pickles are read by the restricted unpickler (``unsafe_pickle``). 4: pickles are
+unpickled in a child process and dtype / array BUILDs are checked (``unsafe_pickle``), special files
+(``special_file``), paths leading outside the root (``outside_root``) and oversized frames (``huge_image``) skip."""
 
 _CACHE_FIELDS = ("cfg", "camera", "camera_serials", "image_size", "crop", "hz", "min_rating", "require_calib_dir",
                  "gripper_field", "max_gap_s", "frame_tolerance_s", "max_abs_pos_m", "max_abs_ft",
@@ -61,7 +63,8 @@ def convert_scene_cached(ref: SceneRef, cfg: ConvertConfig, cdir: Path) -> tuple
         arrays = process_scene(ref, cfg)
     except SceneSkip as e:
         rec = {"scene": ref.name, "path": str(ref.path), "reason": e.reason, "message": e.message}
-        write_json(skip, rec)
+        if e.cacheable:
+            write_json(skip, rec)
         return None, rec
     except (KeyboardInterrupt, SystemExit):
         raise

@@ -6,7 +6,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..safe_pickle import UnsafePickleError, load_npy, load_npy_item
+from ..npy_child import UnpicklerTimeout, load_npy_isolated, load_npy_item_isolated
+from ..safe_pickle import UnsafePickleError
+from .files import dataset_file
 from .format import ALIGN_BASE_ROT, IN_HAND_CALIB, ROBOTS, TCP_CAMERA_ROT
 from .rotations import euler_sxyz_to_mat, quat_to_mat, rotvec_to_mat
 from .skips import SceneSkip
@@ -29,21 +31,25 @@ def calib_tcp_rotation(tcp: np.ndarray, cfg_num: int) -> np.ndarray:
     raise ValueError(f"calibration tcp must have 6 or 7 values, got {t.size}")
 
 
-def base_to_camera_rotations(calib_dir: Path, cfg_num: int) -> dict[str, np.ndarray]:
+def base_to_camera_rotations(calib_dir: Path, cfg_num: int, root: Path | None = None) -> dict[str, np.ndarray]:
     """serial -> 3x3 rotation R with v_camera = R v_base, from a calibration folder (rh20t_api's chain).
 
     The API projects base-frame F/T into camera ``s`` with ``extrinsics[s] @ base_world @ align_mat_base``,
     ``base_world = inv(extrinsics[in_hand[0]]) @ tc_mat @ inv(calib_tcp)``; only the rotations matter for
-    vectors. Raises SceneSkip(camera_frame_ft) when a needed file or the anchor in-hand camera is absent.
+    vectors. Raises SceneSkip(camera_frame_ft) when a needed file or the anchor in-hand camera is absent. The
+    files are checked (regular, inside ``root``; ``None``: inside ``calib_dir``) and unpickled in the child process.
     """
-    ext_path, tcp_path = calib_dir / "extrinsics.npy", calib_dir / "tcp.npy"
-    if not ext_path.exists() or not tcp_path.exists():
+    ext_path = dataset_file(calib_dir / "extrinsics.npy", root or calib_dir, "calibration extrinsics.npy")
+    tcp_path = dataset_file(calib_dir / "tcp.npy", root or calib_dir, "calibration tcp.npy")
+    if ext_path is None or tcp_path is None:
         raise SceneSkip("camera_frame_ft", f"force_torque_base.npy absent and calibration {calib_dir} lacks "
                                            "extrinsics.npy / tcp.npy to rotate the camera-frame force_torque.npy")
     try:
-        ext = load_npy_item(ext_path)
+        ext = load_npy_item_isolated(ext_path)
         mats = {str(k): np.asarray(v, np.float64).reshape(-1, 4, 4)[0][:3, :3] for k, v in dict(ext).items()}
-        r_tcp = calib_tcp_rotation(load_npy(tcp_path), cfg_num)
+        r_tcp = calib_tcp_rotation(load_npy_isolated(tcp_path), cfg_num)
+    except UnpicklerTimeout as e:
+        raise SceneSkip("unsafe_pickle", f"calibration {calib_dir}: {e}", cacheable=False) from None
     except UnsafePickleError as e:
         raise SceneSkip("unsafe_pickle", f"calibration {calib_dir}: {e}") from None
     except Exception as e:  # damaged calibration files

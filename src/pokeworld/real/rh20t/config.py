@@ -79,7 +79,9 @@ class ConvertConfig:
     progress: bool = True
     """Show a progress bar."""
     overwrite: bool = False
-    """Rebuild the store and the scene cache even if they exist."""
+    """Rebuild the store and the scene cache even if they exist. Replaces only a folder pokeworld verifies as its
+    own RH20T store (only files pokeworld writes in a store: data.h5, manifest.json, conversion_report.json,
+    certificates; the manifest readable and of kind "rh20t"); any other folder is refused, never deleted."""
 
     def __post_init__(self) -> None:
         if self.cfg not in ROBOTS:

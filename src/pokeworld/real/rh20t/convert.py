@@ -11,9 +11,11 @@ from pathlib import Path
 from tqdm.auto import tqdm
 
 from ... import __version__
-from ...data import Dataset, save, store_is_current
+from ...data import Dataset, check_store_destination, save, store_is_current, store_lock
 from ...errors import ConfigError, DataError
-from ...io import write_json
+from ...io import check_writable_dir, write_json
+from ..npy_child import close_child
+from ..regular_files import read_regular
 from .assembly import ACTION_COLUMNS, PROPRIO_COLUMNS, TOUCH_COLUMNS, assemble
 from .cache import PIPELINE_VERSION, cache_dir, convert_scene_cached
 from .config import ConvertConfig, content_config, out_dir
@@ -30,8 +32,8 @@ def corpus_source(root: str | os.PathLike, cfg_id: int) -> dict:
     root = Path(root)
     corpus = root.parent if root.name == f"RH20T_cfg{cfg_id}" else root
     man_path = corpus / "truth" / "manifest.json"
-    try:
-        man = json.loads(man_path.read_text())
+    try:  # a regular file only: a FIFO planted here would hang the conversion
+        man = json.loads(read_regular(man_path, max_bytes=64 << 20))
     except (OSError, ValueError):
         return {"synthetic": False}
     if not isinstance(man, dict) or man.get("generator") != "pokeworld.real.synthetic":
@@ -73,12 +75,15 @@ def _convert_scenes(chosen: list[SceneRef], cfg: ConvertConfig,
     """(converted (scene, arrays) pairs, skip records) for the chosen scenes, each through the scene cache."""
     converted: list[tuple[SceneRef, dict]] = []
     skips: list[dict] = []
-    for ref in tqdm(chosen, desc=f"rh20t cfg{cfg.cfg}", unit="scene", disable=not cfg.progress):
-        arrays, skip = convert_scene_cached(ref, cfg, cdir)
-        if arrays is not None:
-            converted.append((ref, arrays))
-        else:
-            skips.append(skip)
+    try:
+        for ref in tqdm(chosen, desc=f"rh20t cfg{cfg.cfg}", unit="scene", disable=not cfg.progress):
+            arrays, skip = convert_scene_cached(ref, cfg, cdir)
+            if arrays is not None:
+                converted.append((ref, arrays))
+            else:
+                skips.append(skip)
+    finally:
+        close_child()  # the child that unpickled this conversion's files
     return converted, skips
 
 
@@ -153,10 +158,20 @@ def run(cfg: ConvertConfig) -> Path:
 
     Re-running with the same config returns the existing store; an interrupted run resumes from the
     per-scene cache. Raises :class:`DataError` if no scene could be converted (the report is still written).
+    Before any scene is read, the output must be free or hold a pokeworld RH20T store, its folder writable, and
+    no other writer at work on it (:func:`~pokeworld.data.store_lock`, held to the end).
     """
     if not cfg.root:
         raise ConfigError("root is required: the RH20T folder (RH20T_cfgN or its parent)")
     out = out_dir(cfg)
+    check_store_destination(out, "rh20t")
+    check_writable_dir(out.parent)
+    with store_lock(out):
+        return _convert_into(cfg, out)
+
+
+def _convert_into(cfg: ConvertConfig, out: Path) -> Path:
+    """:func:`run` under the store lock: keep an intact identical store, else convert and write it at ``out``."""
     report_path = out / "conversion_report.json"
     if store_is_current(out, content_config(cfg), cfg.overwrite):
         print(f"[rh20t] {out} already holds this conversion; skipping")

@@ -2,26 +2,47 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ..safe_pickle import UnsafePickleError, load_npy_item
+from ..npy_child import UnpicklerTimeout, load_npy_item_isolated
+from ..regular_files import NotRegularFileError
+from ..safe_pickle import UnsafePickleError
 from .calibration import base_to_camera_rotations
 from .config import ConvertConfig
+from .files import calibration_folder, dataset_file
 from .skips import SceneSkip
 
 
-def load_pickled_dict(path: Path, what: str) -> Any:
-    """The dict pickled in an RH20T ``.npy`` file (a 0-d object array), read by the restricted unpickler of
-    :mod:`pokeworld.real.safe_pickle` (never numpy's unrestricted pickle loading)."""
-    if not path.exists():
+def load_untrusted_npy(path: Path, root: Path | None, what: str) -> Any:
+    """An ``.npy`` file of the dataset, checked by :func:`~.files.dataset_file` and read by the restricted unpickler
+    in the child process of :mod:`pokeworld.real.npy_child` (0-d object arrays unwrapped). Raises SceneSkip
+    ``missing_stream`` / ``special_file`` / ``outside_root`` / ``unsafe_pickle``; other exceptions mean a damaged
+    file."""
+    real = dataset_file(path, root, what)
+    if real is None:
         raise SceneSkip("missing_stream", f"{what} file {path} is absent")
     try:
-        obj = load_npy_item(path)
+        return load_npy_item_isolated(real)
+    except UnpicklerTimeout as e:
+        raise SceneSkip("unsafe_pickle", f"{path}: {e}", cacheable=False) from None
     except UnsafePickleError as e:
         raise SceneSkip("unsafe_pickle", f"{path}: {e}") from None
+    except NotRegularFileError as e:  # swapped for a FIFO after the check
+        raise SceneSkip("special_file", f"{what}: {e}") from None
+
+
+def load_pickled_dict(path: Path, what: str, root: Path | None = None) -> Any:
+    """The dict pickled in an RH20T ``.npy`` file (a 0-d object array), read by :func:`load_untrusted_npy` (never
+    numpy's unrestricted pickle loading, never in this process). ``root``: the dataset root no file may resolve
+    outside of (``None``: the file's own folder)."""
+    try:
+        obj = load_untrusted_npy(path, root, what)
+    except SceneSkip:
+        raise
     except Exception as e:  # pickle / header / value errors all mean a damaged file
         raise SceneSkip("bad_stream", f"cannot read {path}: {type(e).__name__}: {e}") from None
     if not isinstance(obj, dict):
@@ -145,21 +166,22 @@ def clean_records(ts: np.ndarray, vals: np.ndarray, stream: str, what: str,
     return ts, vals, counts
 
 
-def read_ft(d: Path, meta: dict, cfg: ConvertConfig) -> tuple[np.ndarray, np.ndarray, str, int]:
+def read_ft(d: Path, meta: dict, cfg: ConvertConfig,
+            root: Path | None = None) -> tuple[np.ndarray, np.ndarray, str, int]:
     """Zeroed base-frame F/T records (raw ts, values), their source (``base`` or ``camera_via_calib``) and the
     number of camera-frame records left out because their serial has no calibration extrinsics."""
     tr = d / "transformed"
     base, cam = tr / "force_torque_base.npy", tr / "force_torque.npy"
-    if base.exists() or not cam.exists():
-        ts, v = read_records(load_pickled_dict(base, "transformed/force_torque_base.npy"), "zeroed", 6,
+    if os.path.lexists(base) or not os.path.lexists(cam):
+        ts, v = read_records(load_pickled_dict(base, "transformed/force_torque_base.npy", root), "zeroed", 6,
                              "force_torque_base.npy")
         return ts, v, "base", 0
     if not cfg.ft_camera_fallback:
         raise SceneSkip("camera_frame_ft", "force_torque_base.npy absent, only the camera-frame force_torque.npy is "
                                            "present and ft_camera_fallback is off")
-    rots = base_to_camera_rotations(d.parent / "calib" / str(meta.get("calib")), cfg.cfg)
+    rots = base_to_camera_rotations(calibration_folder(d, meta.get("calib"), root), cfg.cfg, root)
     to_base = {s: np.kron(np.eye(2), r.T) for s, r in rots.items()}  # force and torque rotate alike
-    obj = load_pickled_dict(cam, "transformed/force_torque.npy")
+    obj = load_pickled_dict(cam, "transformed/force_torque.npy", root)
     missing = sorted(str(s) for s in obj if str(s) not in to_base)
     ts, v = read_records(obj, "zeroed", 6, "force_torque.npy (camera frame)", transform=to_base)
     if len(ts) == 0:

@@ -17,7 +17,15 @@ SKIP_REASONS = {
                        "rotated into the base frame (ft_camera_fallback off, or calibration extrinsics / tcp absent)",
     "bad_stream": "a stream file cannot be unpickled or has the wrong structure / shape",
     "unsafe_pickle": "a pickled .npy file (stream, camera timestamps or calibration) references a global the "
-                     "restricted unpickler does not admit (e.g. os.system); refused before anything in it ran",
+                     "restricted unpickler does not admit (e.g. os.system) or rewrites a numpy dtype's state, refused "
+                     "before anything in it ran; or the child process unpickling it was killed by a signal or timed "
+                     "out",
+    "special_file": "metadata.json, a pickled .npy, a video or a frame is not a regular file (a FIFO, device, "
+                    "socket or directory), which could hang the conversion; never opened for reading",
+    "outside_root": "a file or the calibration folder resolves outside the dataset root (a symlink leading out, "
+                    "or a metadata calib value with '..' or an absolute path)",
+    "huge_image": "a frame's header (image) or video stream declares more pixels than MAX_FRAME_PIXELS; refused "
+                  "before decoding",
     "nan_stream": "more than max_bad_record_fraction of a stream's records are non-finite (isolated ones are dropped "
                   "and counted instead)",
     "zero_tcp": "more than max_bad_record_fraction of the TCP records are all zeros (pose not logged)",
@@ -41,7 +49,9 @@ SKIP_REASONS = {
 class SceneSkip(DataError):
     """A scene that cannot be converted; ``reason`` is a key of :data:`SKIP_REASONS`."""
 
-    def __init__(self, reason: str, message: str):
+    def __init__(self, reason: str, message: str, cacheable: bool = True):
         assert reason in SKIP_REASONS, reason
         super().__init__(f"{reason}: {message}")
         self.reason, self.message = reason, message
+        self.cacheable = cacheable
+        """False when a rerun could decide otherwise (a timeout under load): the skip is not cached."""
