@@ -13,6 +13,7 @@ from __future__ import annotations
 import os
 import pickle
 import random
+import stat
 from pathlib import Path
 from typing import Any
 
@@ -38,23 +39,58 @@ def load(path: str | os.PathLike, map_location: str | torch.device = "cpu") -> d
     """Read a checkpoint with ``weights_only=True``; :class:`CheckpointError` naming the file when it needs more
     (a pickled class or function: possibly code, never something pokeworld writes) or is damaged."""
     path = Path(path)
-    if not path.is_file():
-        raise CheckpointError(f"checkpoint {path} does not exist")
     try:
-        ck = torch.load(path, map_location=map_location, weights_only=True)
+        # O_NONBLOCK: opening a FIFO planted under a checkpoint's name returns at once instead of waiting for a
+        # writer, and fstat then refuses it
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    except FileNotFoundError:
+        raise CheckpointError(f"checkpoint {path} does not exist") from None
+    except OSError as e:
+        raise CheckpointError(f"cannot open checkpoint {path} ({e.strerror})") from None
+    mode = os.fstat(fd).st_mode
+    if not stat.S_ISREG(mode):
+        os.close(fd)
+        raise CheckpointError(f"checkpoint {path} is {file_kind(mode)}, not a regular file; remove it "
+                              "(pokeworld reads checkpoints from regular files only)")
+    with os.fdopen(fd, "rb") as fh:
+        ck = _load_weights(fh, path, map_location)
+    if not isinstance(ck, dict):
+        raise CheckpointError(f"checkpoint {path} holds a {type(ck).__name__}, expected a dict")
+    return ck
+
+
+def file_kind(mode: int) -> str:
+    """What ``os.stat``'s ``st_mode`` describes, for an error message: 'a directory', 'a FIFO', ..."""
+    for test, kind in ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO"), (stat.S_ISSOCK, "a socket"),
+                       (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+                       (stat.S_ISLNK, "a symbolic link")):
+        if test(mode):
+            return kind
+    return "a regular file" if stat.S_ISREG(mode) else "a special file"
+
+
+def _load_weights(fh, path: Path, map_location: str | torch.device) -> Any:
+    """``torch.load(weights_only=True)`` of an open checkpoint file, its failures as one-line CheckpointErrors."""
+    try:
+        return torch.load(fh, map_location=map_location, weights_only=True)
     except pickle.UnpicklingError as e:
-        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        first = first_line(e)
         raise CheckpointError(
             f"refusing to load {path}: it holds objects other than tensors and plain containers ({first}). "
             "pokeworld never writes such checkpoints; loading it could execute code. If you made it yourself "
             "with an older pokeworld, re-train the run (pokeworld will not unpickle arbitrary objects, whatever "
             "its origin)") from None
-    except (RuntimeError, EOFError, OSError, ValueError) as e:  # truncated zip, bad magic, short read
-        raise CheckpointError(f"cannot read checkpoint {path} ({type(e).__name__}: {e}); it is damaged or not "
-                              "a torch checkpoint") from None
-    if not isinstance(ck, dict):
-        raise CheckpointError(f"checkpoint {path} holds a {type(ck).__name__}, expected a dict")
-    return ck
+    # truncated zip, bad magic, short read; a flipped byte inside the pickle makes the weights-only unpickler fail
+    # with whatever its opcode handler hits (KeyError of a memo index, IndexError, struct.error, TypeError...)
+    except Exception as e:  # noqa: BLE001 - every one of them means a damaged file
+        raise CheckpointError(f"cannot read checkpoint {path} ({type(e).__name__}: {first_line(e)}); it is damaged "
+                              "or not a torch checkpoint") from None
+
+
+def first_line(error: BaseException) -> str:
+    """An exception's message cut to its first line (torch's run to pages), for a one-line error."""
+    text = str(error).strip()
+    return text.splitlines()[0][:300] if text else type(error).__name__
 
 
 def rng_state() -> dict[str, Any]:
@@ -83,4 +119,4 @@ def set_rng_state(st: dict[str, Any]) -> None:
         torch.cuda.set_rng_state_all(st["cuda"])
 
 
-__all__ = ["CheckpointError", "save", "load", "rng_state", "set_rng_state"]
+__all__ = ["CheckpointError", "save", "load", "file_kind", "first_line", "rng_state", "set_rng_state"]

@@ -19,25 +19,54 @@ split              (E,) int8              0 train, 1 probe-fit, 2 probe-test, 3 
 The manifest records the generator config, seed, format version and a content
 hash over all arrays; :func:`load` re-hashes and refuses a store whose bytes do
 not match, so a truncated or edited file is never silently used.
+
+A store folder may come from anyone, so :func:`load` reads nothing it has not checked first: ``data.h5`` and
+``manifest.json`` must be regular files (a FIFO would hang the reader); every dataset must be stored in the file
+itself (no external, soft or virtual links, no external storage) with a real numeric dtype, the shape the
+manifest declares and a plausible stored size, and all of them within :data:`MAX_STORE_BYTES`. Writers go
+through :func:`check_store_destination` and :func:`store_lock`: pokeworld replaces only a folder it can verify
+as a store of its own (:data:`STORE_FILES`), and two writers of one store are refused.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import os
+import stat
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import h5py
 import numpy as np
 
 from .errors import ConfigError, DataError
-from .io import atomic_path, hash_arrays, write_json
+from .io import OwnedDir, atomic_path, check_owned_dir, check_regular_file, dir_lock, hash_arrays, \
+    read_regular_bytes, write_json
 
 FORMAT_VERSION = 1
 SPLITS = {"train": 0, "probe_fit": 1, "probe_test": 2, "heldout": 3}
 STREAMS = ("frames", "proprio", "touch", "actions")
+STORE_FILES = (r"data\.h5", r"manifest\.json", r"conversion_report\.json", r"certificates\.json",
+               r"certificate_fit_curve\.json")
+"""Patterns of the files pokeworld writes in a store folder: the store, an RH20T conversion's report, and what
+``pokeworld certify`` and ``certificate-curve`` write beside it; ``certificate_corpus/n<episodes>/`` holds the
+certificate corpora (stores themselves, with their ``.n<episodes>.lock``). A folder holding anything else is
+not one pokeworld may replace (:func:`check_store_destination`)."""
+# certificate_corpus.FOLDER (not imported: certificate_corpus imports the generator, which imports this module)
+_CERTIFICATE_CORPORA = OwnedDir(files=(r"\.n\d+\.lock",), dirs=((r"n\d+", OwnedDir(files=STORE_FILES)),))
+MAX_MANIFEST_BYTES = 256 << 20
+"""A manifest is JSON metadata (an RH20T store's lists every scene: a few MB); more is not a manifest."""
+MAX_STORE_BYTES = 64 << 30
+"""Most array bytes a store may declare in all (the paper's corpus is about 2.5 GiB): :func:`load` refuses more
+before reading anything, so a forged header cannot make it allocate without bound."""
+MAX_EXPANSION = 1100
+"""Most a dataset may expand over the bytes it stores (deflate cannot exceed about 1032:1): a declared shape far
+beyond what the file holds is a forged or damaged header whose read would only return fill values."""
+REAL_NUMERIC_KINDS = "biuf"
+"""numpy dtype kinds a stream may have: bool, integers, floats. Complex, object, string, datetime and compound
+arrays are refused (a complex NaN would slip past a float-only finite check)."""
 
 
 @dataclasses.dataclass
@@ -91,7 +120,7 @@ class Dataset:
 
 
 def validate(ds: Dataset) -> None:
-    """Raise :class:`DataError` on inconsistent shapes, wrong dtypes or non-finite values."""
+    """Raise :class:`DataError` on inconsistent shapes, non-real dtypes or non-finite values."""
     if ds.frames.ndim != 4 or ds.frames.dtype != np.uint8:
         raise DataError(f"frames must be (E, T+1, H, W) uint8, got {ds.frames.shape} {ds.frames.dtype}")
     E, T1 = ds.frames.shape[:2]
@@ -112,13 +141,20 @@ def validate(ds: Dataset) -> None:
     if ds.split.shape != (E,):
         raise DataError(f"split must be (E={E},), got {ds.split.shape}")
     for name, a in ds.arrays().items():
+        if a.dtype.kind not in REAL_NUMERIC_KINDS:
+            raise DataError(f"{name} has dtype {a.dtype}; streams, labels and params must be real numbers "
+                            "(bool, integer or float)")
         if a.dtype.kind == "f" and not np.isfinite(a).all():
             bad = int((~np.isfinite(a)).sum())
             raise DataError(f"{name} contains {bad} non-finite values (NaN/inf); refusing to use it")
 
 
 def save(ds: Dataset, out_dir: str | os.PathLike, manifest: dict[str, Any] | None = None) -> Path:
-    """Write ``ds`` to ``out_dir`` atomically (temporary directory, then rename)."""
+    """Write ``ds`` to ``out_dir`` atomically (temporary directory, then rename).
+
+    An existing ``out_dir`` is replaced only if it is empty or a store pokeworld can verify as its own
+    (:data:`STORE_FILES` only, and a parseable manifest if it holds data); anything else raises ConfigError.
+    """
     out_dir = Path(out_dir)
     arrays = ds.arrays()
     man = dict(ds.manifest)
@@ -129,7 +165,7 @@ def save(ds: Dataset, out_dir: str | os.PathLike, manifest: dict[str, Any] | Non
     man["num_steps"] = ds.num_steps
     man["frame_shape"] = list(ds.frames.shape[2:])
     man["split_counts"] = {k: int((ds.split == v).sum()) for k, v in SPLITS.items()}
-    with atomic_path(out_dir) as tmp:
+    with atomic_path(out_dir, replace=_owned_store(None)) as tmp:
         tmp.mkdir(parents=True)
         with h5py.File(tmp / "data.h5", "w", track_order=True) as f:
             for name, a in arrays.items():
@@ -142,6 +178,18 @@ def save(ds: Dataset, out_dir: str | os.PathLike, manifest: dict[str, Any] | Non
     return out_dir
 
 
+def _manifest_json(mf: Path) -> dict[str, Any]:
+    """The parsed ``manifest.json`` at ``mf`` (a regular file of bounded size holding a JSON object)."""
+    raw = read_regular_bytes(mf, "a store manifest", MAX_MANIFEST_BYTES)
+    try:
+        manifest = json.loads(raw)
+    except (ValueError, RecursionError) as e:  # JSONDecodeError and UnicodeDecodeError are ValueErrors
+        raise DataError(f"{mf} is not valid JSON ({e}); the dataset is corrupt") from None
+    if not isinstance(manifest, dict):
+        raise DataError(f"{mf} holds a JSON {type(manifest).__name__}, not an object; the dataset is corrupt")
+    return manifest
+
+
 def read_manifest(path: str | os.PathLike) -> dict[str, Any]:
     """A dataset directory's manifest (content hash, config, splits) without reading the arrays: what a
     cache check needs before deciding whether to load the store at all."""
@@ -149,35 +197,131 @@ def read_manifest(path: str | os.PathLike) -> dict[str, Any]:
     h5, mf = path / "data.h5", path / "manifest.json"
     if not path.is_dir():
         raise DataError(f"dataset directory {path} does not exist (generate it with `pokeworld generate`)")
-    if not h5.exists() or not mf.exists():
+    if not os.path.lexists(h5) or not os.path.lexists(mf):
         raise DataError(f"{path} is not a pokeworld dataset: expected data.h5 and manifest.json")
-    try:
-        manifest = json.loads(mf.read_text())
-    except json.JSONDecodeError as e:
-        raise DataError(f"{mf} is not valid JSON ({e}); the dataset is corrupt") from None
+    check_regular_file(h5, "a store's data.h5")
+    manifest = _manifest_json(mf)
     if manifest.get("format_version") != FORMAT_VERSION:
         raise DataError(f"{path}: format version {manifest.get('format_version')} != supported {FORMAT_VERSION}")
     return manifest
 
 
+def _declared_layout(manifest: dict[str, Any], where: Path) -> tuple[int, int, tuple[int, int]]:
+    """(episodes E, steps T, frame shape) the manifest declares, each a positive int."""
+    E, T, fs = manifest.get("num_episodes"), manifest.get("num_steps"), manifest.get("frame_shape")
+    ok = lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= 1  # noqa: E731
+    if not (ok(E) and ok(T) and isinstance(fs, list) and len(fs) == 2 and all(map(ok, fs))):
+        raise DataError(f"{where}: manifest declares num_episodes={E!r}, num_steps={T!r}, frame_shape={fs!r}; "
+                        "expected positive integers and [H, W]; the store is corrupt")
+    return E, T, (fs[0], fs[1])
+
+
+def _stored_nodes(f: h5py.File, h5: Path) -> dict[str, h5py.Dataset]:
+    """The store's datasets by array name, each checked to be a dataset kept inside this file."""
+    missing = [n for n in (*STREAMS, "split") if n not in f]
+    if missing:
+        raise DataError(f"{h5} lacks datasets {missing}; the store is incomplete")
+
+    def own(group: h5py.Group, name: str, where: str, want: type) -> Any:
+        if not isinstance(group.get(name, getlink=True), h5py.HardLink):
+            raise DataError(f"{h5}: {where!r} is a link to elsewhere; a store holds its own arrays")
+        node = group[name]
+        if not isinstance(node, want):
+            raise DataError(f"{h5}: {where!r} is not a {'dataset' if want is h5py.Dataset else 'group'}")
+        if want is h5py.Dataset and (node.is_virtual or node.external):
+            raise DataError(f"{h5}: {where!r} keeps its data outside the file (external storage or a virtual "
+                            "dataset); a store holds its own arrays")
+        return node
+
+    nodes = {n: own(f, n, n, h5py.Dataset) for n in (*STREAMS, "split")}
+    for group_name in ("labels", "params"):
+        if group_name in f:
+            group = own(f, group_name, group_name, h5py.Group)
+            nodes.update({f"{group_name}/{k}": own(group, k, f"{group_name}/{k}", h5py.Dataset) for k in group})
+    return nodes
+
+
+# HDF5 filters a store may use: pokeworld writes deflate; LZF (h5py's own) in stores of older versions
+_ALLOWED_FILTERS = {h5py.h5z.FILTER_DEFLATE: "gzip", h5py.h5z.FILTER_SHUFFLE: "shuffle",
+                    h5py.h5z.FILTER_FLETCHER32: "fletcher32", 32000: "lzf"}
+
+
+def _check_storage(node: h5py.Dataset, name: str, nbytes: int, h5: Path) -> None:
+    """Refuse filters we do not write, chunks larger than the array, and declared sizes the stored bytes cannot
+    hold (checked from the header only)."""
+    plist = node.id.get_create_plist()
+    for i in range(plist.get_nfilters()):
+        code = plist.get_filter(i)[0]
+        if code not in _ALLOWED_FILTERS:
+            raise DataError(f"{h5}: {name!r} uses HDF5 filter {code}; a store uses only "
+                            f"{sorted(_ALLOWED_FILTERS.values())}")
+    if node.chunks is not None:
+        chunk_bytes = int(np.prod(node.chunks, dtype=np.int64)) * node.dtype.itemsize
+        if chunk_bytes > max(nbytes, 1 << 20):
+            raise DataError(f"{h5}: {name!r} declares chunks {node.chunks} ({chunk_bytes} bytes) larger than "
+                            f"the array itself ({nbytes} bytes); the store is corrupt")
+    stored = node.id.get_storage_size()
+    if nbytes > MAX_EXPANSION * stored + (1 << 16):
+        raise DataError(f"{h5}: {name!r} declares {node.shape} {node.dtype} ({nbytes} bytes) but the file stores "
+                        f"only {stored} bytes of it (at most {MAX_EXPANSION}x expansion allowed); the header is "
+                        "forged or the data missing")
+
+
+def _check_declared(nodes: dict[str, h5py.Dataset], manifest: dict[str, Any], h5: Path) -> None:
+    """Each dataset's declared shape and dtype against the manifest and the byte budget, before any read."""
+    E, T, (H, W) = _declared_layout(manifest, h5)
+    total = 0
+    for name, node in nodes.items():
+        shape, dtype = tuple(node.shape), node.dtype
+        lead = {"frames": (E, T + 1, H, W), "actions": (E, T), "split": (E,)}.get(name, (E, T + 1))
+        if name.startswith("params/"):
+            lead = (E,)
+        exact = name in ("frames", "split") or name.startswith("params/")
+        ndim_ok = len(shape) == 3 if name in ("proprio", "touch", "actions") else True
+        if (shape != lead if exact else shape[:len(lead)] != lead) or not ndim_ok:
+            want = f"{lead}" if exact else f"({', '.join(map(str, lead))}, ...)"
+            raise DataError(f"{h5}: {name!r} declares shape {shape}, the manifest implies {want} (num_episodes={E}, "
+                            f"num_steps={T}, frame_shape=[{H}, {W}]); the store is corrupt")
+        if (name == "frames" and dtype != np.uint8) or dtype.kind not in REAL_NUMERIC_KINDS \
+                or (name == "split" and dtype.kind not in "iu"):
+            allowed = {"frames": "uint8", "split": "an integer dtype"}.get(name, "bool, integer or float")
+            raise DataError(f"{h5}: {name!r} declares dtype {dtype}; allowed: {allowed}")
+        nbytes = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
+        _check_storage(node, name, nbytes, h5)
+        total += nbytes
+    if total > MAX_STORE_BYTES:
+        raise DataError(f"{h5}: its arrays declare {_size(total)} in all (frames {nodes['frames'].shape}); a store "
+                        f"may hold at most {_size(MAX_STORE_BYTES)} (data.MAX_STORE_BYTES)")
+
+
+def _size(nbytes: int) -> str:
+    for unit, shift in (("GiB", 30), ("MiB", 20), ("KiB", 10)):
+        if nbytes >= 1 << shift:
+            return f"{nbytes / (1 << shift):.1f} {unit}"
+    return f"{nbytes} bytes"
+
+
 def load(path: str | os.PathLike, verify: bool = True) -> Dataset:
-    """Load a dataset directory, checking presence, structure and (by default) the content hash."""
+    """Load a dataset directory, checking presence, structure and (by default) the content hash.
+
+    Every dataset's link type, storage, shape, dtype and size are checked against the manifest before any array
+    is read (see the module docstring).
+    """
     path = Path(path)
     h5 = path / "data.h5"
     manifest = read_manifest(path)
     try:
         with h5py.File(h5, "r") as f:
-            missing = [n for n in (*STREAMS, "split") if n not in f]
-            if missing:
-                raise DataError(f"{h5} lacks datasets {missing}; the store is incomplete")
-            arrays = {n: f[n][()] for n in (*STREAMS, "split")}
-            labels = {k: f["labels"][k][()] for k in f.get("labels", {})}
-            params = {k: f["params"][k][()] for k in f.get("params", {})}
+            nodes = _stored_nodes(f, h5)
+            _check_declared(nodes, manifest, h5)
+            arrays = {n: node[()] for n, node in nodes.items()}
     except DataError:
         raise
-    except (OSError, KeyError, ValueError) as e:
+    except (OSError, KeyError, ValueError, TypeError, RuntimeError) as e:
         raise DataError(f"cannot read {h5}: {e}. The file is truncated or corrupt; regenerate it") from None
-    ds = Dataset(labels=labels, params=params, manifest=manifest, **arrays)
+    labels = {n.removeprefix("labels/"): a for n, a in arrays.items() if n.startswith("labels/")}
+    params = {n.removeprefix("params/"): a for n, a in arrays.items() if n.startswith("params/")}
+    ds = Dataset(labels=labels, params=params, manifest=manifest, **{n: arrays[n] for n in (*STREAMS, "split")})
     if verify:
         digest = hash_arrays(ds.arrays())
         if digest != manifest.get("content_sha256"):
@@ -193,16 +337,82 @@ def is_complete(path: str | os.PathLike) -> bool:
 
 
 def store_is_current(path: str | os.PathLike, content_config: dict, overwrite: bool = False) -> bool:
-    """True when ``path`` already holds a store built from ``content_config`` (so the caller skips work).
+    """True when ``path`` already holds an intact store built from ``content_config`` (so the caller skips work).
 
     False when there is no complete store or ``overwrite`` is set; raises ConfigError when a store
-    built from a *different* config is there, so nothing is silently replaced.
+    built from a *different* config is there, so nothing is silently replaced, and DataError naming
+    ``--overwrite`` when the store's content does not verify (it is loaded and re-hashed before a skip).
     """
     if overwrite or not is_complete(path):
         return False
-    if read_manifest(path).get("config") == content_config:
-        return True
-    raise ConfigError(f"{path} holds a store built with a different config; pass --overwrite or choose another --out")
+    if read_manifest(path).get("config") != content_config:
+        raise ConfigError(f"{path} holds a store built with a different config; pass --overwrite or choose another "
+                          "--out")
+    try:
+        load(path, verify=True)
+    except DataError as e:
+        raise DataError(f"{path} holds this config's store but it is damaged ({e}); pass --overwrite to rebuild "
+                        "it") from None
+    return True
+
+
+def _verify_store_folder(kind: str | None, out: Path) -> None:
+    """Raise ConfigError unless ``out`` (holding only :data:`STORE_FILES`) is a store pokeworld can verify as its
+    own: no data, or a manifest that parses and (if ``kind`` is given) names that kind."""
+    if not os.path.lexists(out / "manifest.json"):
+        if os.path.lexists(out / "data.h5"):
+            raise ConfigError(f"{out} holds data.h5 without manifest.json, so pokeworld cannot tell that it wrote "
+                              "it; move or delete it yourself, or choose another --out")
+        return  # empty, or only the report / temporary files of a run that wrote no store
+    try:
+        manifest = _manifest_json(out / "manifest.json")
+    except DataError as e:
+        raise ConfigError(f"{out} cannot be verified as a pokeworld store ({e}); pokeworld replaces only stores it "
+                          "can verify: move or delete it yourself, or choose another --out") from None
+    if kind is not None and manifest.get("kind") != kind:
+        raise ConfigError(f"{out} holds a store of kind {manifest.get('kind')!r}, not {kind!r}; --overwrite "
+                          "replaces only a store of the same kind: choose another --out")
+
+
+def _owned_store(kind: str | None) -> OwnedDir:
+    return OwnedDir(files=STORE_FILES, dirs=(("certificate_corpus", _CERTIFICATE_CORPORA),),
+                    verify=lambda out: _verify_store_folder(kind, out))
+
+
+def check_store_destination(out: str | os.PathLike, kind: str | None) -> None:
+    """Raise ConfigError, before any work, unless a store of ``kind`` may be written at ``out``: it does not
+    exist, or is an empty folder, or a folder holding only a store pokeworld verifies as its own of that kind
+    (:data:`STORE_FILES`, parseable manifest, same ``kind``). Links, files and any other folder are refused:
+    pokeworld never deletes what it did not create. Whether an own store is kept or replaced is
+    :func:`store_is_current`'s decision (``--overwrite``)."""
+    out = Path(out)
+    if out.name in ("", ".", ".."):
+        raise ConfigError(f"--out {str(out)!r} does not name a folder; give the store folder's path")
+    try:
+        mode = os.lstat(out).st_mode
+    except (FileNotFoundError, NotADirectoryError):
+        return  # nothing there to protect; whether it can be created is check_writable_dir's question
+    if stat.S_ISLNK(mode):
+        raise ConfigError(f"--out {out} is a symbolic link; pokeworld does not write stores through links: give "
+                          "the real path")
+    if not stat.S_ISDIR(mode):
+        raise ConfigError(f"--out {out} is an existing file, not a folder; choose a folder path for the store")
+    check_owned_dir(out, _owned_store(kind))
+
+
+@contextlib.contextmanager
+def store_lock(out: str | os.PathLike) -> Iterator[None]:
+    """Hold the store folder ``out`` exclusively for the block (:func:`pokeworld.io.dir_lock`), so a second
+    writer is refused with the holder's pid and command instead of silently replacing the first one's store.
+
+    The lock file is ``.<name>.lock`` in the parent folder, beside the store: the store itself is replaced by a
+    rename, so a lock inside it would go away with the old folder while its holder still writes.
+    """
+    out = Path(out)
+    shown = str(out).replace("{", "{{").replace("}", "}}")
+    refusal = f"{shown} is being written by {{holder}}; wait for it to finish or stop it, or choose another --out"
+    with dir_lock(out.parent, f".{out.name}.lock", refusal):
+        yield
 
 
 def concatenate(datasets: list[Dataset], names: list[str] | None = None) -> Dataset:

@@ -1,44 +1,311 @@
-"""Small file helpers: atomic writes, JSON, content hashing."""
+"""Small file helpers: atomic writes, JSON, content hashing, and the guards that keep pokeworld from destroying,
+following or hanging on what a user points it at.
+
+The guards, for every writer of an output folder:
+
+* :func:`atomic_path` never writes through or replaces a symbolic link, and replaces an existing folder only when
+  an :class:`OwnedDir` verifies it as one pokeworld wrote (removing its files one by one, never recursively);
+* :func:`open_nofollow` opens a file for writing (lock files, ``metrics.jsonl``) without following a link and
+  only if it is a regular file with no other name;
+* :func:`check_writable_dir` fails in one line before a long computation whose output could not be written;
+* :func:`check_regular_file` / :func:`read_regular_bytes` refuse links, FIFOs, devices and oversized files
+  before reading, so a planted special file cannot hang a reader.
+"""
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
+import errno
 import hashlib
 import json
 import os
+import re
 import shutil
+import stat
 import tempfile
+import warnings
 from pathlib import Path
-from typing import Any, Iterator
+from typing import IO, Any, Callable, Iterator
 
 import numpy as np
 
-from .errors import ConfigError
+from .errors import ConfigError, DataError
 from .faults import crash_point
 
 
+def _file_kind(mode: int) -> str:
+    """A file type in words, for refusals."""
+    kinds = ((stat.S_ISLNK, "symbolic link"), (stat.S_ISDIR, "folder"), (stat.S_ISFIFO, "FIFO (named pipe)"),
+             (stat.S_ISSOCK, "socket"), (stat.S_ISCHR, "character device"), (stat.S_ISBLK, "block device"))
+    for test, name in kinds:
+        if test(mode):
+            return name
+    return "regular file" if stat.S_ISREG(mode) else "special file"
+
+
+def _link_line(path: Path) -> str:
+    try:
+        return f"{path} is a symbolic link (to {os.readlink(path)})"
+    except OSError:
+        return f"{path} is a symbolic link"
+
+
+@dataclasses.dataclass(frozen=True)
+class OwnedDir:
+    """What makes an existing folder one pokeworld wrote, and so one it may replace.
+
+    ``files``: patterns (``re.fullmatch``) of the regular files pokeworld writes in it (a store: ``data\\.h5``...);
+    ``dirs``: (pattern, :class:`OwnedDir`) of the subfolders it writes there and what those hold. Their temporary
+    names (``.<name>.tmp-<pid>``, ``.<name>.old-<pid>``, left by an interrupted atomic write) count as ours too.
+    Anything else inside, at any depth — another file or folder, a link, a FIFO — makes the folder foreign.
+    ``verify``, if given, is a further check of an otherwise-owned folder (e.g. that its manifest parses and names
+    the same kind of artifact); it raises :class:`~pokeworld.errors.ConfigError` to refuse.
+    """
+
+    files: tuple[str, ...]
+    dirs: tuple[tuple[str, "OwnedDir"], ...] = ()
+    verify: Callable[[Path], None] | None = None
+
+    @staticmethod
+    def _matching(patterns, name: str) -> str | None:
+        """The pattern ``name`` is (or is a temporary name of), else None."""
+        return next((p for p in patterns if re.fullmatch(rf"(?:\.(?:{p})\.(?:tmp|old)-\d+)|(?:{p})", name)), None)
+
+    def owns_file(self, entry: os.DirEntry) -> bool:
+        """An entry pokeworld wrote as a file here: a regular file (not a link) named by ``files``."""
+        return entry.is_file(follow_symlinks=False) and self._matching(self.files, entry.name) is not None
+
+    def subfolder(self, entry: os.DirEntry) -> "OwnedDir | None":
+        """What an own subfolder (a real folder, not a link, named by ``dirs``) holds; None for anything else."""
+        if not entry.is_dir(follow_symlinks=False):
+            return None
+        pattern = self._matching([p for p, _ in self.dirs], entry.name)
+        return None if pattern is None else dict(self.dirs)[pattern]
+
+
+def foreign_entries(directory: str | os.PathLike, owned: OwnedDir) -> list[str]:
+    """Sorted paths, relative to ``directory``, of what pokeworld did not write there (see :class:`OwnedDir`);
+    [] when it holds nothing else."""
+    foreign = []
+    with os.scandir(directory) as it:
+        for e in it:
+            inner = owned.subfolder(e)
+            if inner is not None:
+                foreign += [f"{e.name}/{n}" for n in foreign_entries(e.path, inner)]
+            elif not owned.owns_file(e):
+                foreign.append(e.name)
+    return sorted(foreign)
+
+
+def check_owned_dir(directory: str | os.PathLike, owned: OwnedDir) -> None:
+    """Raise ConfigError unless ``directory`` holds only what ``owned`` names (and passes its ``verify``)."""
+    foreign = foreign_entries(directory, owned)
+    if foreign:
+        shown = ", ".join(repr(n) for n in foreign[:3]) + (f" and {len(foreign) - 3} more" if len(foreign) > 3 else "")
+        raise ConfigError(f"{directory} holds {shown}, which pokeworld did not write; it never deletes what it did "
+                          "not create: choose another output path, or move those files away yourself")
+    if owned.verify is not None:
+        owned.verify(Path(directory))
+
+
+def remove_owned_dir(directory: str | os.PathLike, owned: OwnedDir) -> None:
+    """Delete what pokeworld wrote in ``directory`` (its own files and, recursively, its own subfolders; each
+    entry checked, never a blind tree removal), then the folder itself.
+
+    A folder that still holds anything else afterwards (it appeared meanwhile) is left in place with a warning.
+    """
+    directory = Path(directory)
+    with os.scandir(directory) as it:
+        for e in it:
+            inner = owned.subfolder(e)
+            if inner is not None:
+                remove_owned_dir(e.path, inner)
+            elif owned.owns_file(e):
+                os.unlink(e.path)
+    try:
+        os.rmdir(directory)
+    except OSError as e:
+        warnings.warn(f"left {directory} in place: {e.strerror} (it holds files pokeworld did not write)",
+                      stacklevel=2)
+
+
+def _discard(tmp: Path) -> None:
+    """Remove our own temporary name (a link there is unlinked, not followed)."""
+    if tmp.is_symlink() or tmp.is_file():
+        tmp.unlink()
+    elif tmp.is_dir():
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _refuse_link(final: Path) -> None:
+    if final.is_symlink():
+        raise ConfigError(f"{_link_line(final)}; pokeworld does not write through or replace links: remove the "
+                          "link or give the real path")
+
+
+def _install(tmp: Path, final: Path, replace: OwnedDir | None) -> None:
+    """Move the finished ``tmp`` to ``final``: a plain rename, except over an existing folder, which must be empty
+    or verified by ``replace``; that one is renamed aside, the new one renamed in, and the old one's files removed."""
+    _refuse_link(final)
+    try:
+        st = os.lstat(final)
+    except FileNotFoundError:
+        os.replace(tmp, final)
+        return
+    tmp_is_dir = tmp.is_dir()
+    if not stat.S_ISDIR(st.st_mode):
+        if tmp_is_dir:
+            raise ConfigError(f"{final} is an existing {_file_kind(st.st_mode)}, not a folder; choose a folder path")
+        os.replace(tmp, final)  # a file replacing a file: the ordinary atomic write
+        return
+    if not tmp_is_dir:
+        raise ConfigError(f"{final} is a folder; cannot write a file under that name")
+    if replace is None:
+        try:
+            os.replace(tmp, final)  # the kernel replaces only an empty folder
+        except OSError as e:
+            if e.errno not in (errno.ENOTEMPTY, errno.EEXIST):
+                raise
+            raise ConfigError(f"{final} is a non-empty folder; pokeworld replaces a folder only after verifying "
+                              "it wrote it: choose another output path") from None
+        return
+    check_owned_dir(final, replace)
+    old = final.with_name(f".{final.name}.old-{os.getpid()}")
+    os.rename(final, old)
+    try:
+        os.replace(tmp, final)
+    except BaseException:
+        os.rename(old, final)
+        raise
+    remove_owned_dir(old, replace)
+
+
 @contextlib.contextmanager
-def atomic_path(final: str | os.PathLike) -> Iterator[Path]:
+def atomic_path(final: str | os.PathLike, replace: OwnedDir | None = None) -> Iterator[Path]:
     """Yield a temporary sibling path; rename it to ``final`` only if the block succeeds.
 
-    Works for files and directories, so a crash never leaves a half-written
-    artifact under the final name.
+    Works for files and directories, so a crash never leaves a half-written artifact under the final name.
+    Safe by default: ``final`` must not be a symbolic link (refused before and after the block), and an existing
+    folder is replaced only if it is empty or ``replace`` verifies it as pokeworld's own (:class:`OwnedDir`);
+    even then only the files it names are deleted, never a tree (:func:`remove_owned_dir`).
     """
     final = Path(final)
+    _refuse_link(final)
     final.parent.mkdir(parents=True, exist_ok=True)
     tmp = final.with_name(f".{final.name}.tmp-{os.getpid()}")
-    if tmp.exists():
-        shutil.rmtree(tmp) if tmp.is_dir() else tmp.unlink()
+    _discard(tmp)  # left by a crashed process that had our pid
     try:
         yield tmp
         crash_point(f"rename:{final.name}")
-        if final.exists() and final.is_dir() and tmp.is_dir():
-            shutil.rmtree(final)
-        os.replace(tmp, final)
+        _install(tmp, final, replace)
     except BaseException:
-        if tmp.exists():
-            shutil.rmtree(tmp, ignore_errors=True) if tmp.is_dir() else tmp.unlink()
+        _discard(tmp)
         raise
+
+
+def check_writable_dir(directory: str | os.PathLike) -> None:
+    """Create ``directory`` if needed and prove it writable by creating and removing a probe file, so that a
+    long computation does not end in a write error; raise ConfigError saying why not."""
+    directory = Path(directory)
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise ConfigError(f"cannot create output folder {directory}: {e.strerror or e}; choose another output "
+                          "path") from None
+    try:
+        fd, probe = tempfile.mkstemp(dir=directory, prefix=".pokeworld-write-probe-")
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as e:
+        raise ConfigError(f"output folder {directory} is not writable ({e.strerror or e}); choose another output "
+                          "path or fix its permissions") from None
+
+
+_WRITE_FLAGS = {"a": os.O_WRONLY | os.O_CREAT | os.O_APPEND, "a+": os.O_RDWR | os.O_CREAT | os.O_APPEND,
+                "w": os.O_WRONLY | os.O_CREAT}
+# no link followed at open; no blocking on a FIFO (its open fails or the fstat check refuses it)
+_SAFE_OPEN = getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0)
+
+
+def _refuse_unwritable_name(path: Path, st: os.stat_result) -> None:
+    if stat.S_ISLNK(st.st_mode):
+        raise ConfigError(f"{_link_line(path)}; pokeworld does not write through links (it would overwrite the "
+                          "target): remove the link")
+    if not stat.S_ISREG(st.st_mode):
+        raise ConfigError(f"{path} is a {_file_kind(st.st_mode)}, not a regular file; pokeworld writes only "
+                          "regular files there: remove it")
+    if st.st_nlink > 1:
+        raise ConfigError(f"{path} has {st.st_nlink} hard links; writing it would change the other names' file "
+                          "too: remove it (or replace it by a copy)")
+
+
+def open_nofollow(path: str | os.PathLike, mode: str = "a") -> IO[str]:
+    """Open ``path`` for writing (text ``mode`` "a", "a+" or "w") without following a symbolic link.
+
+    Refuses (ConfigError naming the path) a link, anything but a regular file (a FIFO would block, a device be
+    written), and a file with other hard links, so a planted link never makes pokeworld truncate or append to
+    another file. The check is made on the opened descriptor too (``O_NOFOLLOW``, ``fstat``), so swapping the
+    name between check and open does not get past it. "w" truncates only after those checks.
+    """
+    if mode not in _WRITE_FLAGS:
+        raise ValueError(f"open_nofollow mode must be one of {sorted(_WRITE_FLAGS)}, got {mode!r}")
+    path = Path(path)
+    try:
+        _refuse_unwritable_name(path, os.lstat(path))
+    except FileNotFoundError:
+        pass
+    try:
+        fd = os.open(path, _WRITE_FLAGS[mode] | _SAFE_OPEN, 0o666)
+    except OSError as e:
+        if e.errno in (errno.ELOOP, errno.ENXIO, errno.EISDIR):  # a link, a FIFO without reader, a folder
+            _refuse_unwritable_name(path, os.lstat(path))
+        raise
+    try:
+        _refuse_unwritable_name(path, os.fstat(fd))
+        if hasattr(os, "set_blocking"):
+            os.set_blocking(fd, True)
+        if mode == "w":
+            os.ftruncate(fd, 0)
+        return os.fdopen(fd, mode)
+    except BaseException:
+        os.close(fd)
+        raise
+
+
+def check_regular_file(path: str | os.PathLike, what: str, max_bytes: int | None = None) -> os.stat_result:
+    """Raise DataError unless ``path`` is a regular file (not a link, FIFO, device or folder) of at most
+    ``max_bytes``: reading a FIFO blocks forever and a device never ends. Returns its ``lstat``."""
+    path = Path(path)
+    try:
+        st = os.lstat(path)
+    except FileNotFoundError:
+        raise DataError(f"{path} does not exist ({what})") from None
+    if stat.S_ISLNK(st.st_mode):
+        raise DataError(f"{_link_line(path)}; {what} must be a regular file inside the folder, not a link")
+    if not stat.S_ISREG(st.st_mode):
+        raise DataError(f"{path} is a {_file_kind(st.st_mode)}, not a regular file; refusing to read it as {what}")
+    if max_bytes is not None and st.st_size > max_bytes:
+        raise DataError(f"{path} is {st.st_size} bytes; {what} may be at most {max_bytes} bytes")
+    return st
+
+
+def read_regular_bytes(path: str | os.PathLike, what: str, max_bytes: int) -> bytes:
+    """The bytes of ``path`` after :func:`check_regular_file`, checked again on the opened descriptor (no link
+    followed, no blocking open) and never more than ``max_bytes``."""
+    check_regular_file(path, what, max_bytes)
+    try:
+        fd = os.open(path, os.O_RDONLY | _SAFE_OPEN)
+    except OSError as e:
+        raise DataError(f"cannot open {path} ({what}): {e.strerror or e}") from None
+    with os.fdopen(fd, "rb") as fh:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise DataError(f"{path} changed into a non-regular file while being opened; refusing to read it")
+        data = fh.read(min(st.st_size, max_bytes) + 1)  # read(n) allocates n bytes up front: ask for what is there
+    if len(data) > max_bytes:
+        raise DataError(f"{path} is over {max_bytes} bytes; {what} may be at most {max_bytes} bytes")
+    return data
 
 
 def write_json(path: str | os.PathLike, obj: Any) -> None:
@@ -48,7 +315,8 @@ def write_json(path: str | os.PathLike, obj: Any) -> None:
 
 
 def append_jsonl(path: str | os.PathLike, obj: Any) -> None:
-    with open(path, "a") as fh:
+    """Append ``obj`` as one JSON line; a link or special file under ``path`` is refused (:func:`open_nofollow`)."""
+    with open_nofollow(path, "a") as fh:
         fh.write(json.dumps(obj, sort_keys=True, default=_json_default) + "\n")
 
 
@@ -123,7 +391,7 @@ def dir_lock(directory: str | os.PathLike, lock_name: str, refusal: str, enabled
 
     path = Path(directory)
     path.mkdir(parents=True, exist_ok=True)
-    fh = open(path / lock_name, "a+")
+    fh = open_nofollow(path / lock_name, "a+")  # a planted link must not make the lock truncate its target
     try:
         fh.seek(0)
         previous = fh.read().strip()

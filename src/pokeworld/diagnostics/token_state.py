@@ -31,6 +31,7 @@ from ..evaluate import measure
 from ..evaluate.probes import probe_latents, probe_windows
 from ..evaluate.state import padded_actions, window_states
 from ..io import write_json
+from ..run_store import RECORDED
 from ..rundir import finished_run_config, load_model
 from ..train.config import TrainConfig
 from ..train.sampler import WindowSampler
@@ -73,7 +74,8 @@ def probe_pools(model, ds, cfg) -> dict:
 def heldout_terms(run: Path, ds, batches: int = 10, batch_size: int = 64, seed: int = 0) -> dict:
     """Mean loss terms (``XJEPA.loss``, eval mode, the run's loss settings) on windows of probe-test episodes."""
     model = load_model(run, map_location="cpu").eval()
-    cfg = TrainConfig(**finished_run_config(run))
+    # config.json also records the store's identity (run_store.RECORDED), which is no TrainConfig field
+    cfg = TrainConfig(**{k: v for k, v in finished_run_config(run).items() if k not in RECORDED})
     smp = WindowSampler(ds, ds.episodes("probe_test"), model.image_size, cfg.window, torch.device("cpu"), seed=seed)
     acc: dict = {}
     for _ in range(batches):

@@ -51,9 +51,11 @@ from ..data import Dataset, load, read_manifest
 from ..devices import pick_device
 from ..errors import ConfigError
 from ..faults import crash_point
-from ..io import write_json
+from ..io import check_writable_dir, read_regular_bytes, write_json
 from ..models.xjepa import XJEPA
-from ..rundir import finished_run_config, load_model
+from ..preflight import finished_run
+from ..run_store import trained_store
+from ..rundir import load_model
 from .prediction import (  # noqa: F401
     CONTEXT,
     HORIZON,
@@ -138,9 +140,18 @@ class MeasureConfig:
         pick_device(self.device)  # a clear error now rather than inside torch later
         if self.context < 1 or self.window < 2:
             raise ConfigError(f"context must be ≥ 1 and window ≥ 2, got context={self.context}, window={self.window}")
+        if not self.kinds:
+            raise ConfigError(f"kinds is empty: name at least one window kind to probe, from {list(KINDS)}")
+        counts = {"stride": self.stride, "max_windows": self.max_windows, "batch_episodes": self.batch_episodes}
+        bad_counts = {k: v for k, v in counts.items() if v < 1}
+        if bad_counts or self.seed < 0:
+            raise ConfigError(f"stride, max_windows and batch_episodes must be ≥ 1 and seed ≥ 0, got "
+                              f"{bad_counts or {'seed': self.seed}}")
 
 
 PRESETS = {"tiny": {"max_windows": 400, "mlp": False}, "cpu": {}, "paper": {"max_windows": 100000}}
+MAX_MEASUREMENT_BYTES = 64 << 20
+"""Largest measure.json read back (a measurement with every readout is tens of kilobytes)."""
 
 
 # --------------------------------------------------------------------------- belief objective
@@ -232,12 +243,35 @@ def covers(stored: dict | None, wanted: dict) -> bool:
     return {**stored, "config": {**stored["config"], "mlp": False}} == wanted
 
 
+def read_measurement(path: Path) -> dict:
+    """A measure.json as :func:`run` wrote it (a JSON object whose ``key``, when present, is one); a ConfigError
+    otherwise, since the file is then not one pokeworld wrote and replacing it would destroy someone's edit."""
+    raw = read_regular_bytes(path, "a run's measure.json", MAX_MEASUREMENT_BYTES)  # no link, FIFO or huge file
+    try:
+        prev = json.loads(raw.decode("utf-8"))
+    except (ValueError, RecursionError) as e:  # JSONDecodeError and bad UTF-8 are ValueErrors
+        raise ConfigError(f"{path} is not a measurement pokeworld wrote ({e}); move it aside, or pass --overwrite "
+                          "to replace it") from None
+    key = prev.get("key", {}) if isinstance(prev, dict) else None
+    if not isinstance(key, dict) or not isinstance(key.get("config", {}), dict):
+        raise ConfigError(f"{path} is not a measurement pokeworld wrote (not a JSON object with a 'key' object); "
+                          "move it aside, or pass --overwrite to replace it")
+    return prev
+
+
 def run(cfg: MeasureConfig) -> Path:
-    """Measure ``cfg.run_dir`` and write ``measure.json`` there (skipped when up to date)."""
+    """Measure ``cfg.run_dir`` and write ``measure.json`` there (skipped when up to date).
+
+    Refused with one line before anything is computed: a run that has not finished, a store whose content is not
+    the one the run was trained on (:func:`pokeworld.run_store.trained_store`), a run folder that cannot be written
+    and a measure.json pokeworld did not write (:func:`read_measurement`).
+    """
     run_dir = Path(cfg.run_dir)
-    run_cfg = finished_run_config(run_dir)
-    data = cfg.data or run_cfg["data"]
+    run_cfg = finished_run(run_dir)
+    # the run's own store is found by its recorded content hash, not by its path relative to the current folder
+    data = cfg.data or trained_store(run_dir, "probe")
     out = measure_path(run_dir, cfg.data)
+    check_writable_dir(run_dir)  # measure.json is written there
     cfg_key = to_dict(cfg)
     if cfg.context == CONTEXT:  # added later: left out at its default so earlier measurements stay up to date
         del cfg_key["context"]
@@ -245,7 +279,7 @@ def run(cfg: MeasureConfig) -> Path:
     key = {"config": cfg_key, "data_sha256": read_manifest(data).get("content_sha256"),
            "final_mtime": (run_dir / "DONE").stat().st_mtime_ns}
     if out.exists() and not cfg.overwrite:
-        prev = json.loads(out.read_text())
+        prev = read_measurement(out)
         if covers(prev.get("key"), key):
             print(f"[measure] {out} is up to date; skipping")
             return out

@@ -12,12 +12,11 @@ result files for the trip back from a lent machine.
 from __future__ import annotations
 
 import concurrent.futures as cf
-import json
 from pathlib import Path
 
 from .. import clock
 from ..config import to_dict
-from ..io import dir_lock, write_json
+from ..io import check_writable_dir, dir_lock, write_json
 from ..train.loop import past
 from . import report, stages
 from .config import MapConfig
@@ -25,6 +24,7 @@ from .factorial import factorial_summary, factorial_table
 from .launch import cores, default_workers, launch
 from .planning import ensure_planning
 from .presets import check_names
+from .record import read_record
 
 MAP_LOCK_REFUSAL = ("{path} is in use by another `pokeworld map`: {holder}. Two maps on one --out would overwrite "
                     "each other's results.json; wait for that one to finish and run this command again (its runs "
@@ -68,18 +68,14 @@ def carry_over(previous: dict | None, results: dict) -> dict:
     return out
 
 def read_previous_results(path: Path) -> dict | None:
-    """The results.json an earlier invocation left in this ``out`` (None when there is none or it is unreadable:
-    it is written atomically, so an unreadable one was edited by hand and is not merged)."""
+    """The results.json an earlier invocation left in this ``out`` (None when there is none), read when the map
+    starts. It is written atomically, so one that is not valid JSON or not shaped like a record pokeworld writes
+    (:func:`.record.record_problem`: wrong types, missing keys, NaN where a measured number belongs) was edited or
+    damaged: a ConfigError naming it, before any training, rather than a crash in the report after all of it or a
+    silent overwrite of someone's file."""
     if not path.exists():
         return None
-    try:
-        prev = json.loads(path.read_text())
-        if isinstance(prev, dict) and isinstance(prev.get("experiments"), dict) and isinstance(prev.get("runs"), dict):
-            return prev
-    except (ValueError, UnicodeDecodeError):
-        pass
-    print(f"[map] warning: {path} is not a results record pokeworld wrote; it is replaced, not merged")
-    return None
+    return read_record(path, "move it aside (or give this map another --out), then run the same command again")
 
 def run(c: MapConfig) -> Path:
     """Run every stage of the map and write results.json, results.md and the figure into ``c.out``.
@@ -91,6 +87,7 @@ def run(c: MapConfig) -> Path:
     """
     check_names(c)
     out = Path(c.out)
+    check_writable_dir(out)
     with dir_lock(out, ".map.lock", MAP_LOCK_REFUSAL) as stale:
         if stale:
             print(f"[map] the previous holder of {out} ({stale}) is gone; taking over its lock and resuming")
@@ -108,6 +105,8 @@ def _run_locked(c: MapConfig) -> Path:
     deadline = started + 60 * (c.time_budget_min - c.time_reserve_min) if c.time_budget_min > 0 else 0.0
     out = Path(c.out)
     out.mkdir(parents=True, exist_ok=True)
+    # checked now, before any training: the earlier record is only merged in at the very end (carry_over)
+    previous = read_previous_results(out / "results.json")
     write_json(out / "map_config.json", to_dict(c))
     specs = stages.all_specs(c)
     corpora = sorted({s.corpus for s in specs} | {s.measure_corpus for s in specs} | {"standard"})
@@ -155,7 +154,7 @@ def _run_locked(c: MapConfig) -> Path:
         results = report.collect(c, specs, certificates)
         if "planning" in c.experiments:
             results["planning"] = ensure_planning(c)
-        results = carry_over(read_previous_results(out / "results.json"), results)
+        results = carry_over(previous, results)  # only this invocation, holding the lock, writes results.json
         write_json(out / "results.json", results)
         report.write_all(c, results)
         table = report.certificate_table(results) + factorial_table(results)

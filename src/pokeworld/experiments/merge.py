@@ -6,7 +6,11 @@ re-training the rest — but only if the re-trained runs reproduce: every ridge 
 both must agree to ``--tol``, otherwise nothing is written (training is deterministic in seed, data and config,
 so a mismatch means the code or the data changed and the two records cannot share a table). With
 ``--replace-differing`` such a run replaces the record's wholesale (every number of the row then comes from the
-re-trained run) and its largest ridge difference is recorded and named in the report. The earlier map's
+re-trained run) and its largest ridge difference is recorded and named in the report. A ridge number the base
+holds that the new record lacks or holds as NaN is a mismatch (difference inf), never "reproduced"; a reproduced
+run keeps every number the base held that the new record lacks (or holds as null / NaN), so a merge drops a base
+number only where ``--replace-differing`` replaces the run. Both inputs are checked first
+(:func:`.record.read_record`): a file that is not a results record is one error line. The earlier map's
 certificates are kept; what was merged, from which command and commit, is appended to ``provenance["merged"]``.
 A record that cannot be merged raises :class:`~pokeworld.errors.ConfigError`; ``main`` reports it as an error exit.
 
@@ -18,37 +22,68 @@ from __future__ import annotations
 
 import argparse
 import copy
-import json
+import math
 import sys
 from pathlib import Path
 
-from ..errors import ConfigError
+from ..errors import ConfigError, PokeworldError
 from ..io import atomic_path, write_json
 from . import report
+from .record import MEASURED, read_record
 
 
 def ridge_numbers(run: dict) -> dict[tuple[str, str], float]:
+    """(kind, quantity) -> value of a run record's ridge probes; null and other non-numbers left out."""
     return {(kind, q): v for kind, qs in run.get("probes", {}).get("ridge", {}).items() for q, v in qs.items()
             if isinstance(v, (int, float))}
 
 
-def mismatches(old: dict, new: dict, tol: float) -> list[str]:
+def differences(old: dict, new: dict) -> dict[tuple[str, str], float]:
+    """|old − new| for every ridge number the base record ``old`` holds: 0 when both are NaN, inf when the new
+    record lacks it or holds NaN (or holds a number where the base held NaN), so that a missing or NaN number is a
+    mismatch and never counts as reproduced."""
     a, b = ridge_numbers(old), ridge_numbers(new)
-    out = [f"{k}: {a[k]:.6f} vs {b[k]:.6f}" for k in sorted(set(a) & set(b)) if abs(a[k] - b[k]) > tol]
+    out = {}
+    for k, x in a.items():
+        y = b.get(k, math.nan)
+        finite = math.isfinite(x), math.isfinite(y)
+        out[k] = abs(x - y) if all(finite) else 0.0 if not any(finite) else math.inf
+    return out
+
+
+def mismatches(old: dict, new: dict, tol: float) -> list[str]:
+    """One line per base ridge number the new record does not reproduce to ``tol`` (missing or NaN included)."""
+    a, b = ridge_numbers(old), ridge_numbers(new)
+    out = [f"{k}: {a[k]:.6f} vs {b[k]:.6f}" if k in b else f"{k}: {a[k]:.6f} vs missing"
+           for k, d in sorted(differences(old, new).items()) if d > tol]
     if not set(a) & set(b):
         out.append("no ridge probe in common")
     return out
 
 
 def max_difference(old: dict, new: dict) -> float:
-    a, b = ridge_numbers(old), ridge_numbers(new)
-    return max((abs(a[k] - b[k]) for k in set(a) & set(b)), default=float("nan"))
+    """The largest of :func:`differences` (inf when a base number is missing or NaN in the new record)."""
+    return max(differences(old, new).values(), default=float("nan"))
+
+
+def is_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def keep_numbers(old, new):
+    """``new`` with every number ``old`` held that ``new`` lacks or holds as null / NaN put back, at any depth."""
+    if isinstance(old, dict) and isinstance(new, dict):
+        return {**old, **{k: keep_numbers(old[k], v) if k in old else v for k, v in new.items()}}
+    if is_number(old) and not is_number(new):
+        return old
+    return new
 
 
 def combine(old: dict, new: dict) -> dict:
-    """A reproduced run: the new record's entry, keeping probe families only the old one measured (a re-run
-    without MLP probes must not drop the MLP numbers of the run it reproduces)."""
-    return {**old, **new, "probes": {**old.get("probes", {}), **new.get("probes", {})}}
+    """A reproduced run: the new record's entry, keeping in its measured sections (:data:`.record.MEASURED`) what
+    only the old one measured (probe families, kinds, quantities: a re-run without MLP probes must not drop the MLP
+    numbers of the run it reproduces) and every number of the old one the new holds as null or NaN."""
+    return {**old, **new, **{s: keep_numbers(old[s], new[s]) for s in MEASURED if s in old and s in new}}
 
 
 def merge(base: dict, new: dict, experiments: list[str], tol: float,
@@ -61,14 +96,17 @@ def merge(base: dict, new: dict, experiments: list[str], tol: float,
     for exp in experiments:
         names = merged["experiments"].setdefault(exp, [])
         for name in new["experiments"][exp]:
+            if name not in new["runs"]:
+                raise ConfigError(f"the new results list run {name} under {exp} but hold no record of it")
             run = new["runs"][name]
             if name in merged["runs"]:
                 diff = mismatches(merged["runs"][name], run, tol)
                 if diff and not replace_differing:
                     bad[name] = diff
                     continue
-                if diff:
-                    differing[name] = max_difference(merged["runs"][name], run)
+                if diff:  # JSON has no infinity: a number the new record lost is recorded as such, in words
+                    largest = max_difference(merged["runs"][name], run)
+                    differing[name] = largest if math.isfinite(largest) else "a base number is missing or NaN"
                 else:
                     run = combine(merged["runs"][name], run)
                     if name not in replaced:
@@ -81,6 +119,8 @@ def merge(base: dict, new: dict, experiments: list[str], tol: float,
         if exp not in merged["map_config"]["experiments"]:
             merged["map_config"]["experiments"].append(exp)
         if exp == "planning":  # its table reads the closed-loop results, not the runs' probes
+            if "planning" not in new:
+                raise ConfigError("planning is among --experiments but the new results hold no planning section")
             merged["planning"] = new["planning"]
     if bad:
         lines = [f"  {n}: " + "; ".join(d[:4]) + (" …" if len(d) > 4 else "") for n, d in bad.items()]
@@ -110,9 +150,11 @@ def main(argv: list[str] | None = None) -> int:
             print(f"error: {p} does not exist", file=sys.stderr)
             return 2
     try:
-        merged, record = merge(json.loads(a.base.read_text()), json.loads(a.new.read_text()), a.experiments, a.tol,
-                               a.replace_differing)
-    except ConfigError as e:
+        # NaN may stand in the records: merge() judges it (a mismatch against a number the base holds)
+        base, new = (read_record(p, "give the results.json a `pokeworld map` wrote", finite=False)
+                     for p in (a.base, a.new))
+        merged, record = merge(base, new, a.experiments, a.tol, a.replace_differing)
+    except PokeworldError as e:  # a record that cannot be read or merged: one line, nothing written
         raise SystemExit(f"error: {e}") from None
     write_json(a.out, merged)
     if a.markdown:
@@ -120,5 +162,6 @@ def main(argv: list[str] | None = None) -> int:
             tmp.write_text(report.markdown(merged))
     print(f"[merge] {len(record['runs_replaced_reproduced'])} runs reproduced and replaced, "
           f"{len(record['runs_added'])} added, {len(record['runs_replaced_differing'])} differing and replaced "
-          f"{ {k: round(v, 4) for k, v in record['runs_replaced_differing'].items()} } -> {a.out}")
+          f"{ {k: round(v, 4) if isinstance(v, float) else v for k, v in record['runs_replaced_differing'].items()} }"
+          f" -> {a.out}")
     return 0

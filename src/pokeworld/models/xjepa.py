@@ -88,6 +88,68 @@ def check_gnll_variance(variance: str, objective: str, bound: float) -> None:
         raise ConfigError(f"gnll_logvar_bound must be positive and finite, got {bound}")
 
 
+#: Integer model kwargs -> (least, greatest) value a checkpoint may declare. Generous (the paper's model sits far
+#: inside every range); they exist so that a checkpoint from elsewhere cannot make the constructor build
+#: millions of modules before its weights are compared (the parameter count is bounded separately).
+MODEL_INT_BOUNDS: dict[str, tuple[int, int]] = {
+    "proprio_dim": (1, 4096), "touch_dim": (1, 4096), "action_dim": (1, 4096), "image_size": (16, 4096),
+    "latent_dim": (1, 65536), "width": (1, 65536), "depth": (1, 64), "heads": (1, 1024), "max_len": (1, 65536),
+    "vec_dim": (1, 65536), "contact_channel": (0, 4095), "recon_positions": (1, 65536), "belief_dim": (1, 65536),
+    "head_layers": (1, 16)}
+MODEL_BOOL_KWARGS = ("tokens", "sysid", "pool", "motion_channel")
+MODEL_STR_KWARGS = ("variant", "objective", "gnll_heads", "gnll_variance")
+MODEL_FLOAT_KWARGS = {"dropout": (0.0, 1.0), "gnll_logvar_bound": (0.0, 1e6)}
+MAX_CHANNEL, MAX_HORIZONS = 65536, 64
+#: Every kwarg :class:`XJEPA` takes.
+MODEL_KWARGS = frozenset({*MODEL_INT_BOUNDS, *MODEL_BOOL_KWARGS, *MODEL_STR_KWARGS, *MODEL_FLOAT_KWARGS, "channels",
+                          "horizons"})
+
+
+def _shown(value: Any) -> str:
+    """``repr`` cut to a readable length: a declared value may be a megabyte of list."""
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _int_in(name: str, value: Any, least: int, greatest: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ConfigError(f"model kwarg {name}={_shown(value)} must be an integer")
+    if not least <= value <= greatest:
+        raise ConfigError(f"model kwarg {name}={value} is outside the allowed {least}..{greatest}")
+    return value
+
+
+def check_model_kwargs(kwargs: Any) -> dict[str, Any]:
+    """The kwargs of :class:`XJEPA` as a checkpoint declares them, checked for name, type and range before any
+    module is built (ConfigError saying what was declared and what is allowed); ``channels`` and ``horizons``
+    come back as tuples."""
+    if not isinstance(kwargs, dict):
+        raise ConfigError(f"model kwargs must be a dict, got {type(kwargs).__name__}")
+    out: dict[str, Any] = {}
+    for name, value in kwargs.items():
+        if name in MODEL_INT_BOUNDS:
+            out[name] = _int_in(name, value, *MODEL_INT_BOUNDS[name])
+        elif name in MODEL_BOOL_KWARGS or name in MODEL_STR_KWARGS:
+            kind = bool if name in MODEL_BOOL_KWARGS else str
+            if not isinstance(value, kind):
+                raise ConfigError(f"model kwarg {name}={_shown(value)} must be a {kind.__name__}")
+            out[name] = value
+        elif name in MODEL_FLOAT_KWARGS:
+            least, greatest = MODEL_FLOAT_KWARGS[name]
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not least <= value <= greatest:
+                raise ConfigError(f"model kwarg {name}={_shown(value)} must be a number in [{least}, {greatest}]")
+            out[name] = float(value)
+        elif name in ("channels", "horizons"):
+            size = (4, 4) if name == "channels" else (1, MAX_HORIZONS)
+            if not isinstance(value, (list, tuple)) or not size[0] <= len(value) <= size[1]:
+                raise ConfigError(f"model kwarg {name}={_shown(value)} must list {size[0]}..{size[1]} integers")
+            top = MAX_CHANNEL if name == "channels" else MODEL_INT_BOUNDS["max_len"][1]
+            out[name] = tuple(_int_in(name, v, 1, top) for v in value)
+        else:
+            raise ConfigError(f"unknown model kwarg {_shown(name)}; XJEPA takes {sorted(MODEL_KWARGS)}")
+    return out
+
+
 def area_downsample(frames: torch.Tensor, size: int) -> torch.Tensor:
     """(..., H, W) -> (..., size, size) by area pooling; uint8 in -> uint8 out (rounded), float -> float."""
     h, w = frames.shape[-2:]
@@ -530,7 +592,7 @@ class XJEPA(nn.Module):
              sysid_weight: float = 0.5, glide_loss_weight: float = 1.0, belief_kl_weight: float = 0.01,
              motion_loss_weight: float = 0.0, sigreg_directions: torch.Tensor | None = None,
              sigreg_pool: str = "step", sigreg_rows: int = 4096, sigreg_row_index: torch.Tensor | None = None,
-             gnll_beta: float = 0.5) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+             gnll_beta: float = 0.5, sigreg_reference_rows: int = 0) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """Training loss on a batch of windows.
 
         Args:
@@ -555,6 +617,8 @@ class XJEPA(nn.Module):
                 the B·L rows, subsampled to ``sigreg_rows`` (from ``sigreg_seed``, or ``sigreg_row_index`` when
                 given: the trainers draw it on the host). Not used by the token path (always pooled over
                 ``token_rows``) or ``recon`` (no SIGReg).
+            sigreg_reference_rows: global-latent SIGReg statistic at this sample count instead of its rows' own
+                (:func:`~pokeworld.losses.epps_pulley`; 0 = the rows' own): λ then means one strength at any batch.
             gnll_beta: β of ``gnll_variance='beta'`` (β-NLL); the effective weight on latent errors is then also
                 reported as ``latent_weight`` (mean e^{(β−1)s}; the other variants' weight is
                 ``latent_precision``).
@@ -589,7 +653,8 @@ class XJEPA(nn.Module):
             terms["sigreg"] = sigreg(sigreg_rows_of(z, sigreg_pool), sigreg_dirs, sigreg_seed, sigreg_knots,
                                      max_rows=sigreg_rows if sigreg_pool == "pooled" else None,
                                      directions=sigreg_directions,
-                                     rows=sigreg_row_index if sigreg_pool == "pooled" else None)
+                                     rows=sigreg_row_index if sigreg_pool == "pooled" else None,
+                                     reference_rows=sigreg_reference_rows)
         else:  # recon: shared decoder on per-horizon adapters; SIGReg omitted (pixels anchor the latent)
             total = total + self._recon_terms(frames, h, actions, valid, gw, at, terms)
         if "sigreg" in terms:

@@ -51,8 +51,10 @@ STEP_COLUMNS = {"pixels": "frames", "proprio": "proprio", "touch": "touch"}
 RESERVED = (*STEP_COLUMNS, "action", "split", "step_idx", *INDEX)
 LABEL_COLUMNS = ("object_pos", "object_vel", "finger_pos", "finger_vel", "contact", "goal_pos", "distance")
 """Per-step columns of a ``World``-collected PokeWorld dataset kept as store labels."""
-MAX_COLUMN_BYTES = 4 << 30
-"""Largest column an import reads into memory (a guard against a hostile file's declared shapes)."""
+DEFAULT_MAX_GIB = 4.0
+"""Default budget (GiB) for the total bytes the columns an import reads declare (``ImportConfig.max_gib``): checked
+against the file's declared shapes and dtypes before anything is read, so a hostile or compressed file cannot make
+the import allocate more. The conversion to a store holds about twice that at its peak."""
 
 
 # ---------------------------------------------------------------------- export
@@ -118,15 +120,47 @@ def _checked_index(lengths, offsets, rows: int, where: str) -> tuple[np.ndarray,
     return lengths, offsets
 
 
-def _read_h5(path: Path) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, dict]:
-    """Columns, ep_len, ep_offset and our export metadata (empty for other writers) of an swm HDF5 file."""
+def wanted_columns(names, meta: dict) -> list[str]:
+    """The columns of ``names`` an import reads: the episode index, the observation streams, the action, the split,
+    and the labels and params (those our export record ``meta`` names, else the World-collected ones)."""
+    labels, params = meta.get("labels", LABEL_COLUMNS), meta.get("params", PARAM_NAMES)
+    present = set(names)
+    return [k for k in dict.fromkeys([*INDEX, *STEP_COLUMNS, "action", "split", *labels, *params]) if k in present]
+
+
+def over_budget(path: Path, declared: dict[str, int], max_bytes: int) -> DataError | None:
+    """The error for columns whose declared bytes ({name: bytes}) sum past ``max_bytes``, or None."""
+    total = sum(declared.values())
+    if total <= max_bytes:
+        return None
+    largest = ", ".join(f"{k} {v / 2**30:.3g}" for k, v in sorted(declared.items(), key=lambda kv: -kv[1])[:3])
+    return DataError(f"{path}: the columns an import reads declare {total / 2**30:.3g} GiB in all (largest, GiB: "
+                     f"{largest}), over the allowed {max_bytes / 2**30:g} GiB; if the file is trusted and the memory "
+                     "is there, raise --max-gib")
+
+
+def h5_record(f: h5py.File, path: Path) -> dict:
+    """Our export record (the root attribute ``pokeworld``), checked; empty for other writers."""
+    raw = f.attrs.get("pokeworld")
+    meta = json.loads(raw) if raw is not None else {}
+    if not meta:
+        return {}
+    named = [meta.get(k, []) for k in ("labels", "params")]
+    if meta.get("format") != EXPORT_FORMAT or not all(isinstance(v, list) and all(isinstance(n, str) for n in v)
+                                                      for v in named):
+        raise DataError(f"{path}: attribute 'pokeworld' is not a {EXPORT_FORMAT} record")
+    return meta
+
+
+def _read_h5(path: Path, max_bytes: int, select=wanted_columns) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray,
+                                                                       dict]:
+    """Columns, ep_len, ep_offset and our export metadata (empty for other writers) of an swm HDF5 file. Every
+    entry's structure is checked (no links, groups or data outside the file); only :func:`wanted_columns` are read,
+    after their declared sizes are checked against ``max_bytes``."""
     try:
         with h5py.File(path, "r") as f:
-            missing = [k for k in INDEX if k not in f]
-            if missing:
-                raise DataError(f"{path} is not an swm HDF5 dataset: no {missing} (swm's episode index)")
-            cols = {}
-            for name in f:
+            names = list(f.keys())  # names only: a membership test would follow an external link
+            for name in names:
                 if not isinstance(f.get(name, getlink=True), h5py.HardLink):
                     raise DataError(f"{path}: {name!r} is a link to elsewhere; an swm dataset holds its own columns")
                 node = f[name]
@@ -134,26 +168,30 @@ def _read_h5(path: Path) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray,
                     raise DataError(f"{path}: {name!r} is a group; swm HDF5 datasets hold only flat columns")
                 if node.is_virtual or node.external:  # data kept in other files: refuse to read them
                     raise DataError(f"{path}: column {name!r} stores its data outside the file")
-                if node.dtype.kind not in "biuf":  # strings / objects / compounds are no PokeWorld column
-                    continue
-                if node.size * node.dtype.itemsize > MAX_COLUMN_BYTES:
-                    raise DataError(f"{path}: column {name!r} declares {node.shape} {node.dtype}, larger than "
-                                    f"{MAX_COLUMN_BYTES >> 30} GiB")
-                cols[name] = node[()]
-            raw = f.attrs.get("pokeworld")
-            meta = json.loads(raw) if raw is not None else {}
+            missing = [k for k in INDEX if k not in names]
+            if missing:
+                raise DataError(f"{path} is not an swm HDF5 dataset: no {missing} (swm's episode index)")
+            meta = h5_record(f, path)
+            # strings / objects / compounds are no PokeWorld column: left unread (a missing stream is named later)
+            nodes = {k: f[k] for k in select(names, meta) if f[k].dtype.kind in "biuf"}
+            error = over_budget(path, {k: n.size * n.dtype.itemsize for k, n in nodes.items()}, max_bytes)
+            if error:
+                raise error
+            cols = {k: n[()] for k, n in nodes.items()}
     except DataError:
         raise
     except (OSError, KeyError, ValueError, TypeError) as e:  # json.JSONDecodeError is a ValueError
         raise DataError(f"cannot read {path} as an swm HDF5 dataset: {e}") from None
-    if meta and meta.get("format") != EXPORT_FORMAT:
-        raise DataError(f"{path}: attribute 'pokeworld' is not a {EXPORT_FORMAT} record")
+    if any(k not in cols for k in INDEX):
+        raise DataError(f"{path}: the episode index {list(INDEX)} must be integer columns")
     lengths, offsets = cols.pop("ep_len"), cols.pop("ep_offset")
     return cols, lengths, offsets, meta
 
 
-def _read_lance(path: Path, swm) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, dict]:
-    """Columns of an swm Lance table through swm's own reader; JPEG pixel blobs decoded to (H, W, 3) uint8."""
+def _read_lance(path: Path, swm, max_bytes: int, select=wanted_columns) -> tuple[dict[str, np.ndarray], np.ndarray,
+                                                                                 np.ndarray, dict]:
+    """:func:`wanted_columns` of an swm Lance table through swm's own reader; JPEG pixel blobs decoded to (H, W, 3)
+    uint8. Lance declares no column sizes up front, so ``max_bytes`` bounds the total as the columns are read."""
     import io
 
     from PIL import Image
@@ -162,7 +200,7 @@ def _read_lance(path: Path, swm) -> tuple[dict[str, np.ndarray], np.ndarray, np.
         reader = swm.data.get_format("lance").open_reader(path)
         lengths, offsets = np.asarray(reader.lengths), np.asarray(reader.offsets)
         cols = {}
-        for name in reader.column_names:
+        for name in select(reader.column_names, {}):
             data = reader.get_col_data(name)
             if name == "pixels":
                 data = np.stack([np.asarray(Image.open(io.BytesIO(bytes(b))).convert("RGB")) for b in data])
@@ -171,24 +209,35 @@ def _read_lance(path: Path, swm) -> tuple[dict[str, np.ndarray], np.ndarray, np.
             elif data.ndim == 2 and data.shape[1] == 1:  # Lance stores every number as a list; scalars as [x]
                 data = data[:, 0]
             cols[name] = data
+            error = over_budget(path, {k: v.nbytes for k, v in cols.items()}, max_bytes)
+            if error:
+                raise error
     except DataError:
         raise
+    except ImportError as e:  # stable-worldmodel after 0.1.1 moves Lance reading into its [data] extra
+        raise DataError(f"reading the Lance table {path} needs stable-worldmodel's Lance support, not installed here "
+                        f"({e}); install it (pip install 'stable-worldmodel[data]' for releases after 0.1.1), "
+                        "or export the dataset as HDF5") from None
     except Exception as e:  # noqa: BLE001 -- lancedb, arrow and PIL raise many types on a malformed table or image
         raise DataError(f"cannot read {path} as an swm Lance dataset: {type(e).__name__}: {e}") from None
     return cols, lengths, offsets, {}
 
 
-def read_swm(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, dict]:
-    """(columns, ep_len, ep_offset, export metadata) of an swm HDF5 file or Lance table; DataError if malformed."""
+def read_swm(path: str | os.PathLike, max_gib: float = DEFAULT_MAX_GIB, select=wanted_columns
+             ) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, dict]:
+    """(columns, ep_len, ep_offset, export metadata) of an swm HDF5 file or Lance table: only the columns an import
+    uses (:func:`wanted_columns`, or ``select(names, meta) -> names`` for another reader such as
+    :mod:`pokeworld.swm.factors`), their total bytes within ``max_gib``; DataError if malformed or over it."""
+    max_bytes = int(max_gib * 2**30)
     path = Path(path)
     if not path.exists():
         raise DataError(f"{path} does not exist")
     if path.suffix in (".h5", ".hdf5"):
-        cols, lengths, offsets, meta = _read_h5(path)
+        cols, lengths, offsets, meta = _read_h5(path, max_bytes, select)
     elif str(path).rstrip("/").endswith(".lance"):
         from .require import stable_worldmodel
 
-        cols, lengths, offsets, meta = _read_lance(path, stable_worldmodel())
+        cols, lengths, offsets, meta = _read_lance(path, stable_worldmodel(), max_bytes, select)
     else:
         raise DataError(f"{path}: expected an swm .h5/.hdf5 file or a .lance table")
     rows = {len(a) for a in cols.values()}
@@ -271,7 +320,7 @@ def to_store(cols: dict, lengths: np.ndarray, offsets: np.ndarray, meta: dict, c
 
 def import_dataset(cfg: ImportConfig) -> Dataset:
     """Read ``cfg.source`` (swm HDF5 or Lance) into a validated in-memory pokeworld Dataset."""
-    cols, lengths, offsets, meta = read_swm(cfg.source)
+    cols, lengths, offsets, meta = read_swm(cfg.source, cfg.max_gib)
     return to_store(cols, lengths, offsets, meta, cfg)
 
 
@@ -305,10 +354,14 @@ class ImportConfig:
     """Seed of that split assignment."""
     overwrite: bool = False
     """Replace an existing output store."""
+    max_gib: float = DEFAULT_MAX_GIB
+    """Budget for the total bytes the columns the import reads declare (GiB), checked before any is read."""
 
     def __post_init__(self) -> None:
         if self.steps < 0:
             raise ConfigError(f"steps must be >= 0, got {self.steps}")
+        if not self.max_gib > 0:
+            raise ConfigError(f"max_gib must be > 0, got {self.max_gib}")
 
 
 def _refuse_existing(out: Path, overwrite: bool) -> None:
@@ -350,6 +403,7 @@ __all__ = [
     "export_store",
     "import_dataset",
     "read_swm",
+    "wanted_columns",
     "run_export",
     "run_import",
     "to_store",

@@ -130,9 +130,43 @@ def status_every() -> float:
     return 30.0 if sys.stdout.isatty() else 0.0
 
 
+@dataclass
+class LoopPosition:
+    """How far the loop got: steps done, and the step of the last checkpoint (None: none written yet)."""
+
+    done: int
+    saved: int | None
+
+
+class TrainingInterrupted(KeyboardInterrupt):
+    """Ctrl-C during training; its message says at which step training stopped and what a re-run resumes from
+    (the CLI adds the command and exits with 130)."""
+
+
+def interrupted_line(step: int, total: int, saved: int | None, checkpoints: str) -> str:
+    """What a person who pressed Ctrl-C at ``step`` needs: where it stopped, and which checkpoint (``saved``: its
+    step; None: none written yet) a re-run resumes from."""
+    resume = (f"re-running resumes from {checkpoints} at step {saved}" if saved is not None else
+              "no checkpoint was written yet, so re-running starts again from step 0")
+    return f"training stopped at step {step} of {total}; {resume}"
+
+
 def run_loop(t: Trainee, sched: LoopSchedule, dev: torch.device, progress: Progress,
-             loss_shape: tuple[int, ...] = (), members: list[str] | None = None) -> int:
-    """Train ``t`` from ``sched.start`` until ``sched.end`` or its deadline; returns the step reached."""
+             loss_shape: tuple[int, ...] = (), members: list[str] | None = None, checkpoints: str = "ckpt.pt") -> int:
+    """Train ``t`` from ``sched.start`` until ``sched.end`` or its deadline; returns the step reached. Ctrl-C
+    becomes :class:`TrainingInterrupted` naming the step and the checkpoint (``checkpoints``, in words) that a
+    re-run resumes from."""
+    # a run that starts past step 0 was resumed from a checkpoint at that step
+    pos = LoopPosition(sched.start, sched.start if sched.start > 0 else None)
+    try:
+        return _loop(t, sched, dev, progress, loss_shape, members, pos)
+    except KeyboardInterrupt:
+        raise TrainingInterrupted(interrupted_line(pos.done, sched.total, pos.saved, checkpoints)) from None
+
+
+def _loop(t: Trainee, sched: LoopSchedule, dev: torch.device, progress: Progress, loss_shape: tuple[int, ...],
+          members: list[str] | None, pos: LoopPosition) -> int:
+    """The body of :func:`run_loop`, keeping ``pos`` current."""
     step = sched.start
     # loss terms are summed on the device and read only when a row is logged: a per-step .item() or
     # isfinite check would make the host wait for the GPU every step
@@ -144,6 +178,7 @@ def run_loop(t: Trainee, sched: LoopSchedule, dev: torch.device, progress: Progr
         crash_point("train_step")
         first_bad = torch.where((first_bad < 0) & ~torch.isfinite(terms["loss"]), step, first_bad)
         step += 1
+        pos.done = step
         for k, v in terms.items():
             acc[k] = acc.get(k, 0.0) + v.float()
         n_acc += 1
@@ -162,6 +197,7 @@ def run_loop(t: Trainee, sched: LoopSchedule, dev: torch.device, progress: Progr
             acc, n_acc, t0 = {}, 0, time.perf_counter()
         if ckpt_now:
             t.save_checkpoint(step)
+            pos.saved = step
         if out_of_time:
             break
     return step
@@ -172,4 +208,5 @@ def past(deadline: float) -> bool:
     return deadline > 0 and clock.wall_clock() >= deadline
 
 
-__all__ = ["Trainee", "LoopSchedule", "Progress", "run_loop", "speed_row", "check_finite", "status_every", "past"]
+__all__ = ["Trainee", "LoopSchedule", "LoopPosition", "Progress", "TrainingInterrupted", "interrupted_line", "run_loop",
+           "speed_row", "check_finite", "status_every", "past"]

@@ -23,9 +23,19 @@ import torch
 from .. import checkpoint, data as data_mod
 from ..config import to_dict
 from ..errors import ConfigError
-from ..io import run_lock, write_json
+from ..io import run_lock
 from ..models.xjepa import XJEPA
-from ..rundir import MetricsLog, restart_metrics, write_final
+from ..run_store import write_run_config
+from ..rundir import (
+    MetricsLog,
+    check_run_dir_writable,
+    check_run_files,
+    check_state_fits,
+    load_resume_checkpoint,
+    restart_metrics,
+    restoring,
+    write_final,
+)
 from .config import (
     TrainConfig,
     auto_threads,
@@ -45,11 +55,16 @@ def run(cfg: TrainConfig, status_every: float = 0.0) -> Path:
     validate(cfg)
     out = Path(cfg.out)
     cfg_dict = to_dict(cfg)
+    check_run_files(out)  # before anything reads or writes there: no links, FIFOs, or a file as the folder
     check_existing(cfg)
     if (out / "DONE").exists():
         return out
     if past(cfg.deadline):  # out of time before starting: leave the run as it is
         return out
+    # inputs are checked before the run folder and its config.json exist: a config.json left by a command that
+    # failed on a mistyped --data would refuse the corrected command as "a different config"
+    data_mod.read_manifest(cfg.data)
+    check_run_dir_writable(out)
 
     with run_lock(out, enabled=int(os.environ.get("RANK", "0")) == 0):  # ranks > 0 never write the run dir
         return _train(cfg, out, cfg_dict, status_every)
@@ -92,7 +107,8 @@ class _SingleRun:
         dims = (ds.proprio.shape[-1], ds.touch.shape[-1], ds.actions.shape[-1])
         self.sampler = WindowSampler(ds, train_ep, cfg.image_size, cfg.window, dev, cfg.contact_channel,
                                      seed=cfg.seed * 1000 + 1 + ranks.rank, with_params=cfg.sysid_weight > 0,
-                                     non_blocking=self.fast)
+                                     non_blocking=self.fast, aligned_share=cfg.program_aligned_share,
+                                     horizon=max(cfg.horizons))
         stats = data_stats(ds, train_ep)
         del ds
 
@@ -120,15 +136,17 @@ class _SingleRun:
                 restart_metrics(self.out, 0, {"step": 0, **self.sampler.glide_share(tuple(cfg.horizons),
                                                                                    cfg.glide_loss_weight)})
             return 0
-        ck = checkpoint.load(ckpt_path)
-        self.model.load_state_dict(ck["model"])
-        self.opt.load_state_dict(ck["optimizer"])
-        self.sched.load_state_dict(ck["scheduler"])
-        checkpoint.set_rng_state(ck["rng"])
-        if ranks.main:
-            self.sampler.gen.set_state(ck["sampler"])
-        else:
-            self.sampler.gen.manual_seed(cfg.seed * 1000 + 1 + ranks.rank + 7919 * ck["step"])
+        ck = load_resume_checkpoint(ckpt_path)
+        check_state_fits(self.model, ck["model"], ckpt_path)
+        with restoring(ckpt_path):
+            self.model.load_state_dict(ck["model"])
+            self.opt.load_state_dict(ck["optimizer"])
+            self.sched.load_state_dict(ck["scheduler"])
+            checkpoint.set_rng_state(ck["rng"])
+            if ranks.main:
+                self.sampler.gen.set_state(ck["sampler"])
+            else:
+                self.sampler.gen.manual_seed(cfg.seed * 1000 + 1 + ranks.rank + 7919 * ck["step"])
         step = int(ck["step"])
         if ranks.main:
             restart_metrics(self.out, step)
@@ -145,7 +163,7 @@ class _SingleRun:
                       find_unused_parameters=cfg.objective == "recon")
         # compile the module call (forward + loss); the optimizer step stays eager, so the lr schedule
         # (a Python float per step) causes no recompiles
-        self.loss_fn = torch.compile(net) if cfg.compile else net
+        self.loss_fn = torch.compile(net, mode=cfg.compile_mode) if cfg.compile else net
 
     # ------------------------------------------------------------------ Trainee
     def step(self, step: int) -> dict[str, torch.Tensor]:
@@ -191,11 +209,10 @@ def _train(cfg: TrainConfig, out: Path, cfg_dict: dict, status_every: float) -> 
     ranks = _Ranks(cfg)
     if ranks.dev.type == "cpu":
         torch.set_num_threads(cfg.threads or auto_threads())
+    t = _SingleRun(cfg, out, cfg_dict, ranks)  # loads the data: a corpus that fails to load leaves no config.json
     if ranks.main:
-
         out.mkdir(parents=True, exist_ok=True)
-        write_json(out / "config.json", cfg_dict)
-    t = _SingleRun(cfg, out, cfg_dict, ranks)
+        write_run_config(out, cfg_dict)  # records the store's path and content hash; refuses a changed store
     step = t.resume_or_start()
     t.wrap()
     t.log = MetricsLog(out, cfg.tensorboard, step) if ranks.main else None
@@ -205,7 +222,7 @@ def _train(cfg: TrainConfig, out: Path, cfg_dict: dict, status_every: float) -> 
                         bar=ranks.main and cfg.progress, every=status_every if ranks.main else 0.0)
     t.model.train()
     try:
-        step = run_loop(t, sched, ranks.dev, progress)
+        step = run_loop(t, sched, ranks.dev, progress, checkpoints=str(out / "ckpt.pt"))
     finally:
         progress.close()
         if t.log is not None:

@@ -55,9 +55,19 @@ from torch.nn.attention import SDPBackend, sdpa_kernel
 from .. import checkpoint, data as data_mod
 from ..config import from_preset, to_dict
 from ..errors import ConfigError
-from ..io import run_lock, write_json
+from ..io import run_lock
 from ..models.xjepa import VARIANTS, XJEPA, check_variant as validate_variant
-from ..rundir import MetricsLog, restart_metrics, write_final
+from ..run_store import write_run_config
+from ..rundir import (
+    MetricsLog,
+    check_run_dir_writable,
+    check_run_files,
+    check_state_fits,
+    load_resume_checkpoint,
+    restart_metrics,
+    restoring,
+    write_final,
+)
 from .config import (
     PRESETS as TRAIN_PRESETS,
     TrainConfig,
@@ -96,7 +106,7 @@ class StackedConfig:
     runs that can share a step (see ``mix_variants``) train as one stacked ensemble.
     """
 
-    data: str = "data/sim"
+    data: str = "data/pokeworld"
     """Dataset directory (``pokeworld.data`` format), shared by all runs."""
     out: str = "runs/stacked"
     """Parent directory; each run trains into ``out/<variant>_s<seed>`` (``_lam<λ>`` appended when sweeping λ)."""
@@ -257,7 +267,8 @@ class StackedGroup:
         dims = (ds.proprio.shape[-1], ds.touch.shape[-1], ds.actions.shape[-1])
         # one copy of the data; member i draws from a generator seeded like its separate run's sampler
         self.sampler = WindowSampler(ds, train_ep, c0.image_size, c0.window, dev, c0.contact_channel,
-                                       seed=c0.seed * 1000 + 1, with_params=c0.sysid_weight > 0, non_blocking=fast)
+                                       seed=c0.seed * 1000 + 1, with_params=c0.sysid_weight > 0, non_blocking=fast,
+                                       aligned_share=c0.program_aligned_share, horizon=max(c0.horizons))
         self.gens = []
         for c in cfgs:
             g = torch.Generator(device="cpu")
@@ -443,7 +454,7 @@ def _ckpt_step(cfg: TrainConfig) -> int:
     p = Path(cfg.out) / "ckpt.pt"
     if not p.exists():
         return 0
-    return int(checkpoint.load(p)["step"])
+    return load_resume_checkpoint(p)["step"]
 
 
 def run(cfgs: Sequence[TrainConfig], *, mix_variants: bool = True, max_members: int = 0) -> list[Path]:
@@ -452,8 +463,13 @@ def run(cfgs: Sequence[TrainConfig], *, mix_variants: bool = True, max_members: 
     cfgs = list(cfgs)
     plan_groups(cfgs, mix_variants, max_members)  # validates all runs (stackable, distinct outs) up front
     for c in cfgs:
+        check_run_files(c.out)  # as train.run: no links, FIFOs, or a file where a run folder goes
         check_existing(c)
     todo = [i for i, c in enumerate(cfgs) if not (Path(c.out) / "DONE").exists()]
+    if todo:  # as train.run: inputs checked before any run folder or config.json is written
+        data_mod.read_manifest(cfgs[todo[0]].data)
+        for i in todo:
+            check_run_dir_writable(cfgs[i].out)
     # members resume together only from the same step: the checkpoint step joins the group key
     by_step: dict[int, list[int]] = {}
     for i in todo:
@@ -484,9 +500,12 @@ class _StackedRun:
     def resume_or_start(self) -> int:
         g, outs, c0 = self.g, self.outs, self.cfgs[0]
         if (outs[0] / "ckpt.pt").exists():
-            cks = [checkpoint.load(out / "ckpt.pt") for out in outs]
-            g.load(cks)
-            checkpoint.set_rng_state(cks[0]["rng"])
+            cks = [load_resume_checkpoint(out / "ckpt.pt") for out in outs]
+            for member, ck, out in zip(g.members, cks, outs):
+                check_state_fits(member, ck["model"], out / "ckpt.pt")
+            with restoring(outs[0] / "ckpt.pt"):
+                g.load(cks)
+                checkpoint.set_rng_state(cks[0]["rng"])
             step = int(cks[0]["step"])
             for out in outs:
                 restart_metrics(out, step)
@@ -533,10 +552,10 @@ def _train_group(cfgs: list[TrainConfig]) -> None:
         torch.set_num_threads(c0.threads or auto_threads())
     fast = use_fast_path(c0, dev)
     outs = [Path(c.out) for c in cfgs]
+    g = StackedGroup(cfgs, dev, fast)  # loads the data: a corpus that fails to load leaves no config.json
     for c, out in zip(cfgs, outs):
         out.mkdir(parents=True, exist_ok=True)
-        write_json(out / "config.json", to_dict(c))
-    g = StackedGroup(cfgs, dev, fast)
+        write_run_config(out, to_dict(c))  # as train.run: the store's path and content hash beside the config
     t = _StackedRun(cfgs, g, outs)
     step = t.resume_or_start()
     t.logs = [MetricsLog(out, c.tensorboard, step) for c, out in zip(cfgs, outs)]
@@ -544,7 +563,8 @@ def _train_group(cfgs: list[TrainConfig]) -> None:
     sched = LoopSchedule(step, end, c0.steps, c0.log_every, c0.ckpt_every, c0.batch_size * c0.window)
     progress = Progress(sched, f"train stacked ×{g.M} ({g.super_variant})", bar=c0.progress)
     try:
-        step = run_loop(t, sched, dev, progress, loss_shape=(g.M,), members=[str(o) for o in outs])
+        step = run_loop(t, sched, dev, progress, loss_shape=(g.M,), members=[str(o) for o in outs],
+                        checkpoints=f"the ckpt.pt of its {g.M} runs")
     finally:
         progress.close()
         for log in t.logs:
