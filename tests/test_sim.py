@@ -1,5 +1,7 @@
 """Physics laws, sensors, determinism and input validation of the PokeWorld simulator."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
@@ -9,6 +11,8 @@ from pokeworld.sim import PhysicsConfig, PokeWorldSim
 from pokeworld.sim.physics import hertz_normal_force
 
 FREE = PhysicsConfig(touch_noise=0.0, finger_damping=0.0)
+TANGENT = PhysicsConfig(touch_noise=0.0, finger_damping=0.0, contact_damping="tangent")
+CONSTANT, TANGENT_LAW = 0, 1  # the kernels' codes of physics.DAMPING_LAWS
 
 
 def _sim(n=1, cfg=FREE, **reset):
@@ -43,14 +47,20 @@ def test_glide_decay_is_mass_independent():
 def test_hertz_force_law():
     k, mu, zeta = 3000.0, 0.5, 0.25
     for d in (1e-4, 1e-3, 5e-3, 2e-2):
-        assert hertz_normal_force(d, 0.0, k, mu, zeta) == pytest.approx(k * d**1.5, rel=1e-12)
-        # damping at zeta of critical for the tangent stiffness 1.5 k sqrt(d)
+        for law in (CONSTANT, TANGENT_LAW):
+            assert hertz_normal_force(d, 0.0, k, mu, zeta, law) == pytest.approx(k * d**1.5, rel=1e-12)
+        # tangent: damping at zeta of critical for the tangent stiffness 1.5 k sqrt(d)
         c = 2 * zeta * np.sqrt(1.5 * k * np.sqrt(d) * mu)
-        assert hertz_normal_force(d, -0.5, k, mu, zeta) == pytest.approx(k * d**1.5 + 0.5 * c, rel=1e-12)
-    # the damping coefficient vanishes at first touch: no force spike when a fast impact begins
-    # (2 zeta sqrt(k mu) * speed, the k-only form, would give 39 here)
-    assert hertz_normal_force(1e-12, -2.0, k, mu, zeta) < 1e-2 * 2 * zeta * np.sqrt(k * mu) * 2.0
-    assert hertz_normal_force(1e-3, 100.0, k, mu, zeta) == 0.0  # a penalty contact never pulls
+        assert hertz_normal_force(d, -0.5, k, mu, zeta, TANGENT_LAW) == pytest.approx(k * d**1.5 + 0.5 * c, rel=1e-12)
+        # constant: zeta of critical for a spring of constant k, whatever the overlap
+        c = 2 * zeta * np.sqrt(k * mu)
+        assert hertz_normal_force(d, -0.5, k, mu, zeta, CONSTANT) == pytest.approx(k * d**1.5 + 0.5 * c, rel=1e-12)
+    # the tangent damping coefficient vanishes at first touch (the constant one does not)
+    assert hertz_normal_force(1e-12, -2.0, k, mu, zeta, TANGENT_LAW) < 1e-2 * 2 * zeta * np.sqrt(k * mu) * 2.0
+    assert hertz_normal_force(1e-12, -2.0, k, mu, zeta, CONSTANT) == pytest.approx(2 * zeta * np.sqrt(k * mu) * 2.0,
+                                                                                  rel=1e-6)
+    for law in (CONSTANT, TANGENT_LAW):
+        assert hertz_normal_force(1e-3, 100.0, k, mu, zeta, law) == 0.0  # a penalty contact never pulls
 
 
 def _reference_restitution(zeta, k, mu, v0):
@@ -80,10 +90,10 @@ def _impact(k, m=1.0, v0=1.2, steps=8, cfg=FREE):
     return s, np.array(touches), np.array(overlaps)
 
 
-def test_restitution_depends_on_zeta_only():
+def test_restitution_depends_on_zeta_only_under_the_tangent_law():
     e = {}
     for k, m in ((500.0, 0.5), (600.0, 1.0), (2000.0, 1.5), (6000.0, 3.0)):
-        s, touches, _ = _impact(k, m)
+        s, touches, _ = _impact(k, m, cfg=TANGENT)
         assert touches[:, 6].max() == 1.0 and touches[-1, 6] == 0.0  # contact happened and ended
         e[(k, m)] = (s.state[0, 6] - s.state[0, 2]) / 1.2
     e_ref = _reference_restitution(0.25, 1000.0, 0.5, 1.2)
@@ -98,7 +108,7 @@ def test_impact_force_peaks_near_maximum_penetration():
     fine = PhysicsConfig(touch_noise=0.0, finger_damping=0.0, dt=0.0005, substeps=1)  # one sub-step per step
     peaks = {}
     for k in (500.0, 6000.0):
-        _, touches, overlaps = _impact(k, 1.0, 1.2, steps=400, cfg=fine)
+        _, touches, overlaps = _impact(k, 1.0, 1.2, steps=400, cfg=replace(fine, contact_damping="tangent"))
         f = touches[:, 2]
         on = np.flatnonzero(f > 0)
         # the transient is elastic-dominated: the force at maximum penetration is close to the peak,

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .config import apply_overrides, from_dict
+from .config import apply_overrides
 from .data import Dataset, load
 from .errors import ConfigError
 from .sim import generate
@@ -41,7 +41,7 @@ def ensure(store: Dataset, data: str | Path, episodes: int) -> Dataset:
         raise ConfigError(f"fit_episodes > 0 needs a store written by `pokeworld generate` (its generator config "
                           f"makes the certificate corpus); {data} was written by "
                           f"{store.manifest.get('generator', 'an unknown generator')}: use fit_episodes=0")
-    cfg = from_dict(generate.GenerateConfig, store.manifest["config"])
+    cfg = generate.generator_config(store.manifest)
     cfg = apply_overrides(cfg, {"out": str(path(data, episodes)), "seed": fit_seed(store.manifest["seed"]),
                                          "num_episodes": int(episodes), "split_fractions": (0.0, 1.0, 0.0)})
     print(f"[certify] certificate corpus: {episodes} episodes from the store's generator (seed {cfg.seed})")

@@ -16,6 +16,7 @@ from ..io import write_json
 from ..models import flow
 from ..rundir import last_logged_step
 from ..sim import generate
+from ..sim.generate import LEGACY_PHYSICS
 from ..train import stacked as train_stacked
 from ..train.loop import past, status_every
 from .attributes import CORPUS_TARGETS
@@ -51,6 +52,8 @@ def ensure_corpus(c: MapConfig, corpus: str) -> Path:
         overrides["num_episodes"] = c.num_episodes
     if c.split_fractions:
         overrides["split_fractions"] = tuple(c.split_fractions)
+    if c.contact_damping != LEGACY_PHYSICS["contact_damping"]:  # the default law leaves the configs as they were
+        overrides["physics"] = {"contact_damping": c.contact_damping}
     return generate.run(generate.make_config(c.preset, **overrides))
 
 GATED = ("log_m", "gamma", "log_k")

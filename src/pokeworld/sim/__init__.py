@@ -1,10 +1,11 @@
 """PokeWorld: the 2D poking environment with hidden mass, drag and contact stiffness."""
 
 from .core import PARAM_NAMES, ParamRanges, PhysicsConfig, PokeWorldSim
+from . import contact
 from .envs import PokeWorldEnv, PokeWorldVectorEnv, register
 from .policy import MixedPolicy, PolicyConfig
 
 register()
 
-__all__ = ["PARAM_NAMES", "ParamRanges", "PhysicsConfig", "PokeWorldSim", "PokeWorldEnv",
+__all__ = ["contact", "PARAM_NAMES", "ParamRanges", "PhysicsConfig", "PokeWorldSim", "PokeWorldEnv",
            "PokeWorldVectorEnv", "MixedPolicy", "PolicyConfig", "register"]

@@ -35,6 +35,11 @@ class PhysicsConfig:
     """Object disk radius."""
     contact_zeta: float = 0.25
     """Finger-object normal damping as a fraction of critical (underdamped keeps impact peaks k-dependent)."""
+    contact_damping: str = "tangent"
+    """Which critical damping ``contact_zeta`` is a fraction of: "tangent" (the default: of the Hertz law's local
+    tangent stiffness, so two-body restitution is independent of k) or "constant" (2 sqrt(k mu): restitution falls
+    with k, a post-contact trace of stiffness). Chosen by measurement: "constant" halved the demo's central
+    comparison (docs/design.md, "Contact damping")."""
     wall_omega: float = 60.0
     """Wall spring natural frequency (rad/s); wall accelerations are independent of m and k."""
     wall_zeta: float = 0.25
@@ -61,6 +66,8 @@ class PhysicsConfig:
             raise ConfigError(f"PhysicsConfig.substeps must be >= 1, got {self.substeps}")
         if not 0 <= self.contact_zeta < 1:
             raise ConfigError(f"contact_zeta must be in [0, 1) (underdamped), got {self.contact_zeta}")
+        if self.contact_damping not in physics.DAMPING_LAWS:
+            raise ConfigError(f"contact_damping must be one of {physics.DAMPING_LAWS}, got {self.contact_damping!r}")
         if self.finger_damping < 0 or self.touch_noise < 0:
             raise ConfigError("finger_damping and touch_noise must be >= 0")
         if self.image_size < 8:
@@ -81,6 +88,7 @@ class PhysicsConfig:
         c[physics.C_WOMEGA] = self.wall_omega
         c[physics.C_WZETA] = self.wall_zeta
         c[physics.C_ARENA] = self.arena
+        c[physics.C_DAMPING_LAW] = physics.DAMPING_LAWS.index(self.contact_damping)
         return c
 
 

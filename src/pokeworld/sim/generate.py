@@ -9,9 +9,10 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from .. import __version__
-from ..config import apply_overrides, from_preset, to_dict
-from ..data import Dataset, assign_splits, save, store_is_current
+from ..config import apply_overrides, from_dict, from_preset, to_dict
+from ..data import Dataset, assign_splits, check_store_destination, save, store_is_current, store_lock
 from ..errors import ConfigError
+from ..io import check_writable_dir
 from .core import PARAM_NAMES, ParamRanges, PhysicsConfig, PokeWorldSim
 from .policy import MixedPolicy, PolicyConfig
 from .stats import CONTEXT, HORIZON, corpus_stats
@@ -22,7 +23,8 @@ class GenerateConfig:
     """Generate a PokeWorld corpus."""
 
     out: str = "data/pokeworld"
-    """Output directory (written atomically; an existing complete store is kept unless --overwrite)."""
+    """Output directory (written atomically; an existing complete store is kept unless --overwrite). A folder
+    holding anything but a pokeworld store is refused, never emptied; ``.<name>.lock`` beside it marks a writer."""
     seed: int = 0
     """Master seed: the same seed and config give byte-identical arrays."""
     num_episodes: int = 2400
@@ -37,7 +39,9 @@ class GenerateConfig:
     batch_envs: int = 1024
     """Episodes simulated simultaneously."""
     overwrite: bool = False
-    """Regenerate even if a complete store exists at ``out``."""
+    """Regenerate even if a complete store exists at ``out``. Replaces only a folder pokeworld verifies as its own
+    store of this kind (only files pokeworld writes in a store: data.h5, manifest.json, certificates; the manifest
+    readable and of kind "pokeworld"); any other folder is refused, never deleted."""
     physics: PhysicsConfig = field(default_factory=PhysicsConfig)
     """Arena constants."""
     ranges: ParamRanges = field(default_factory=ParamRanges)
@@ -99,7 +103,22 @@ def content_config(cfg: GenerateConfig) -> dict:
     if d["policy"]["open_loop_share"] == 0:
         for k in ("open_loop_share", "open_loop_aim"):
             del d["policy"][k]
+    if d["physics"]["contact_damping"] == LEGACY_PHYSICS["contact_damping"]:
+        del d["physics"]["contact_damping"]  # the law every store had before the field existed: they stay current
     return d
+
+
+LEGACY_PHYSICS = {"contact_damping": "tangent"}
+"""Physics fields a store's manifest may lack, with the value every store written before the field existed had."""
+
+
+def generator_config(manifest: dict) -> GenerateConfig:
+    """The generator config a store of ``pokeworld generate`` was made with, from its manifest: a field the
+    manifest lacks takes the value stores had before the field existed (:data:`LEGACY_PHYSICS`, the open-loop
+    share 0), never today's default, so an old store is re-made, extended or simulated as what it is."""
+    config = dict(manifest.get("config", {}))
+    config["physics"] = {**LEGACY_PHYSICS, **config.get("physics", {})}
+    return from_dict(GenerateConfig, config)
 
 
 def simulate(cfg: GenerateConfig, progress: bool = True, render: bool = True) -> Dataset:
@@ -157,13 +176,20 @@ def simulate(cfg: GenerateConfig, progress: bool = True, render: bool = True) ->
 
 
 def run(cfg: GenerateConfig) -> Path:
-    """Generate and write the corpus described by ``cfg``; skip if an identical one already exists."""
+    """Generate and write the corpus described by ``cfg``; skip if an identical, intact one already exists.
+
+    Before simulating: ``out`` must be free or hold a pokeworld store (:func:`~pokeworld.data.check_store_destination`),
+    its folder writable, and no other writer at work on it (:func:`~pokeworld.data.store_lock`, held to the end).
+    """
     out = Path(cfg.out)
-    if store_is_current(out, content_config(cfg), cfg.overwrite):
-        print(f"[generate] {out} already holds this corpus; skipping")
-        return out
-    ds = simulate(cfg)
-    save(ds, out)
+    check_store_destination(out, "pokeworld")
+    check_writable_dir(out.parent)
+    with store_lock(out):
+        if store_is_current(out, content_config(cfg), cfg.overwrite):
+            print(f"[generate] {out} already holds this corpus; skipping")
+            return out
+        ds = simulate(cfg)
+        save(ds, out)
     counts = ds.manifest["split_counts"]
     print(f"[generate] wrote {ds.num_episodes} episodes ({counts}) to {out}")
     return out

@@ -29,6 +29,8 @@ class PairsConfig:
     """Control steps per episode."""
     seed: int = 0
     """Seed of the touch noise (trajectories are noise-free)."""
+    contact_damping: str = PhysicsConfig.contact_damping
+    """The contact-damping law (PhysicsConfig.contact_damping): "tangent" (the default) or "constant"."""
 
 
 PRESETS = {"tiny": {"steps": 12}, "cpu": {}, "paper": {}}
@@ -46,12 +48,12 @@ def strike_actions(steps: int) -> np.ndarray:
     return a
 
 
-def rollout_pair(param: str, steps: int, seed: int = 0) -> dict:
+def rollout_pair(param: str, steps: int, seed: int = 0, contact_damping: str = PhysicsConfig.contact_damping) -> dict:
     """Two episodes from the identical start and actions, differing only in ``param``."""
     if param not in PAIRS:
         raise ConfigError(f"unknown pair parameter {param!r}; choose one of {list(PAIRS)}")
     (lo, hi), _ = PAIRS[param]
-    sim = PokeWorldSim(2, PhysicsConfig(touch_noise=0.0), seed=seed)
+    sim = PokeWorldSim(2, PhysicsConfig(touch_noise=0.0, contact_damping=contact_damping), seed=seed)
     values = {k: np.array([v, v]) for k, v in BASE.items()}
     values[param] = np.array([lo, hi])
     sim.reset(params=values, finger_pos=[0.2, 0.45], object_pos=[0.38, 0.47])
@@ -67,6 +69,12 @@ def rollout_pair(param: str, steps: int, seed: int = 0) -> dict:
             "finger": np.stack(fin, 1), "touch": np.stack(touch, 1), "actions": acts}
 
 
+def final_gap(pair: dict) -> float:
+    """Distance between the two episodes' objects at the last step: how far the hidden parameter moved the
+    post-contact trajectory (arena units)."""
+    return float(np.linalg.norm(pair["object"][0, -1] - pair["object"][1, -1]))
+
+
 def run(cfg: PairsConfig) -> Path:
     import matplotlib
 
@@ -75,7 +83,7 @@ def run(cfg: PairsConfig) -> Path:
 
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
-    pairs = [rollout_pair(p, cfg.steps, cfg.seed) for p in PAIRS]
+    pairs = [rollout_pair(p, cfg.steps, cfg.seed, cfg.contact_damping) for p in PAIRS]
     fig, axes = plt.subplots(1, 3, figsize=(12, 4.2))
     for ax, pr in zip(axes, pairs):
         for k, (style, alpha) in enumerate((("-", 1.0), ("--", 0.8))):
@@ -88,13 +96,15 @@ def run(cfg: PairsConfig) -> Path:
         ax.add_patch(plt.Circle(pr["finger"][0, 0], 0.06, color="gold", alpha=0.6))
         same0 = np.array_equal(pr["frames"][0, 0], pr["frames"][1, 0])
         peak = pr["touch"][:, :, 2].max(1)
-        ax.set_title(f"{pr['param']}: frame 0 identical={same0}\npeak touch {peak[0]:.2f} vs {peak[1]:.2f} F_max",
-                     fontsize=9)
+        gap = final_gap(pr)
+        ax.set_title(f"{pr['param']}: frame 0 identical={same0}\npeak touch {peak[0]:.2f} vs {peak[1]:.2f} F_max; "
+                     f"final object gap {gap:.3f}", fontsize=9)
         ax.set_xlim(0, 1)
         ax.set_ylim(0, 1)
         ax.set_aspect("equal")
         ax.legend(fontsize=8, loc="upper left")
-    fig.suptitle("Matched pairs: identical start frame and actions, one hidden parameter differs")
+    fig.suptitle("Matched pairs: identical start frame and actions, one hidden parameter differs "
+                 f"({cfg.contact_damping} contact damping)")
     fig.tight_layout()
     for ext in ("png", "pdf"):
         tmp = out / f".pairs.tmp.{ext}"

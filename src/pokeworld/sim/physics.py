@@ -9,10 +9,11 @@ Linear drag on the object (``-gamma*m*v``) and linear damping on the finger are
 applied as exact exponential factors per sub-step, so a free glide decays as
 ``exp(-gamma*t)`` to machine precision and momentum is conserved exactly when
 both are zero. Finger-object contact is a Hertzian penalty force
-``k*d**1.5`` with normal damping at ``zeta`` of critical computed from the
-tangent stiffness ``1.5*k*sqrt(d)`` and the reduced mass; this makes the
-coefficient of restitution depend on ``zeta`` only (not on k, m or the impact
-speed), so stiffness lives in the impact transient, not in the outcome.
+``k*d**1.5`` with normal damping at ``zeta`` of critical under one of two readings
+(:func:`hertz_normal_force`): the *tangent* law ``c = 2 zeta sqrt(1.5 k sqrt(d) mu)`` (the
+default: two-body restitution independent of k, m and impact speed, so stiffness lives in the
+impact transient) or the *constant* law ``c = 2 zeta sqrt(k mu)`` (restitution falls as k rises,
+a trace of stiffness in the post-contact trajectory).
 Walls are mass- and stiffness-independent (their accelerations do not depend on
 m or k), so no hidden parameter leaks into vision through a wall bounce.
 """
@@ -25,24 +26,35 @@ import numpy as np
 from numba import njit, prange
 
 # indices into the per-episode constant vector passed to the kernels
-C_DT, C_NSUB, C_FMAX, C_MF, C_CF, C_RF, C_RO, C_ZETA, C_WOMEGA, C_WZETA, C_ARENA = range(11)
-NUM_CONSTS = 11
+C_DT, C_NSUB, C_FMAX, C_MF, C_CF, C_RF, C_RO, C_ZETA, C_WOMEGA, C_WZETA, C_ARENA, C_DAMPING_LAW = range(12)
+NUM_CONSTS = 12
+DAMPING_LAWS = ("constant", "tangent")
+"""Readings of "normal damping at zeta of critical" (:func:`hertz_normal_force`); index = the kernels' code."""
 TOUCH_DIM = 7
 
 
 @njit(cache=True, inline="always")
-def hertz_normal_force(d: float, sep_speed: float, k: float, mu: float, zeta: float) -> float:
+def hertz_normal_force(d: float, sep_speed: float, k: float, mu: float, zeta: float, law: int) -> float:
     """Normal contact force magnitude for overlap ``d`` > 0 and separation speed ``sep_speed``.
 
-    ``k d^1.5`` minus damping ``c * sep_speed`` with ``c = 2 zeta sqrt(k_t mu)``, where
-    ``k_t = 1.5 k sqrt(d)`` is the tangent stiffness of the Hertz law at the current overlap and
-    ``mu`` the reduced mass: ``zeta`` of critical for the local linearisation. Damping therefore
-    vanishes at first touch (the force rises from zero and peaks near maximum penetration), and
-    the equation of motion in the scaled overlap ``d / d_max`` is the same for every k, mu and
-    impact speed, so restitution depends on ``zeta`` alone. (``2 zeta sqrt(k mu)`` with k in
-    N/m^1.5 is not a damping coefficient.) Clipped at zero: a penalty contact cannot pull.
+    ``k d^1.5`` minus damping ``c * sep_speed``, ``mu`` the reduced mass, ``zeta`` a fraction of critical, under
+    one of two readings of "normal damping at zeta of critical" (``law`` indexes :data:`DAMPING_LAWS`):
+
+    * 0, *constant*: ``c = 2 zeta sqrt(k mu)``, critical damping of a spring of constant k (k taken as if it were
+      in N/m). The damping ratio at the working overlap then grows as k falls, so a soft contact loses more of
+      the impact speed than a stiff one: restitution depends on k (and weakly on the impact speed), and stiffness
+      shows in the post-contact trajectory, as the paper's matched pairs (Fig. pairs (c)) show.
+    * 1, *tangent*: ``c = 2 zeta sqrt(k_t mu)`` with ``k_t = 1.5 k sqrt(d)`` the tangent stiffness at the
+      current overlap: zeta of critical for the local linearisation. The equation of motion in the scaled
+      overlap ``d / d_max`` is then the same for every k, mu and impact speed, so restitution depends on ``zeta``
+      alone and stiffness lives in the impact transient only.
+
+    Clipped at zero: a penalty contact cannot pull.
     """
-    c = 2.0 * zeta * math.sqrt(1.5 * k * math.sqrt(d) * mu)
+    if law == 1:
+        c = 2.0 * zeta * math.sqrt(1.5 * k * math.sqrt(d) * mu)
+    else:
+        c = 2.0 * zeta * math.sqrt(k * mu)
     fn = k * d * math.sqrt(d) - c * sep_speed
     return fn if fn > 0.0 else 0.0
 
@@ -76,6 +88,7 @@ def step_kernel(state, params, actions, consts, touch):
     womega = consts[C_WOMEGA]
     wzeta = consts[C_WZETA]
     arena = consts[C_ARENA]
+    law = int(consts[C_DAMPING_LAW])
     dec_f = math.exp(-cf / mf * h)
     for i in prange(n):
         fx, fy, fvx, fvy = state[i, 0], state[i, 1], state[i, 2], state[i, 3]
@@ -103,7 +116,7 @@ def step_kernel(state, params, actions, consts, touch):
                 nx = dx / dist
                 ny = dy / dist
                 sep = (ovx - fvx) * nx + (ovy - fvy) * ny
-                fn = hertz_normal_force(d, sep, k, mu, zeta)
+                fn = hertz_normal_force(d, sep, k, mu, zeta, law)
                 cx = fn * nx
                 cy = fn * ny
                 ncontact += 1
