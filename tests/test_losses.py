@@ -264,3 +264,30 @@ def test_per_head_log_variance_converges_to_the_noise_variance():
     # the homoscedastic NLL is the broadcast case of the per-element one
     torch.testing.assert_close(head_logvar_nll(x, s.detach(), x * 0.5),
                                gaussian_nll(x, s.detach().expand_as(x), x * 0.5))
+
+
+def test_sigreg_at_a_reference_row_count_scales_the_statistic_not_its_direction():
+    """The statistic is N-scaled: at batch 32 a reference count of 128 is exactly 4× the pull (the paper's batch at
+    the same λ), with the same gradient direction; 0 / None keep the rows' own count."""
+    from pokeworld.losses import sigreg
+
+    z = (torch.randn(32, 16, generator=torch.Generator().manual_seed(0)) * 1.7 + 0.3).requires_grad_(True)
+    own = sigreg(z, 64, seed=3)
+    (g_own,) = torch.autograd.grad(own, z)
+    ref = sigreg(z, 64, seed=3, reference_rows=128)
+    (g_ref,) = torch.autograd.grad(ref, z)
+    assert ref.item() == pytest.approx(4 * own.item(), rel=1e-5)
+    torch.testing.assert_close(g_ref, 4 * g_own, rtol=1e-4, atol=1e-7)
+    assert sigreg(z, 64, seed=3, reference_rows=32).item() == pytest.approx(own.item(), rel=1e-6)
+    assert sigreg(z, 64, seed=3, reference_rows=0).item() == pytest.approx(own.item(), rel=1e-6)
+
+
+def test_the_training_config_carries_the_reference_rows_into_the_loss():
+    from pokeworld.errors import ConfigError
+    from pokeworld.train import loss_kwargs
+    from pokeworld.train.config import make_config
+
+    assert loss_kwargs(make_config("tiny", sigreg_reference_rows=128))["sigreg_reference_rows"] == 128
+    assert loss_kwargs(make_config("tiny"))["sigreg_reference_rows"] == 0
+    with pytest.raises(ConfigError, match="sigreg_reference_rows"):
+        make_config("tiny", sigreg_reference_rows=-1)

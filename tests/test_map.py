@@ -232,3 +232,17 @@ def test_stacked_map_trains_its_runs_as_one_group_and_measures_each(tmp_path, ca
     assert "stacked group" not in capsys.readouterr().out
     with pytest.raises(ConfigError, match="launcher local"):
         experiment.make_config("tiny", stack=True, launcher="submitit-local")
+
+
+def test_map_wide_sigreg_reference_rows_rename_global_latent_runs_only():
+    from pokeworld import experiments as ex
+
+    c = ex.make_config("cpu", experiments=("lambda", "controls"), sigreg_reference_rows=128, seeds=(0,))
+    specs = {s.name: s for s in ex.all_specs(c)}
+    lam = [s for s in specs.values() if s.experiment == "lambda"]
+    assert lam and all(s.train["sigreg_reference_rows"] == 128 and "sigreg_reference_rows128" in s.name for s in lam)
+    for s in specs.values():  # token and reconstruction runs have no global-latent statistic to rescale
+        if s.train.get("tokens") or s.train.get("objective") == "recon":
+            assert "sigreg_reference_rows" not in s.train
+    plain = ex.make_config("cpu", experiments=("lambda",), seeds=(0,))
+    assert not any("sigreg_reference_rows" in s.name for s in ex.all_specs(plain))

@@ -209,13 +209,14 @@ def test_plan_runs_reports_the_rank_test_per_model_and_in_the_table(monkeypatch,
     oracle = _oracle(monkeypatch)
 
     class FakeLatent:  # stands in for a trained run: "good" scores like the simulator, "bad" the reverse
-        def __init__(self, run_dir, data, heads="direct"):
+        def __init__(self, run_dir, data, *args):
             self.sign = 1.0 if "good" in run_dir else -1.0
 
         def score(self, hist, cand, goal):
             return self.sign * oracle.score(hist, cand, goal)
 
     monkeypatch.setattr(plan, "LatentScorer", FakeLatent)
+    monkeypatch.setattr(plan, "planning_physics", lambda runs, data: plan.PhysicsConfig())  # no store behind them
     cfg = make_config("tiny", episodes=8, steps=4, population=16, rank_topk=4)
     out = plan.plan_runs(cfg, {"good": [str(tmp_path / "good")], "bad": [str(tmp_path / "bad")]})
     s = out["summary"]
@@ -233,7 +234,7 @@ def test_the_simulator_controller_is_the_planners_ceiling(tmp_path):
     from pokeworld import plan
 
     cfg = make_config("tiny", episodes=12, steps=48, population=32, elites=4, iterations=2, simulator_controller=True,
-                      out=str(tmp_path / "p"))
+                      runs=(), out=str(tmp_path / "p"))
     summary = plan.plan_runs(cfg, {})["summary"]
     assert set(summary) == {"random", "simulator"}
     assert summary["simulator"]["reach"] >= 0.5 and summary["random"]["reach"] <= 0.2
@@ -241,7 +242,7 @@ def test_the_simulator_controller_is_the_planners_ceiling(tmp_path):
     plan.run(cfg)
     assert "| simulator |" in (tmp_path / "p" / "plan.md").read_text()
     with pytest.raises(ConfigError, match="--runs"):
-        plan.run(make_config("tiny", out=str(tmp_path / "q")))
+        plan.run(make_config("tiny", out=str(tmp_path / "q"), runs=()))
 
 
 def test_planning_table_rows_follow_the_papers_order_whatever_the_summary_order():

@@ -121,20 +121,25 @@ def _ecf(x: torch.Tensor, t: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     return _ECF.apply(x, t)[:2]
 
 
-def epps_pulley(x: torch.Tensor, num_knots: int = 17, t_max: float = 3.0) -> torch.Tensor:
+def epps_pulley(x: torch.Tensor, num_knots: int = 17, t_max: float = 3.0,
+                reference_rows: int | None = None) -> torch.Tensor:
     """Epps–Pulley normality statistic of 1-d samples along dim -2.
 
     Args:
         x: (..., N, K) — N samples of K independent 1-d projections.
+        reference_rows: scale the integral by this count instead of N. The statistic is N-scaled, so at a
+            fixed weight its pull on the encoder grows with the batch; a fixed reference count makes a weight λ
+            mean the same strength at any batch (e.g. the paper's batch 128 at our batch 32: 4× the pull).
+            The ECF (and so the gradient's direction) is still the mean over the N rows there are.
     Returns:
         (..., K) statistic ``N · ∫ |ECF − φ|² w``, averaged ECF over ranks when distributed
-        (N is then the global sample count).
+        (N is then the global sample count, or ``reference_rows``).
     """
     t, w, phi = ep_knots(num_knots, t_max, x.device)
     cos_m, sin_m = _ecf(x.float(), t)  # (..., K, knots) each
     cos_m, sin_m = _dist_mean(cos_m), _dist_mean(sin_m)
     err = (cos_m - phi) ** 2 + sin_m ** 2  # (..., K, knots)
-    n = x.shape[-2] * _dist_world()
+    n = reference_rows if reference_rows else x.shape[-2] * _dist_world()
     return (err @ w) * n
 
 
@@ -164,7 +169,7 @@ def subsample_index(n: int, max_rows: int | None, seed: int) -> torch.Tensor | N
 
 def sigreg(z: torch.Tensor, num_dirs: int = 1024, seed: int = 0, num_knots: int = 17,
            t_max: float = 3.0, max_rows: int | None = None, directions: torch.Tensor | None = None,
-           rows: torch.Tensor | None = None) -> torch.Tensor:
+           rows: torch.Tensor | None = None, reference_rows: int | None = None) -> torch.Tensor:
     """SIGReg loss: mean Epps–Pulley statistic of ``z`` projected on ``num_dirs`` random unit directions.
 
     Args:
@@ -181,6 +186,8 @@ def sigreg(z: torch.Tensor, num_dirs: int = 1024, seed: int = 0, num_knots: int 
         rows: row indices (int64, on ``z``'s device) to use instead of drawing the subset from ``seed``
            and ``max_rows``; trainers pass ``subsample_index(N, max_rows, seed)`` drawn on the host (the
            stacked trainer one per member, which an integer seed under ``torch.vmap`` could not give).
+        reference_rows: the statistic at this sample count instead of the rows' own (:func:`epps_pulley`);
+           None or 0 keeps N.
     Returns:
         scalar loss (float32, computed outside autocast).
     """
@@ -192,7 +199,7 @@ def sigreg(z: torch.Tensor, num_dirs: int = 1024, seed: int = 0, num_knots: int 
         if rows is not None:
             z = z.index_select(-2, rows)
         a = random_directions(z.shape[-1], num_dirs, seed, z.device) if directions is None else directions.float()
-        return epps_pulley(z @ a, num_knots, t_max).mean()
+        return epps_pulley(z @ a, num_knots, t_max, reference_rows).mean()
 
 
 SIGREG_POOLS = ("step", "pooled")

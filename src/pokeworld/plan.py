@@ -1,10 +1,14 @@
 """Closed-loop push-to-goal planning with frozen X-JEPA models (paper App. C "Closed-loop planning").
 
 CEM over smooth two-knot action programs (16 actions linearly interpolated
-between two 2-d knots), scored by the direct Δ=4 and Δ=16 heads: each
-candidate's predicted latent is decoded to an object position by a ridge
-probe fit on the model's encoder latents (probe-fit episodes), and the score
-is the decoded distance to the goal (Δ=16, plus half the Δ=4 distance).
+between two 2-d knots), scored by the direct Δ=4 and Δ=16 heads. The default
+cost (``PlanConfig.cost``, ``decoder``) decodes each predicted latent to an
+object position with a ridge probe fit on privileged labels and scores the
+decoded distance to the goal (Δ=16, plus half the Δ=4 distance). The field's
+cost is ``goal_l2``: the goal observation (the arena with the object at the
+goal) is encoded by the model's own encoder and a candidate scores
+‖ẑ16 − z_goal‖² + 0.5 ‖ẑ4 − z_goal‖² (DINO-WM's and stable-worldmodel's LeWM
+cost; ``goal_l1`` the L1 distance of V-JEPA 2-AC).
 Replanning every 4 steps; the same planner, budget and environment for every
 representation, plus a random controller.
 
@@ -15,7 +19,7 @@ cost (Spearman ρ and top-k overlap; :mod:`pokeworld.evaluate.ranking`). The pla
 
 from __future__ import annotations
 
-import json
+import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -23,18 +27,25 @@ import numpy as np
 import torch
 
 from .config import from_preset, to_dict
-from .data import load
+from .data import load, read_manifest
 from .errors import ConfigError
 from .evaluate.counterfactual import counterfactual_fit
 from .evaluate.measure import EpisodeLatents, position_decoder
 from .evaluate.ranking import agreement
 from .evaluate.state import encode_observations
-from .io import atomic_path, save_figure, write_json
+from .io import atomic_path, check_writable_dir, save_figure, write_json
 from .paper_values import PLANNING
+from .preflight import require_finished_runs
+from .run_store import trained_store
 from .rundir import load_model
-from .sim import PhysicsConfig, PokeWorldSim
+from .sim import PhysicsConfig, PokeWorldSim, physics as physics_kernels
+from .sim.generate import generator_config
 from .sim.policy import KNOT_SD, PROGRAM, programs
 
+PLANNING_COSTS = ("goal_l2", "goal_l1", "decoder")
+"""How a :class:`LatentScorer` turns predicted latents into a cost (``PlanConfig.cost``)."""
+GOAL_FINGERS = ("behind", "current")
+"""Where the goal observation draws the finger (``PlanConfig.goal_finger``)."""
 PLANNING_HEADS = ("direct", "rollout")
 """How a :class:`LatentScorer` predicts a program's outcome (``PlanConfig.heads``)."""
 COST_TERMS = ((16, 1.0), (4, 0.5))
@@ -53,8 +64,9 @@ class PlanConfig:
 
     out: str = "out/plan"
     """Output directory for plan.json and plan.md."""
-    runs: tuple[str, ...] = ()
-    """Run directories (multi-horizon models with Δ=4 and Δ=16 heads) to plan with."""
+    runs: tuple[str, ...] = ("runs/xjepa",)
+    """Run directories (multi-horizon models with Δ=4 and Δ=16 heads) to plan with (default: where ``pokeworld
+    train`` writes)."""
     data: str = ""
     """Dataset for fitting each model's position decoder (default: each run's training data)."""
     episodes: int = 50
@@ -78,6 +90,16 @@ class PlanConfig:
     docs/design.md, "Planning: open-loop behaviour data and the rank test")."""
     rank_topk: int = 8
     """k of the rank test's top-k overlap (of ``population`` candidates per start; chance k / population)."""
+    cost: str = "decoder"
+    """The planning cost (docs/design.md, "Planning: the cost"): 'decoder' (default) — the distance to the goal of
+    the object position a ridge decoder, fit with privileged object labels, reads from ẑ_Δ; 'goal_l2' — Σ weight ·
+    ‖ẑ_Δ − z_goal‖² over COST_TERMS, z_goal the model's own encoding of the goal observation (the field's cost:
+    DINO-WM, LeWM's GoalMSE); 'goal_l1' — the same with the L1 distance (V-JEPA 2-AC). Measured: with perfect
+    predictions the goal costs rank candidates at chance in these latents, the decoder cost does not."""
+    goal_finger: str = "behind"
+    """Where the goal observation draws the finger: 'behind' — touching the goal object on the far side from the
+    finger's current position (where a push along that line leaves it), 'current' — where it is now. Its
+    proprio holds that position at rest; its touch is zero (no contact)."""
     heads: str = "direct"
     """How a model predicts where a program sends the object: 'direct' (the paper's planner: the direct Δ = 4 / 16
     heads read the whole program at once) or 'rollout' (the Δ = 1 head composed step by step through the program,
@@ -85,7 +107,7 @@ class PlanConfig:
     test")."""
     simulator_controller: bool = False
     """Also plan with the true simulator as the scorer (:class:`SimulatorScorer`): the same CEM with candidates
-    ranked perfectly, the planner's ceiling on these starts. Runs may then be empty."""
+    ranked perfectly, the planner's ceiling on these starts. Runs may then be empty (``--runs`` with no value)."""
     seed: int = 0
     """Seed of starts, goals and CEM noise."""
 
@@ -99,8 +121,21 @@ class PlanConfig:
                               f"goals lie in {GOAL_BOX}²), got {self.goal_distance}")
         if self.heads not in PLANNING_HEADS:
             raise ConfigError(f"heads must be one of {list(PLANNING_HEADS)}, got {self.heads!r}")
+        if self.cost not in PLANNING_COSTS:
+            raise ConfigError(f"cost must be one of {list(PLANNING_COSTS)}, got {self.cost!r}")
+        if self.goal_finger not in GOAL_FINGERS:
+            raise ConfigError(f"goal_finger must be one of {list(GOAL_FINGERS)}, got {self.goal_finger!r}")
         if not 1 <= self.rank_topk <= self.population:
             raise ConfigError(f"rank_topk must be in [1, population={self.population}], got {self.rank_topk}")
+        counts = {"episodes": self.episodes, "steps": self.steps, "iterations": self.iterations,
+                  "context": self.context}
+        bad_counts = {k: v for k, v in counts.items() if v < 1}
+        if bad_counts:
+            raise ConfigError(f"episodes, steps, iterations and context must be ≥ 1, got {bad_counts}")
+        # a goal radius of goal_distance or more counts every episode a success before it moves; NaN fails too
+        if not 0 < self.goal_radius < self.goal_distance or self.seed < 0:
+            raise ConfigError(f"goal_radius must be in (0, goal_distance={self.goal_distance}) and seed ≥ 0, got "
+                              f"goal_radius={self.goal_radius}, seed={self.seed}")
 
 
 PRESETS = {"tiny": {"episodes": 3, "steps": 8, "population": 8, "elites": 2, "iterations": 1, "rank_topk": 2},
@@ -112,27 +147,41 @@ def make_config(preset: str = "cpu", **overrides) -> PlanConfig:
 
 
 class LatentScorer:
-    """Scores action programs with one model's direct heads and its position decoder."""
+    """Scores action programs with one model's direct heads: against its encoding of the goal observation
+    (``cost`` 'goal_l2' / 'goal_l1') or through its position decoder ('decoder'). The decoder is fit either way:
+    the rank test's diagnostics read predicted latents as positions through it."""
 
-    def __init__(self, run_dir: str, data: str, heads: str = "direct"):
+    def __init__(self, run_dir: str, data: str, heads: str = "direct", cost: str = "decoder",
+                 goal_finger: str = "behind", physics: PhysicsConfig | None = None):
         if heads not in PLANNING_HEADS:
             raise ConfigError(f"heads must be one of {list(PLANNING_HEADS)}, got {heads!r}")
-        self.heads = heads
+        if cost not in PLANNING_COSTS:
+            raise ConfigError(f"cost must be one of {list(PLANNING_COSTS)}, got {cost!r}")
+        self.heads, self.cost, self.goal_finger = heads, cost, goal_finger
+        self.physics = physics or PhysicsConfig()
+        self._goal: tuple[dict, np.ndarray, torch.Tensor] | None = None  # (history, goal, goal latents)
         self.model = load_model(run_dir, map_location="cpu")
         if not {4, 16} <= set(self.model.horizons):
             raise ConfigError(f"{run_dir}: planning needs Δ=4 and Δ=16 heads, model has {self.model.horizons}")
         if not data:
-            data = json.loads((Path(run_dir) / "config.json").read_text())["data"]
+            data = trained_store(run_dir, "plan")  # the run's own store, found by its recorded content hash
         ds = load(data)
         fit = ds.episodes("probe_fit")
         lat = EpisodeLatents(self.model, ds, fit, 64)
         self.decoder = position_decoder(ds, lat, fit, np.random.default_rng(0))
         self._encoded: tuple[dict, torch.Tensor] | None = None  # (history, its latents): one encode per replan
 
-    @torch.no_grad()
     def positions(self, hist: dict, cand: np.ndarray) -> dict[int, np.ndarray]:
         """hist: frames (E, C, H, W), proprio, touch (E, C, .), actions (E, C-1, 2); cand (E, P, 16, 2) ->
         {Δ: (E, P, 2) decoded object position Δ steps into each program} for the Δ of COST_TERMS."""
+        E, P = cand.shape[:2]
+        return {d: self.decoder.predict(z.float().numpy()).reshape(E, P, 2)
+                for d, z in self.latents(hist, cand).items()}
+
+    @torch.no_grad()
+    def latents(self, hist: dict, cand: np.ndarray) -> dict[int, torch.Tensor]:
+        """The predicted latents {Δ: (E·P, D)} Δ steps into each program (``hist`` and ``cand`` as in
+        :meth:`positions`), for the Δ of COST_TERMS."""
         E, P = cand.shape[:2]
         m = self.model
         # the history is the same for every CEM iteration of a replan (control() builds it once), so its
@@ -147,12 +196,30 @@ class LatentScorer:
         acts = cand.reshape(E * P, PROGRAM, 2).astype(np.float32)
         if self.heads == "rollout":  # z at C .. C+15: the latent after each of the program's 16 actions
             zr = m.rollout(zc, acts, PROGRAM, actions_context=past.astype(np.float32))
-            return {delta: self.decoder.predict(zr[:, delta - 1].float().numpy()).reshape(E, P, 2)
-                    for delta, _ in COST_TERMS}
+            return {delta: zr[:, delta - 1] for delta, _ in COST_TERMS}
         h = m.trunk(zc, np.concatenate([past, first], 1).astype(np.float32))[:, -1:]
         h16 = torch.cat([h, h.new_zeros(E * P, PROGRAM - 1, h.shape[-1])], 1)
-        return {delta: self.decoder.predict(m.predict(h16, acts, delta)[:, 0].float().numpy()).reshape(E, P, 2)
-                for delta, _ in COST_TERMS}
+        return {delta: m.predict(h16, acts, delta)[:, 0] for delta, _ in COST_TERMS}
+
+    @torch.no_grad()
+    def goal_latents(self, hist: dict, goal: np.ndarray) -> torch.Tensor:
+        """(E, D): the model's encoding of each episode's goal observation (:func:`goal_observation`, the finger
+        placed from the history's last proprio), computed once per replan."""
+        if self._goal is None or self._goal[0] is not hist or self._goal[1] is not goal:
+            obs = goal_observation(self.physics, hist["proprio"][:, -1, :2], goal, self.goal_finger)
+            z = self.model.encode(obs["vision"][:, None], obs["proprio"][:, None], obs["touch"][:, None])[:, 0]
+            self._goal = (hist, goal, z)
+        return self._goal[2]
+
+    def goal_cost(self, latents: dict[int, torch.Tensor], z_goal: torch.Tensor) -> np.ndarray:
+        """{Δ: (E·P, D)} predicted (or true) latents and (E, D) goal latents -> (E, P) cost (``cost``)."""
+        E = z_goal.shape[0]
+        total = 0.0
+        for d, w in COST_TERMS:
+            diff = latents[d].float().reshape(E, -1, z_goal.shape[-1]) - z_goal.float()[:, None]
+            dist = diff.abs().sum(-1) if self.cost == "goal_l1" else diff.pow(2).sum(-1)
+            total = total + w * dist
+        return total.numpy()
 
     def decode(self, obs: dict) -> np.ndarray:
         """Observations (N, ...) -> (N, 2): the object position this model's encoder and decoder read from them
@@ -160,9 +227,41 @@ class LatentScorer:
         return self.decoder.predict(encode_observations(self.model, obs))
 
     def score(self, hist: dict, cand: np.ndarray, goal: np.ndarray) -> np.ndarray:
-        """:meth:`positions` -> (E, P) planning cost (COST_TERMS)."""
-        pos = self.positions(hist, cand)
-        return sum(w * np.linalg.norm(pos[d] - goal[:, None], axis=-1) for d, w in COST_TERMS)
+        """(E, P) planning cost of ``cand`` (COST_TERMS): against the encoded goal, or of decoded positions."""
+        if self.cost == "decoder":
+            pos = self.positions(hist, cand)
+            return sum(w * np.linalg.norm(pos[d] - goal[:, None], axis=-1) for d, w in COST_TERMS)
+        return self.goal_cost(self.latents(hist, cand), self.goal_latents(hist, goal))
+
+    @torch.no_grad()
+    def true_goal_cost(self, hist: dict, observations: dict[int, dict], goal: np.ndarray) -> np.ndarray:
+        """The goal cost of the *true* observations Δ steps into each program ({Δ: observations (E·P, ...)}),
+        encoded by this model: how the cost ranks when the heads' predictions are perfect (the rank test's
+        goal control, the counterpart of the decoder control)."""
+        z = {d: self.model.encode(o["vision"][:, None], o["proprio"][:, None], o["touch"][:, None])[:, 0]
+             for d, o in observations.items()}
+        return self.goal_cost(z, self.goal_latents(hist, goal))
+
+
+def goal_observation(physics: PhysicsConfig, finger: np.ndarray, goal: np.ndarray, where: str = "behind") -> dict:
+    """Observations (E, ...) of the goal: the arena with the object's centre at ``goal`` (E, 2) and the finger at
+    ``finger`` (E, 2, its current position) or, ``where='behind'``, touching the object on the far side from it
+    (the finger's approach line continued through the goal). Proprio: that position at rest; touch: zero."""
+    fp = np.asarray(finger, float)
+    if where == "behind":
+        away = np.asarray(goal, float) - fp
+        away /= np.maximum(np.linalg.norm(away, axis=1, keepdims=True), 1e-9)
+        fp = goal - (physics.finger_radius + physics.object_radius) * away
+    lo, hi = physics.finger_radius, physics.arena - physics.finger_radius
+    fp = np.clip(fp, lo, hi)
+    state = np.zeros((len(fp), 8))
+    state[:, 0:2], state[:, 4:6] = fp, goal
+    size = physics.image_size
+    frames = np.zeros((len(fp), size, size), np.uint8)
+    physics_kernels.render_kernel(state, frames, physics.finger_radius, physics.object_radius, physics.arena,
+                                  physics.object_intensity, physics.finger_intensity)
+    return {"vision": frames, "proprio": np.concatenate([fp, np.zeros_like(fp)], 1).astype(np.float32),
+            "touch": np.zeros((len(fp), physics_kernels.TOUCH_DIM), np.float32)}
 
 
 class SimulatorScorer:
@@ -192,10 +291,17 @@ class SimulatorScorer:
 
     def end_observations(self, cand: np.ndarray) -> dict:
         """cand (E, P, 16, 2) -> the true observations after each whole program, flattened to (E·P, ...)."""
+        return self.observations_at(cand, (PROGRAM,))[PROGRAM]
+
+    def observations_at(self, cand: np.ndarray, deltas) -> dict[int, dict]:
+        """cand (E, P, 16, 2) -> {Δ: the true observations Δ actions into each program, flattened to (E·P, ...)}."""
         b, acts = self.replica(cand, render=True)
-        for t in range(PROGRAM):
-            obs = b.step(acts[:, t], render=t == PROGRAM - 1)
-        return obs
+        out = {}
+        for t in range(max(deltas)):
+            obs = b.step(acts[:, t], render=t + 1 in deltas)
+            if t + 1 in deltas:
+                out[t + 1] = obs
+        return out
 
     def score(self, hist: dict, cand: np.ndarray, goal: np.ndarray) -> np.ndarray:
         """cand (E, P, 16, 2), goal (E, 2) -> (E, P) planning cost; ``hist`` is unused (the state is known)."""
@@ -230,8 +336,9 @@ def episode_setup(cfg: PlanConfig) -> dict:
 
 
 def start_sim(cfg: PlanConfig, setup: dict) -> tuple[PokeWorldSim, dict]:
-    """The planning environment at the episodes' starts (the same hidden parameters for every controller)."""
-    sim = PokeWorldSim(cfg.episodes, PhysicsConfig(), seed=setup["sim_seed"])
+    """The planning environment at the episodes' starts (the same hidden parameters for every controller), with
+    the physics of the planned runs' corpus (``setup["physics"]``, :func:`planning_physics`) when set."""
+    sim = PokeWorldSim(cfg.episodes, setup.get("physics") or PhysicsConfig(), seed=setup["sim_seed"])
     return sim, sim.reset(finger_pos=setup["finger_pos"], object_pos=setup["object_pos"])
 
 
@@ -267,9 +374,13 @@ def rank_test(cfg: PlanConfig, setup: dict, scorer) -> dict:
         fit = counterfactual_fit(scorer.positions(hist, cand)[PROGRAM], path[:, :, PROGRAM], path[:, 0, 0])
         out |= {k: fit[k] for k in COUNTERFACTUAL_METRICS}
     if hasattr(scorer, "decode"):  # the same fit for the true end frames read through the model's own decoder
-        decoded = scorer.decode(SimulatorScorer(sim).end_observations(cand)).reshape(path[:, :, PROGRAM].shape)
+        seen = SimulatorScorer(sim).observations_at(cand, [d for d, _ in COST_TERMS])
+        decoded = scorer.decode(seen[PROGRAM]).reshape(path[:, :, PROGRAM].shape)
         fit = counterfactual_fit(decoded, path[:, :, PROGRAM], path[:, 0, 0])
         out |= {f"decoded_truth_{k}": fit[k] for k in COUNTERFACTUAL_METRICS}
+        if getattr(scorer, "cost", "decoder") != "decoder":  # the goal cost of the true future, encoded
+            control_rank = agreement(scorer.true_goal_cost(hist, seen, goal), truth, cfg.rank_topk)
+            out |= {f"goal_truth_{k}": control_rank[k] for k in ("spearman", "topk_overlap")}
     return out
 
 
@@ -337,7 +448,8 @@ COUNTERFACTUAL_METRICS = ("spread_ratio", "within_r2", "miss_displacement", "hit
                           "hit_true_displacement")
 """Per-model counterfactual fit of the rank test's Δ = 16 positions (:mod:`pokeworld.evaluate.counterfactual`)."""
 RANK_METRICS = ("spearman", "topk_overlap", "topk_chance", "moved", *COUNTERFACTUAL_METRICS,
-                *(f"decoded_truth_{k}" for k in COUNTERFACTUAL_METRICS))
+                *(f"decoded_truth_{k}" for k in COUNTERFACTUAL_METRICS), "goal_truth_spearman",
+                "goal_truth_topk_overlap")
 """Per-model rank-test metrics (:func:`rank_test`); None for the random controller, which scores nothing."""
 
 PAPER = PLANNING
@@ -353,7 +465,7 @@ def plan_runs(cfg: PlanConfig, runs: dict[str, list[str]], data: str = "") -> di
     "per_run"}}, "episodes": {label: control output of its first run}, "setup": episode_setup(cfg)}``; ``data``
     overrides each run's decoder-fit corpus.
     """
-    setup = episode_setup(cfg)
+    setup = episode_setup(cfg) | {"physics": planning_physics(runs, data or cfg.data)}
     episodes = {"random": control(cfg, setup, None)}
     summary = {"random": {k: episodes["random"][k] for k in METRICS} | dict.fromkeys(RANK_METRICS) | {"per_run": {}}}
     if cfg.simulator_controller:  # the ceiling: its rank test would be the simulator against itself, so none
@@ -365,11 +477,14 @@ def plan_runs(cfg: PlanConfig, runs: dict[str, list[str]], data: str = "") -> di
     for label, dirs in runs.items():
         per = {}
         for r in dirs:
-            scorer = LatentScorer(r, data or cfg.data, cfg.heads)
+            scorer = LatentScorer(r, data or cfg.data, cfg.heads, cfg.cost, cfg.goal_finger, setup["physics"])
+            started = time.perf_counter()
             res = control(cfg, setup, scorer)
+            res["seconds_per_decision"] = (time.perf_counter() - started) / -(-cfg.steps // cfg.replan)
             rank = rank_test(cfg, setup, scorer)
             episodes.setdefault(label, res)
-            per[Path(r).name] = {k: res[k] for k in METRICS} | {k: rank.get(k, float("nan")) for k in RANK_METRICS}
+            per[Path(r).name] = ({k: res[k] for k in METRICS} | {k: rank.get(k, float("nan")) for k in RANK_METRICS}
+                                 | {"seconds_per_decision": res["seconds_per_decision"]})
             print(f"[plan] {label} ({Path(r).name}): reach {res['reach']:.0%}, "
                   f"median improvement {res['median_improvement']:+.3f}, rank ρ {rank['spearman']:+.2f}, "
                   f"top-{cfg.rank_topk} overlap {rank['topk_overlap']:.2f} (chance {rank['topk_chance']:.2f}), "
@@ -381,8 +496,27 @@ def plan_runs(cfg: PlanConfig, runs: dict[str, list[str]], data: str = "") -> di
                   f"misses {rank.get('decoded_truth_miss_displacement', float('nan')):.3f}, within-start R² "
                   f"{rank.get('decoded_truth_within_r2', float('nan')):+.2f}")
         summary[label] = {k: float(np.mean([v[k] for v in per.values()])) for k in (*METRICS, *RANK_METRICS)}
+        summary[label]["seconds_per_decision"] = float(np.mean([v["seconds_per_decision"] for v in per.values()]))
         summary[label]["per_run"] = per
     return {"summary": summary, "episodes": episodes, "setup": setup}
+
+
+def planning_physics(runs: dict[str, list[str]], data: str = "") -> PhysicsConfig:
+    """The arena the runs were trained in: the physics of their corpus (``data``, else each run's own), read from
+    the store's manifest as what it was made with (:func:`pokeworld.sim.generate.generator_config`); the default
+    physics for a store that is not a PokeWorld corpus or when there is no run. Runs from corpora of different
+    physics are refused: their reach would be measured in different environments."""
+    found = {}
+    for r in (r for dirs in runs.values() for r in dirs):
+        store = data or trained_store(r, "plan")  # found by its recorded content hash, not relative to here
+        manifest = read_manifest(store)
+        if manifest.get("generator") == "pokeworld.sim.generate":
+            found[r] = generator_config(manifest).physics
+    kinds = {repr(p) for p in found.values()}
+    if len(kinds) > 1:
+        raise ConfigError(f"the runs were trained on corpora of different physics ({', '.join(map(str, found))}); "
+                          "plan them separately (each in its own arena)")
+    return next(iter(found.values())) if found else PhysicsConfig()
 
 
 def showcase_episode(episodes: dict, left: str, right: str) -> int:
@@ -429,8 +563,17 @@ def figure(planned: dict, out: Path, goal_radius: float, left: str | None = None
     axes[2].set_xlabel("control step")
     axes[2].set_ylabel("object-goal distance")
     axes[2].legend(fontsize=8)
+    from matplotlib.lines import Line2D
+
+    # the episode panels' markers, named once for both panels
+    keys = [plt.Circle((0, 0), 1, color="tab:green", alpha=0.25, lw=0, label="goal region"),
+            Line2D([], [], marker="o", ls="", mfc="none", mec="tab:blue", mew=1.5, ms=9, label="object start"),
+            Line2D([], [], marker="o", ls="", color="tab:blue", ms=4, label="object path (darker = later)"),
+            Line2D([], [], ls=":", color="goldenrod", lw=1.5, label="finger path")]
+    fig.legend(handles=keys, loc="lower center", ncol=4, fontsize=8, frameon=False,
+               title="✓ / × in a panel's title: the object reached / never reached the goal region", title_fontsize=8)
     fig.suptitle(f"Held-out episode {i}: same planner and budget, two frozen latents", fontsize=10)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.12, 1, 1))
 
     return save_figure(fig, out, "plan_episode")
 
@@ -469,14 +612,29 @@ def table_lines(summary: dict) -> list[str]:
         disp += " | " + ("—" if control is None or not np.isfinite(control) else f"{control:.3f}")
         lines.append(f"| {k} | {v['reach']:.0%} / {f'{p[0]:.0%}' if p else '—'} | "
                      f"{v['median_improvement']:+.3f} / {f'{p[1]:.2f}' if p else '—'} | {extra} | {rank} | {cf} | {disp} |")
+    # a table of nan and R² in the hundreds below zero reads as a bug; at the tiny preset it is the expected output
+    # of an untrained-sized model on a handful of starts, so say so under the table (trained cpu-preset models read
+    # a within-start R² down to about -5, docs/design.md "Planning: open-loop behaviour data and the rank test")
+    degenerate_within_r2 = -100.0
+    read = [v for v in summary.values() if v.get("spearman") is not None]
+    nan = any(not np.isfinite(v[m]) for v in read for m in ("topk_overlap", "spread_ratio", "within_r2")
+              if isinstance(v.get(m), float))
+    worst = min((v["within_r2"] for v in read if np.isfinite(v.get("within_r2", float("nan")))), default=0.0)
+    if nan or worst < degenerate_within_r2:
+        lines += ["", f"Note: nan (a test with no start to read it on) and within-start R² as low as {worst:.0f} are "
+                      "what a model of the tiny preset gives on a handful of starts and candidates: a smoke test, not "
+                      "a result. Plan with runs of --preset cpu (or paper) for numbers worth reading."]
     return lines
 
 
 def run(cfg: PlanConfig) -> Path:
     if not cfg.runs and not cfg.simulator_controller:
         raise ConfigError("give at least one trained run directory with --runs (or plan with --simulator-controller)")
+    # every run is checked before any is planned with: a bad last one must not fail after the others' work
+    require_finished_runs(cfg.runs, "plan", "every --runs value must be a run folder: OUT is a positional argument "
+                          "placed before --runs (pokeworld plan OUT --runs RUN1 RUN2), or use --out OUT", cfg.data)
     out = Path(cfg.out)
-    out.mkdir(parents=True, exist_ok=True)
+    check_writable_dir(out)
     planned = plan_runs(cfg, {Path(r).name: [r] for r in cfg.runs})
     summary = planned["summary"]
     write_json(out / "plan.json", {"config": to_dict(cfg), "results": summary,

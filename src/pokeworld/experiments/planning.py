@@ -37,7 +37,8 @@ def ensure_planning(c: MapConfig) -> dict:
     Skipped when ``planning.json`` was computed with the same planner config from the same finished runs.
     Returns ``{"config", "summary", "runs", "figure"}`` (summary: controller -> reach, median improvement).
     """
-    pcfg = plan.make_config(c.preset, out=str(planning_dir(c)), seed=c.data_seed)
+    # runs=(): the map hands its runs over below; the CLI default run is not one of them (and not in the cache key)
+    pcfg = plan.make_config(c.preset, out=str(planning_dir(c)), seed=c.data_seed, runs=())
     runs: dict[str, list[str]] = {}
     for s in (with_map_training(c, s) for s in specs(c)):
         runs.setdefault(s.train["variant"], []).append(str(run_dir(c, s.name)))

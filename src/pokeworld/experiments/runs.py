@@ -48,12 +48,15 @@ def spec(exp, variant, seed, lam, horizons=(1, 4, 16), corpus="standard", measur
     return RunSpec(name, exp, corpus, measure_corpus, train, seed, dict(measure or {}))
 
 def with_map_training(c: MapConfig, run: RunSpec) -> RunSpec:
-    """``run`` with the map-wide training choices (``sigreg_pool``, ``gnll_variance``) applied where they apply;
+    """``run`` with the map-wide training choices (``sigreg_pool``, ``sigreg_reference_rows``, ``gnll_variance``)
+    applied where they apply;
     a changed run is renamed through :func:`spec`, so it never shares a directory with the default run."""
     t = run.train
     extra = {}
     if c.sigreg_pool != "step" and not t.get("tokens") and t.get("objective", "latent") != "recon":
         extra["sigreg_pool"] = c.sigreg_pool
+    if c.sigreg_reference_rows and not t.get("tokens") and t.get("objective", "latent") != "recon":
+        extra["sigreg_reference_rows"] = c.sigreg_reference_rows
     if c.gnll_variance != DEFAULT_GNLL_VARIANCE and t.get("objective") == "gnll":
         extra["gnll_variance"] = c.gnll_variance
     if not extra:

@@ -4,7 +4,6 @@ whether an existing run directory may be resumed with a config (paper App. B "Op
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import os
 from dataclasses import dataclass
@@ -18,6 +17,7 @@ from ..devices import pick_device
 from ..errors import ConfigError
 from ..losses import SIGREG_POOLS
 from ..models.xjepa import GNLL_HEADS, OBJECTIVES, VALUES_BEFORE_THE_FIELD, check_gnll_variance, check_variant
+from ..rundir import read_run_config
 
 
 @dataclass
@@ -30,8 +30,8 @@ class TrainConfig:
 
     variant: str = "VFX"
     """Variant (inputs × targets): one of V, VF, VX_p, VX_t, VX, VFX (paper Table "targets")."""
-    data: str = "data/sim"
-    """Dataset directory (``pokeworld.data`` format)."""
+    data: str = "data/pokeworld"
+    """Dataset directory (``pokeworld.data`` format; the default is where ``pokeworld generate`` writes)."""
     out: str = "runs/xjepa"
     """Run directory: config, metrics, TensorBoard, checkpoints. Re-running resumes or returns."""
     seed: int = 0
@@ -117,6 +117,16 @@ class TrainConfig:
     "4096 subsampled rows"). The statistic is N-scaled: its null level is the same, its excess under a
     departure from N(0, I) grows with N (window× at equal λ). Under DDP either is the global statistic over
     all ranks' rows (ECFs all-reduced)."""
+    program_aligned_share: float = 0.0
+    """Share of each batch's windows drawn to start where the longest direct head's query (the window's last
+    position with a Δ = max(horizons) target) falls on a 16-step program slot start, so that head reads a whole
+    slot's program from its first action — the planner's exact query (uniform starts give it ~1/16 of the time).
+    0 keeps uniform starts and the sampling stream of earlier runs (docs/design.md "Planning: the cost")."""
+    sigreg_reference_rows: int = 0
+    """The SIGReg statistic at this sample count instead of the rows it is computed on (0: its own rows, the
+    statistic as defined). The Epps–Pulley statistic is N-scaled, so at one λ a batch of 32 pulls 4× less than
+    the paper's 128; 128 here gives the paper's per-step strength at any batch (per-step pool: N = the batch;
+    docs/design.md "SIGReg: strength and the batch")."""
     sigreg_rows: int = 4096
     """sigreg_pool='pooled': latent rows per step (per rank under DDP) the pooled statistic is computed on, a
     seeded random subset when batch × window exceeds it (paper: 4096); all rows otherwise."""
@@ -175,6 +185,10 @@ class TrainConfig:
     compile: bool = False
     """``torch.compile`` the model's loss (forward + backward graphs). Dropout masks then come from
     inductor's RNG, so a compiled run matches an eager one statistically, not bit-for-bit."""
+    compile_mode: str = "default"
+    """``torch.compile`` mode with ``compile``: 'default', 'reduce-overhead' (CUDA graphs: measured on an H200, the
+    ``paper`` preset at 0.0104 s/step against 0.0142 in the default mode and 0.0287 eager; a GPU lever, CUDA graphs
+    do not apply on a CPU), 'max-autotune-no-cudagraphs' or 'max-autotune'."""
     channels_last: bool = False
     """Keep conv weights/activations in channels-last layout (faster cuDNN convs on tensor cores).
     Fixed for a run: the optimizer state in the checkpoint inherits the layout."""
@@ -204,9 +218,12 @@ PRESETS: dict[str, dict[str, Any]] = {
 PRESETS["demo"] = {**PRESETS["cpu"], "vec_dim": 64, "batch_size": 8, "steps": 2200, "ckpt_every": 1000,
                    "log_every": 100}
 
+COMPILE_MODES = ("default", "reduce-overhead", "max-autotune-no-cudagraphs", "max-autotune")
+"""``torch.compile`` modes a run may name (``TrainConfig.compile_mode``)."""
+
 #: Fields that may differ when re-running into an existing run directory.
 RESUMABLE_FIELDS = ("steps", "stop_at", "ckpt_every", "log_every", "tensorboard", "progress", "threads", "device",
-                    "fast", "compile", "deadline")
+                    "fast", "compile", "compile_mode", "deadline")
 
 #: Fields removed from TrainConfig -> the value with which a run made before the removal behaves
 #: exactly like the current code; a run that set anything else conflicts. (Fields added later are
@@ -256,6 +273,15 @@ def validate(cfg: TrainConfig) -> None:
         raise ConfigError(f"unknown sigreg_pool {cfg.sigreg_pool!r}; choose one of {list(SIGREG_POOLS)}")
     if cfg.sigreg_rows < 1:
         raise ConfigError(f"sigreg_rows must be ≥ 1, got {cfg.sigreg_rows}")
+    if not 0.0 <= cfg.program_aligned_share <= 1.0:
+        raise ConfigError(f"program_aligned_share must be in [0, 1], got {cfg.program_aligned_share}")
+    if cfg.compile_mode not in COMPILE_MODES:
+        raise ConfigError(f"compile_mode must be one of {list(COMPILE_MODES)}, got {cfg.compile_mode!r}")
+    if cfg.compile_mode != "default" and not cfg.compile:
+        raise ConfigError(f"compile_mode={cfg.compile_mode!r} applies with --compile only")
+    if cfg.sigreg_reference_rows < 0:
+        raise ConfigError(f"sigreg_reference_rows must be ≥ 0 (0: the rows' own count), "
+                          f"got {cfg.sigreg_reference_rows}")
     if cfg.sigreg_pool != "step":
         if cfg.tokens:
             raise ConfigError("sigreg_pool applies to global latents; tokens=True always pools token rows "
@@ -289,9 +315,9 @@ def check_existing(cfg: TrainConfig) -> None:
     """Raise ConfigError if ``cfg.out`` holds a run whose config differs in anything but :data:`RESUMABLE_FIELDS`
     (fields added since are compared at their default, retired ones at :data:`RETIRED_FIELDS`)."""
     out = Path(cfg.out)
-    if not (out / "config.json").exists():
+    old = read_run_config(out)  # refuses links, FIFOs and damaged JSON in one line
+    if old is None:
         return
-    old = json.loads((out / "config.json").read_text())
     default = {**to_dict(TrainConfig()), **VALUES_BEFORE_THE_FIELD}  # what a config.json without a field means
     diff = {k: (old.get(k, default[k]), v) for k, v in to_dict(cfg).items()
             if k not in RESUMABLE_FIELDS and old.get(k, default[k]) != v}

@@ -8,6 +8,7 @@ import torch
 
 from ..errors import ConfigError, DataError
 from ..models.xjepa import SYSID_PARAMS, area_downsample
+from ..sim.policy import PROGRAM
 from ..windows import glide_frames
 from .step import to_device
 
@@ -15,7 +16,9 @@ from .step import to_device
 class WindowSampler:
     """Holds a dataset's train episodes as (device) tensors and samples random windows.
 
-    Episodes are drawn uniformly with replacement and the start step is uniform. Every batch carries
+    Episodes are drawn uniformly with replacement and the start step is uniform, except for a share
+    ``aligned_share`` of the windows (:meth:`draw`), which start where their longest-horizon query reads one whole
+    16-step program slot from its first action. Every batch carries
     the per-frame glide mask (``glide``, computed once per episode by :func:`pokeworld.windows.glide_frames`)
     for the glide-frame loss weight. Randomness comes from a dedicated CPU ``torch.Generator`` whose
     state is checkpointed, so resumption is exact. With ``non_blocking`` (the fast path) the two index
@@ -23,7 +26,8 @@ class WindowSampler:
     """
 
     def __init__(self, ds, episodes: np.ndarray, image_size: int, window: int, device: torch.device,
-                 contact_channel: int = 6, seed: int = 0, with_params: bool = False, non_blocking: bool = False):
+                 contact_channel: int = 6, seed: int = 0, with_params: bool = False, non_blocking: bool = False,
+                 aligned_share: float = 0.0, horizon: int = PROGRAM):
         ep = np.asarray(episodes)
         if ep.size == 0:
             raise ConfigError("the dataset has no training episodes (split == 0)")
@@ -58,6 +62,11 @@ class WindowSampler:
         self.gen = torch.Generator(device="cpu")
         self.gen.manual_seed(seed)
         self.offsets = torch.arange(window, device=device)
+        self.aligned_share = float(aligned_share)
+        self.aligned_starts = program_aligned_starts(T1, window, horizon)
+        if self.aligned_share > 0 and self.aligned_starts.numel() == 0:
+            raise ConfigError(f"no window of {window} observations in {T1}-observation episodes puts a "
+                              f"{horizon}-step query at a program slot start; lower program_aligned_share to 0")
 
     def sample(self, batch_size: int) -> dict[str, torch.Tensor]:
         """A batch of windows: frames (B, L, S, S) uint8, proprio/touch/actions (B, L, ·), params (B, 3)."""
@@ -67,7 +76,12 @@ class WindowSampler:
     def draw(self, batch_size: int, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
         """Episode and start indices of ``batch_size`` windows (CPU tensors), drawn from ``gen``."""
         e = torch.multinomial(self.weights, batch_size, replacement=True, generator=gen)
-        return e, torch.randint(0, self.num_starts, (batch_size,), generator=gen)
+        s = torch.randint(0, self.num_starts, (batch_size,), generator=gen)
+        if self.aligned_share > 0:  # drawn only then, so runs without it keep their sampling stream exactly
+            aligned = torch.rand(batch_size, generator=gen) < self.aligned_share
+            slot = torch.randint(0, self.aligned_starts.numel(), (batch_size,), generator=gen)
+            s = torch.where(aligned, self.aligned_starts[slot], s)
+        return e, s
 
     def gather(self, e: torch.Tensor, s: torch.Tensor) -> dict[str, torch.Tensor]:
         """The windows at episode indices ``e`` and start steps ``s`` (any equal leading shape, on the device)."""
@@ -102,6 +116,16 @@ class WindowSampler:
             raise ConfigError(f"no horizon in {tuple(horizons)} is shorter than the window {self.window}")
         return {"glide_frame_share": float(np.mean(base)), "glide_loss_share_expected": float(np.mean(share))}
 
+def program_aligned_starts(num_obs: int, window: int, horizon: int = PROGRAM) -> torch.Tensor:
+    """Window starts (int64) whose query position a = window − 1 − ``horizon`` (the last position with a
+    ``horizon``-step target: the most context before it, as the planner has) falls on a program slot start 16·j,
+    so the Δ = ``horizon`` head reads the slot's whole program from its first action — the planner's query. With
+    open-loop slots (``PolicyConfig.open_loop_share``) such windows see one program executed exactly."""
+    anchor = window - 1 - horizon
+    starts = [PROGRAM * j - anchor for j in range(num_obs // PROGRAM + 1)]
+    return torch.tensor([s for s in starts if 0 <= s <= num_obs - window], dtype=torch.int64)
+
+
 def data_stats(ds, episodes: np.ndarray) -> dict[str, np.ndarray]:
     """Normalisation statistics from the training episodes (model buffers)."""
     ep = np.asarray(episodes)
@@ -115,4 +139,4 @@ def data_stats(ds, episodes: np.ndarray) -> dict[str, np.ndarray]:
     return st
 
 
-__all__ = ["WindowSampler", "data_stats"]
+__all__ = ["WindowSampler", "data_stats", "program_aligned_starts"]

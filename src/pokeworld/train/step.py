@@ -64,7 +64,7 @@ def loss_kwargs(cfg: TrainConfig) -> dict[str, Any]:
                 proprio_weight=cfg.proprio_weight, touch_weight=cfg.touch_weight, sysid_weight=cfg.sysid_weight,
                 glide_loss_weight=cfg.glide_loss_weight, belief_kl_weight=cfg.belief_kl_weight,
                 motion_loss_weight=cfg.motion_loss_weight, sigreg_pool=cfg.sigreg_pool, sigreg_rows=cfg.sigreg_rows,
-                gnll_beta=cfg.gnll_beta)
+                gnll_beta=cfg.gnll_beta, sigreg_reference_rows=cfg.sigreg_reference_rows)
 
 def train_step(model: torch.nn.Module, opt: torch.optim.Optimizer, cfg: TrainConfig, batch: dict, step: int,
                dev: torch.device, loss_kw: dict[str, Any], amp: bool = False, fast: bool = False,
