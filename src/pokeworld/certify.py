@@ -390,8 +390,12 @@ def certificate_table(estimators: dict, targets) -> dict:
     return out
 
 
-def gate(certificate: dict, estimators: dict | None = None) -> dict:
-    """Gate verdict per gated parameter on contact windows.
+def gate(certificate: dict, estimators: dict | None = None, gates: dict[str, float] | None = None,
+         kind: str = "contact") -> dict:
+    """Gate verdict per gated parameter on ``kind`` windows (contact: the paper's gate).
+
+    ``gates`` maps each gated quantity to its threshold (default :data:`GATES`, PokeWorld's three parameters);
+    a store without contact labels (an swm factor dataset, :mod:`pokeworld.swm.factor_gate`) gates on "all".
 
     ``passed``: the best-estimator certificate (``certificate`` R^2, from ``estimator``) reaches
     ``threshold``: some estimator recovers the parameter from raw observations, which is what the gate
@@ -399,16 +403,16 @@ def gate(certificate: dict, estimators: dict | None = None) -> dict:
     the ``gru`` oracle's contact-window R^2 (``oracle``; None when it was not run) reaches the threshold.
     ``agree`` is False when the two verdicts differ and ``note`` says so in words.
     """
-    contact = certificate.get("contact", {})
-    oracle_r2 = (estimators or {}).get(GATE_ESTIMATOR, {}).get("contact", {})
+    contact = certificate.get(kind, {})
+    oracle_r2 = (estimators or {}).get(GATE_ESTIMATOR, {}).get(kind, {})
     out = {}
-    for t, thr in GATES.items():
+    for t, thr in (GATES if gates is None else gates).items():
         best, oracle = contact.get(t), oracle_r2.get(t)
         if best is None and oracle is None:
             continue
         paper = oracle is not None and oracle >= thr
-        entry = {"threshold": thr, "rule": f"best estimator R^2 on contact windows >= {thr}",
-                 "paper_rule": f"{GATE_ESTIMATOR} oracle R^2 on contact windows >= {thr}",
+        entry = {"threshold": thr, "rule": f"best estimator R^2 on {kind} windows >= {thr}",
+                 "paper_rule": f"{GATE_ESTIMATOR} oracle R^2 on {kind} windows >= {thr}",
                  "oracle": oracle, "paper_rule_passed": paper}
         if best is not None:
             entry.update(certificate=best["r2"], estimator=best["estimator"], passed=best["r2"] >= thr)
@@ -459,9 +463,12 @@ def format_table(results: dict) -> str:
         for est, r2 in rows.items():
             lines.append(f"  {est:12s}" + "".join(f"{r2[t]:>10.3f}" if t in r2 else f"{'-':>10s}" for t in targets))
     for t, g in gate_of(results).items():
-        best = f"{g['estimator']} {g['certificate']:.3f}" if "certificate" in g else "none"
-        oracle = "not run" if g["oracle"] is None else f"{g['oracle']:.3f}"
-        line = (f"gate {t}: best estimator {best} >= {g['threshold']} -> {'PASS' if g['passed'] else 'FAIL'} "
+        # print the comparison that holds (0.2 < 0.4 -> FAIL), as the protocol report does
+        best = (f"{g['estimator']} {g['certificate']:.3f} {'>=' if g['passed'] else '<'} {g['threshold']}"
+                if "certificate" in g else f"none < {g['threshold']}")
+        oracle = ("not run" if g["oracle"] is None else
+                  f"{g['oracle']:.3f} {'>=' if g['paper_rule_passed'] else '<'} {g['threshold']}")
+        line = (f"gate {t}: best estimator {best} -> {'PASS' if g['passed'] else 'FAIL'} "
                 f"(paper's rule: GRU oracle {oracle} -> {'PASS' if g['paper_rule_passed'] else 'FAIL'})")
         if not g["agree"]:
             line += f"; NOTE: {g['note']}"

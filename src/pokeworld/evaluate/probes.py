@@ -25,10 +25,11 @@ KINDS = ("contact", "glide", "all")
 def probe_targets(ds: Dataset, w) -> dict[str, np.ndarray]:
     """Targets per window: per-episode parameters and the object / finger state at the last observation.
 
-    ``object_rel`` (object minus finger position) is derived when both positions are labelled.
+    ``object_rel`` (object minus finger position) is derived when both positions are labelled. A store whose
+    manifest lists ``probe_params`` (an swm factor dataset: :mod:`pokeworld.swm.factors`) has those probed too.
     """
     out = {}
-    for name in PARAM_TARGETS:
+    for name in (*PARAM_TARGETS, *ds.manifest.get("probe_params", ())):
         if name in ds.params and np.ptp(ds.params[name]) > 0:
             out[name] = ds.params[name][w.episode][:, None].astype(np.float64)
     for name in STATE_TARGETS:

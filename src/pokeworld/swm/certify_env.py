@@ -1,0 +1,277 @@
+"""``pokeworld swm-certify ENV_ID --factors ...``: what a world model knows about an swm environment's own physics.
+
+stable-worldmodel environments vary physical factors when they are named in ``options={"variation": [...]}``
+(``swm/FingerDMControl-v0``: ``spinner.density``, ``spinner.friction``, ``agent.proximal_density``, ...). The command
+
+1. collects a corpus with ``swm.World`` and swm's ``RandomPolicy`` under the named variations (HDF5, ``<out>/
+   corpus.h5``; reused when collected with the same settings), or takes an existing labelled dataset (``--data``);
+2. reads it into a protocol store (:mod:`pokeworld.swm.factors`: factors constant within episodes are the targets,
+   the others are dropped and listed);
+3. certifies every factor from raw non-pixel observations and actions (:mod:`pokeworld.swm.factor_gate`: GRU oracle,
+   linear floor, the gate) before any model is read;
+4. trains a small LeWM with its own objective on the train episodes (:mod:`pokeworld.swm.lewm`, as
+   ``swm-certify-lewm`` does) and builds its untrained twin;
+5. runs :func:`pokeworld.protocol.certify_model` on both with those certificates, and writes the factor table and
+   figure (:mod:`pokeworld.swm.factor_report`): ``<out>/swm_certify.{json,md,png}``.
+
+DeepMind Control environments need ``dm-control`` and ``mujoco`` (not in the swm extra) and a software GL for
+headless rendering; when ``MUJOCO_GL`` is unset the command sets it to ``osmesa`` (Debian: ``libosmesa6``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import shlex
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from .. import protocol as P
+from ..config import from_preset, to_dict
+from ..errors import ConfigError, DataError
+from ..evaluate import tables as R
+from ..io import atomic_path, hash_arrays, read_jsonl, write_json
+from . import lewm_config as LC
+from .factor_gate import KIND, FactorCertifyConfig, certify_factors
+from .factor_report import factor_rows, figure, table_markdown
+from .factors import FactorDataConfig, read_factors
+from .require import stable_worldmodel
+
+CORPUS = "corpus.h5"
+RESULT = "swm_certify"
+
+
+@dataclass
+class SwmCertifyConfig:
+    """Certify what a world model knows about an swm environment's physical factors (``pokeworld swm-certify``)."""
+
+    env: str = "swm/FingerDMControl-v0"
+    """stable-worldmodel environment id to collect from (ignored with --data)."""
+    factors: tuple[str, ...] = ()
+    """Variation keys to vary and certify (e.g. spinner.density spinner.friction); with --data, empty takes every
+    variation.* column."""
+    data: str = ""
+    """An existing labelled swm dataset (.h5 or .lance) to certify instead of collecting."""
+    out: str = "out/swm/certify"
+    """Output directory: corpus.h5, lewm/, protocol/, swm_certify.{json,md,png}."""
+    episodes: int = 240
+    """Episodes to collect."""
+    steps: int = 48
+    """Steps per collected episode."""
+    num_envs: int = 1
+    """Environments World steps side by side."""
+    image_size: int = 32
+    """Side of the collected pixels."""
+    observations: tuple[str, ...] = ()
+    """Non-pixel observation columns (empty: proprio + touch, observation or state, whichever the data has)."""
+    split_fractions: tuple[float, float, float] = (0.5, 0.25, 0.25)
+    """Train (LeWM) / probe-fit (certificates and probes) / probe-test fractions of the episodes."""
+    seed: int = 0
+    """Seed of the collection (resets and random policy), the split, the certificates, LeWM and the probes."""
+    certificate: FactorCertifyConfig = field(default_factory=FactorCertifyConfig)
+    """The factor certificates (window, GRU oracle size, gate threshold)."""
+    lewm_preset: str = "cpu"
+    """Preset of the LeWM (pokeworld.swm.lewm.PRESETS)."""
+    lewm_steps: int = 0
+    """LeWM optimiser steps (0: the preset's)."""
+    lewm_overrides: dict[str, Any] = field(default_factory=dict)
+    """Other LeWMConfig fields to override, from Python (e.g. {"embed_dim": 32})."""
+    protocol_preset: str = "cpu"
+    """Preset of pokeworld.protocol.ProtocolConfig (window and stride come from the certificate config)."""
+
+    def __post_init__(self) -> None:
+        if self.lewm_steps < 0:
+            raise ConfigError(f"lewm_steps must be >= 0 (0: the preset's), got {self.lewm_steps}")
+        for name in ("episodes", "steps", "num_envs", "image_size"):
+            if getattr(self, name) < 1:
+                raise ConfigError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if not self.data and self.steps < self.certificate.window:
+            raise ConfigError(f"steps ({self.steps}) must be at least the certificate window "
+                              f"({self.certificate.window}): every window lies inside one episode")
+        if self.lewm_preset not in LC.PRESETS or self.protocol_preset not in P.PRESETS:
+            raise ConfigError(f"lewm_preset must be one of {sorted(LC.PRESETS)} and protocol_preset one of "
+                              f"{sorted(P.PRESETS)}, got {self.lewm_preset!r}, {self.protocol_preset!r}")
+
+
+PRESETS: dict[str, dict[str, Any]] = {
+    "tiny": {"episodes": 32, "steps": 16, "image_size": 16, "lewm_preset": "tiny", "protocol_preset": "tiny",
+             "certificate": {"window": 8, "stride": 2, "epochs": 4, "patience": 2, "gru_hidden": 16,
+                             "max_windows": 400}},
+    "cpu": {},
+    "paper": {"episodes": 2000, "steps": 100, "image_size": 64, "lewm_preset": "paper", "protocol_preset": "paper"},
+}
+
+
+def make_config(preset: str = "cpu", **overrides) -> SwmCertifyConfig:
+    return from_preset(SwmCertifyConfig, PRESETS, preset, **overrides)
+
+
+# --------------------------------------------------------------------------- collection
+def variation_names(env_id: str) -> list[str]:
+    """The variation keys of ``env_id`` (ConfigError for an unknown id or an environment without variations)."""
+    import gymnasium as gym
+
+    stable_worldmodel()
+    from .env import register
+
+    register()  # swm/PokeWorld-v0 beside swm's own environments
+    try:
+        env = gym.make(env_id)
+    except gym.error.Error as e:
+        known = sorted(k for k in gym.registry if k.startswith("swm/"))
+        raise ConfigError(f"unknown environment {env_id!r} ({e}); stable-worldmodel ids: {known}") from None
+    except ImportError as e:  # dm_control / mujoco / a renderer missing
+        raise ConfigError(f"{env_id} needs a package that is not installed: {e} (DMControl environments: "
+                          "pip install dm-control mujoco, and a software GL such as libosmesa6)") from None
+    try:
+        space = getattr(env.unwrapped, "variation_space", None)
+        if space is None:
+            raise ConfigError(f"{env_id} has no variation_space: it varies no physical factor")
+        return list(space.names())
+    finally:
+        env.close()
+
+
+def collect(cfg: SwmCertifyConfig, path: Path) -> Path:
+    """Record ``cfg.episodes`` random-policy episodes of ``cfg.env`` under the variations ``cfg.factors`` (HDF5)."""
+    swm = stable_worldmodel()
+    names = variation_names(cfg.env)
+    unknown = [f for f in cfg.factors if f not in names]
+    if unknown:
+        raise ConfigError(f"{cfg.env} has no variation {unknown}; its variations: {names}")
+    world = swm.World(cfg.env, num_envs=cfg.num_envs, image_shape=(cfg.image_size, cfg.image_size),
+                      max_episode_steps=cfg.steps, goal_conditioned=False)
+    staging = path.with_name(f".{path.stem}.staging-{os.getpid()}{path.suffix}")
+    try:
+        world.set_policy(swm.policy.RandomPolicy(seed=cfg.seed))
+        writer = swm.data.get_format("hdf5").open_writer(staging, mode="overwrite")
+        world.collect(writer=writer, episodes=cfg.episodes, seed=cfg.seed,
+                      options={"variation": list(cfg.factors)}, progress=False)
+        os.replace(staging, path)  # only a finished collection appears under the final name
+    finally:
+        world.close()
+        staging.unlink(missing_ok=True)
+    return path
+
+
+def corpus(cfg: SwmCertifyConfig, out: Path) -> tuple[Path, float]:
+    """The dataset to certify and the seconds spent collecting it (0 when given or reused)."""
+    if cfg.data:
+        if not (Path(cfg.data).suffix in (".h5", ".hdf5") or cfg.data.rstrip("/").endswith(".lance")):
+            raise ConfigError(f"--data must be an swm .h5/.hdf5 file or .lance table, got {cfg.data!r}")
+        if not Path(cfg.data).exists():
+            raise DataError(f"--data {cfg.data} does not exist")
+        return Path(cfg.data), 0.0
+    os.environ.setdefault("MUJOCO_GL", "osmesa")  # headless DMControl rendering; read when dm_control loads
+    path, key_path = out / CORPUS, out / "corpus.json"
+    key = {k: getattr(cfg, k) for k in ("env", "factors", "episodes", "steps", "num_envs", "image_size", "seed")}
+    key = json.loads(json.dumps(key))
+    if path.exists() and key_path.exists() and json.loads(key_path.read_text()) == key:
+        print(f"[swm-certify] reusing {path}")
+        return path, 0.0
+    t0 = time.time()
+    collect(cfg, path)
+    write_json(key_path, key)
+    print(f"[swm-certify] collected {cfg.episodes} episodes of {cfg.env} in {time.time() - t0:.0f}s")
+    return path, time.time() - t0
+
+
+# --------------------------------------------------------------------------- the run
+def run(cfg: SwmCertifyConfig) -> dict:
+    """Collect (or read), certify, train LeWM and its twin, probe, and write the factor table and figure."""
+    if not cfg.data and not cfg.factors:
+        raise ConfigError("name the factors to vary (e.g. --factors spinner.density spinner.friction), or give "
+                          "a labelled dataset with --data")
+    out = Path(cfg.out)
+    out.mkdir(parents=True, exist_ok=True)
+    cost: dict[str, float] = {}
+    t_all = time.time()
+    source, cost["collect_s"] = corpus(cfg, out)
+    ds = read_factors(source, FactorDataConfig(factors=cfg.factors, observations=cfg.observations,
+                                               split_fractions=cfg.split_fractions, seed=cfg.seed))
+    digest = hash_arrays(ds.arrays())
+    factors = tuple(ds.manifest["probe_params"])
+    print(f"[swm-certify] {ds.num_episodes} episodes x {ds.num_steps} steps; factors {list(factors)}; dropped "
+          f"{ds.manifest['dropped_factors'] or 'none'}")
+    t0 = time.time()
+    certificate = dataclasses.replace(cfg.certificate, seed=cfg.seed)
+    certs = certify_factors(ds, factors, certificate)
+    cost["certify_s"] = time.time() - t0
+
+    from . import lewm as L  # its model classes derive from swm's: imported only when a model is trained
+
+    lcfg = LC.make_config(cfg.lewm_preset, data=f"{source} (content {digest[:16]})", out=str(out / "lewm"),
+                         seed=cfg.seed, **({"steps": cfg.lewm_steps} if cfg.lewm_steps else {}), **cfg.lewm_overrides)
+    t0 = time.time()
+    L.train(lcfg, ds)
+    cost["train_s"] = time.time() - t0
+    if lcfg.threads:
+        torch.set_num_threads(lcfg.threads)
+    model = L.LeWMStates(L.load_trained(lcfg.out, lcfg, ds), lcfg.readout)
+    twin = L.LeWMStates(L.build_model(lcfg, ds).eval(), lcfg.readout)  # same seed and data statistics, untrained
+    pcfg = P.make_config(cfg.protocol_preset, kinds=(KIND,), action_conditioned_kinds=(KIND,),
+                         window=certificate.window, stride=certificate.stride, seed=cfg.seed)
+    t0 = time.time()
+    name = f"LeWM ({lcfg.readout})"
+    report = P.certify_model(model, ds, out / "protocol", untrained=twin, certificates=certs, name=name, config=pcfg)
+    cost["protocol_s"] = time.time() - t0
+    cost["total_s"] = time.time() - t_all
+    rows = factor_rows(report, certs)
+    result = {"env": None if cfg.data else cfg.env, "source": str(source), "command": command_line(),
+              "config": to_dict(cfg), "lewm": to_dict(lcfg), "protocol": to_dict(pcfg),
+              "corpus": {"episodes": ds.num_episodes, "steps": ds.num_steps, "content_sha256": digest,
+                         "split_counts": {s: int(ds.episodes(s).size) for s in ("train", "probe_fit", "probe_test")},
+                         "observations": ds.manifest["observations"], "observation_width": int(ds.proprio.shape[-1]),
+                         "frame_shape": list(ds.frames.shape[2:])},
+              "factors": rows, "dropped_factors": ds.manifest["dropped_factors"],
+              "certificates": {k: certs[k] for k in ("estimators", "counts", "gate")},
+              "training": read_jsonl(out / "lewm" / "metrics.jsonl")[-1:],
+              "cost_seconds": {k: round(v, 1) for k, v in cost.items()},
+              "provenance": {"git": R.git_commit(), "torch_threads": torch.get_num_threads()}}
+    write_json(out / f"{RESULT}.json", result)
+    figure(rows, name, out / f"{RESULT}.png")
+    with atomic_path(out / f"{RESULT}.md") as tmp:
+        Path(tmp).write_text(markdown(result, name))
+    print("\n".join(table_markdown(rows, name)))
+    print(f"[swm-certify] wrote {out / RESULT}.{{json,md,png}} ({cost['total_s']:.0f}s)")
+    return result
+
+
+def command_line() -> str:
+    """The command as typed when run through the CLI, else a note that it was called from Python."""
+    if len(sys.argv) > 1 and sys.argv[1] == "swm-certify":
+        return "pokeworld " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+    return "pokeworld.swm.certify_env.run (Python)"
+
+
+def markdown(result: dict, name: str) -> str:
+    """The record: what was run, what it cost, the factor table and what was dropped."""
+    c, cost = result["corpus"], result["cost_seconds"]
+    lines = [f"# What {name} knows about {result['env'] or result['source']}'s physical factors", "",
+             f"Command: `{result['command']}`", "",
+             f"Corpus: {c['episodes']} episodes × {c['steps']} steps (random policy; split train / probe-fit / "
+             f"probe-test {c['split_counts']['train']} / {c['split_counts']['probe_fit']} / "
+             f"{c['split_counts']['probe_test']}), frames {c['frame_shape']}, observations {c['observations']} "
+             f"(width {c['observation_width']}), content {c['content_sha256'][:12]}.", "",
+             f"Cost (wall seconds): collect {cost['collect_s']}, certificates {cost['certify_s']}, LeWM training "
+             f"{cost['train_s']}, protocol {cost['protocol_s']}, total {cost['total_s']}.", "",
+             *table_markdown(result["factors"], name), "",
+             "Certificate: held-out R² on probe-test episodes, best of the GRU oracle and the linear floor, both "
+             "reading the raw non-pixel observations and actions of the same windows the probes read (all windows; the "
+             "action after the last observation zeroed). Model: leak-free ridge / MLP probes of the LeWM predictor "
+             "state; untrained: the same ridge probe of the untrained twin. † and \"no claim\": the gate failed, so "
+             "the model's number says nothing about what it knows."]
+    if result["dropped_factors"]:
+        lines += ["", "Dropped factors (not per-episode targets): "
+                  + "; ".join(f"{k}: {v}" for k, v in result["dropped_factors"].items()) + "."]
+    return "\n".join(lines) + "\n"
+
+
+__all__ = ["PRESETS", "SwmCertifyConfig", "collect", "command_line", "corpus", "make_config", "markdown", "run",
+           "variation_names"]
