@@ -107,3 +107,33 @@ def test_reset_accepts_the_papers_short_parameter_names():
         env.reset(options={"params": {"m": -1.0}})
     with pytest.raises(ConfigError, match="unknown parameter 'q'"):
         env.reset(options={"params": {"q": 1.0}})
+
+
+def test_actions_outside_the_box_are_clipped_to_it():
+    """The action space is Box(-1, 1): [5, 0] acts exactly as [1, 0] (the force saturates), in the single and the
+    vector env; a non-finite action is refused with one clear error."""
+    def next_state(action):
+        env = gym.make("pokeworld/PokeWorld-v0")
+        env.reset(seed=5, options={"finger_pos": [0.3, 0.5], "object_pos": [0.7, 0.5]})
+        for _ in range(3):
+            obs, _, _, _, info = env.step(np.asarray(action, np.float32))
+        return obs, info
+
+    (o5, i5), (o1, i1), (_, i0) = next_state([5.0, 0.0]), next_state([1.0, 0.0]), next_state([0.0, 0.0])
+    np.testing.assert_array_equal(o5["proprio"], o1["proprio"])
+    np.testing.assert_array_equal(i5["finger_pos"], i1["finger_pos"])
+    assert i1["finger_pos"][0] > i0["finger_pos"][0]  # and the push does move the finger
+    venv = gym.make_vec("pokeworld/PokeWorld-v0", num_envs=2, vectorization_mode="vector_entry_point")
+    venv.reset(seed=0, options={"finger_pos": [0.3, 0.5], "object_pos": [0.7, 0.5]})
+    _, _, _, _, info = venv.step(np.array([[-9.0, 0.0], [-1.0, 0.0]], np.float32))
+    np.testing.assert_array_equal(info["finger_pos"][0], info["finger_pos"][1])
+    env = gym.make("pokeworld/PokeWorld-v0")
+    env.reset(seed=0)
+    with pytest.raises(ConfigError, match="finite"):
+        env.step(np.array([np.nan, 0.0], np.float32))
+
+
+def test_env_class_docstring_documents_touch_truncation_reward_and_clipping():
+    doc = " ".join(pokeworld.sim.envs.PokeWorldEnv.__doc__.split())
+    for words in ("contact flag", "peak force", "64", "Reward: always 0", "clipped", "[5, 0]"):
+        assert words in doc, words

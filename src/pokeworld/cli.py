@@ -1,18 +1,26 @@
-"""``pokeworld`` command line: one subcommand per job, each a thin wrapper over ``run(cfg)``.
+"""pokeworld command line: one subcommand per job, each a thin wrapper over run(cfg).
 
-Usage: ``pokeworld <command> [--preset tiny|cpu|paper] [--field value ...] [POSITIONAL]``.
-``--preset`` picks the named preset the dataclass defaults are layered with;
+Usage: pokeworld <command> [POSITIONAL] [--preset tiny|cpu|paper] [--field value ...].
+--preset picks the named preset the dataclass defaults are layered with;
 every other flag is parsed by tyro against that command's config dataclass
-(``pokeworld <command> --help`` lists them with their docstrings).
+(pokeworld <command> --help lists them with their docstrings).
+The defaults chain: generate writes data/pokeworld, which stats, certify and train read;
+train writes runs/xjepa, which probe and plan read.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import importlib
+import importlib.util
+import json
+import re
 import sys
+import time
 import typing
 from dataclasses import dataclass
+from pathlib import Path
 
 from .errors import ConfigError, PokeworldError
 
@@ -23,15 +31,29 @@ class Command:
     config: str
     help: str
     positional: str | None = None
+    """The config field a bare argument fills (every one has a default, so it is optional)."""
     make: str = "make_config"
     """The module's ``make(preset) -> config``; empty for a config without presets (its defaults)."""
     runner: str = "run"
     cost: str = ""
     """What the command costs when that does not follow from the preset's per-model cost (the demo)."""
+    metavar: str = ""
+    """How the positional is shown in the usage line and the README (default: :data:`METAVARS`)."""
+    config_module: str = ""
+    """Where the config and its ``make`` live when not in ``module``: a module that imports without the command's
+    extra, so ``--help`` works (and names the extra) where the extra is missing."""
+    extra: str = ""
+    """The optional dependency group the command needs (named in its help when it is not installed)."""
+
+
+#: How a positional argument is named in usage lines: what it is, not the config field it fills.
+METAVARS = {"data": "DIR", "out": "OUT", "plan.out": "OUT", "run_dir": "RUN", "root": "ROOT", "store": "DIR",
+            "source": "PATH"}
 
 
 COMMANDS: dict[str, Command] = {
-    "generate": Command("pokeworld.sim.generate", "GenerateConfig", "simulate a PokeWorld corpus", "out"),
+    "generate": Command("pokeworld.sim.generate", "GenerateConfig", "simulate a PokeWorld corpus", "out",
+                        metavar="DIR"),
     "stats": Command("pokeworld.sim.stats", "StatsConfig", "a corpus's observable statistics beside the paper's",
                      "data"),
     "certify": Command("pokeworld.certify", "CertifyConfig", "recoverability certificates for a corpus", "data"),
@@ -58,19 +80,23 @@ COMMANDS: dict[str, Command] = {
                          "run_dir"),
     # the stable-worldmodel bridge (the swm extra; docs/stable_worldmodel.md)
     "swm-collect": Command("pokeworld.swm.env", "CollectConfig",
-                           "record PokeWorld episodes with a stable-worldmodel policy through swm.World", make=""),
+                           "record PokeWorld episodes with a stable-worldmodel policy through swm.World", make="",
+                           extra="swm"),
     "swm-export": Command("pokeworld.swm.dataset", "ExportConfig",
                           "export a store to stable-worldmodel's HDF5 format (touch, labels, parameters as columns)",
-                          "store", make="", runner="run_export"),
+                          "store", make="", runner="run_export", extra="swm"),
     "swm-import": Command("pokeworld.swm.dataset", "ImportConfig",
                           "import a stable-worldmodel PokeWorld dataset (HDF5 or Lance) into a store", "source",
-                          make="", runner="run_import"),
+                          make="", runner="run_import", extra="swm"),
     "swm-certify-lewm": Command("pokeworld.swm.lewm", "LeWMConfig",
                                 "train stable-worldmodel's LeWM on a store and certify it (beside X-JEPA runs)",
-                                "data"),
+                                "data", config_module="pokeworld.swm.lewm_config", extra="swm"),
     "swm-plan": Command("pokeworld.swm.costable", "SwmPlanConfig",
                         "push-to-goal with stable-worldmodel's CEM / iCEM / MPPI on X-JEPA costs, beside our planner",
-                        "plan.out"),
+                        "plan.out", extra="swm"),
+    "swm-certify": Command("pokeworld.swm.certify_env", "SwmCertifyConfig",
+                           "certify an swm environment's physical factors, then what a LeWM knows of them", "env",
+                           extra="swm"),
 }
 
 #: What ``--preset`` costs, shown by ``pokeworld --help`` and each command's ``--help`` (timings:
@@ -86,6 +112,94 @@ PRESET_COSTS: dict[str, str] = {
 }
 
 
+def command_prog(name: str) -> str:
+    """The head of a command's usage line: the command, its positional argument, and ``--preset`` where it has
+    presets (tyro's own usage line shows neither, as both are taken out of argv before tyro parses it)."""
+    cmd = COMMANDS[name]
+    head = f"pokeworld {name}"
+    if cmd.positional:
+        head += f" [{cmd.metavar or METAVARS.get(cmd.positional, cmd.positional.upper())}]"
+    return head + (" [--preset tiny|cpu|paper]" if cmd.make else "")
+
+
+#: reStructuredText a docstring may hold, and what a terminal shows instead: a role's target (the last dotted
+#: part after ``~``) and a literal's text.
+RST_ROLE = re.compile(r":(?:[a-z]+:)+`([^`]+)`")
+RST_LITERAL = re.compile(r"``([^`]+)``")
+
+
+def plain_text(text: str) -> str:
+    """``text`` with its reStructuredText roles and literals replaced by their plain words."""
+    text = RST_ROLE.sub(lambda m: m[1].rsplit(".", 1)[-1] if m[1].startswith("~") else m[1], text)
+    return RST_LITERAL.sub(r"\1", text)
+
+
+def plain_help_registry():
+    """A tyro registry that hands tyro every dataclass field's help as :func:`plain_text`.
+
+    The field docstrings are written for Sphinx and the source; the terminal should show words, not markup. The
+    rule asks tyro's own rules for the spec (re-entering the registry, where it steps aside) and rewrites only the
+    help text.
+    """
+    from tyro.constructors import ConstructorRegistry, StructConstructorSpec
+
+    registry = ConstructorRegistry()
+    resolving: list[type] = []
+
+    def plain(helptext):
+        if callable(helptext):  # tyro reads docstrings lazily; stay lazy
+            return lambda: plain(helptext())
+        return plain_text(helptext) if helptext else helptext
+
+    @registry.struct_rule
+    def plain_help(info):
+        if resolving or not dataclasses.is_dataclass(info.type):
+            return None
+        resolving.append(info.type)
+        try:
+            spec = ConstructorRegistry.get_struct_spec(info)
+        finally:
+            resolving.pop()
+        if not isinstance(spec, StructConstructorSpec):
+            return spec
+        return dataclasses.replace(spec, fields=tuple(dataclasses.replace(f, helptext=plain(f.helptext))
+                                                      for f in spec.fields))
+
+    return registry
+
+
+def command_description(name: str, preset: str) -> str:
+    """The help's first paragraph: what the command does, the preset and (for training commands) its cost, and how
+    to install the command's extra when it is missing."""
+    cmd = COMMANDS[name]
+    # the costs are per trained model, so only the commands that train quote them
+    cost = cmd.cost or (PRESET_COSTS.get(preset) if cmd.config in ("TrainConfig", "MapConfig", "RealConfig")
+                        else None)
+    text = f"{cmd.help} (preset {preset!r}" + (f": {cost})" if cost else ")")
+    if cmd.extra and importlib.util.find_spec(EXTRA_PACKAGES[cmd.extra]) is None:
+        text += (f". Needs the {cmd.extra} extra, not installed here: pip install -e '.[{cmd.extra}]' "
+                 "(docs/stable_worldmodel.md)")
+    return text
+
+
+#: The package whose absence means an extra is not installed.
+EXTRA_PACKAGES = {"swm": "stable_worldmodel"}
+
+
+def config_module(name: str, argv: list[str]):
+    """The module holding the command's config. Where it cannot be imported (an extra is missing) and help was
+    asked for, the help says what the command is and why its options cannot be listed, instead of only the error."""
+    cmd = COMMANDS[name]
+    try:
+        return importlib.import_module(cmd.config_module or cmd.module)
+    except ConfigError as e:
+        if "-h" not in argv and "--help" not in argv:
+            raise
+        print(f"usage: {command_prog(name)} [-h] [OPTIONS]\n\n{cmd.help}.\n\n"
+              f"Its options are listed once its module imports, which needs: {e}")
+        raise SystemExit(0) from None
+
+
 def usage() -> str:
     """Top-level help: the module docstring, one line per command, the cost of each preset."""
     width = max(map(len, COMMANDS)) + 2
@@ -94,6 +208,90 @@ def usage() -> str:
     lines += ["", "presets (--preset):"]
     lines += [f"  {name:{width}s}{cost}" for name, cost in PRESET_COSTS.items()]
     return "\n".join(lines)
+
+
+class LastLine:
+    """A pass-through stdout that remembers the last non-empty line written, so the closing line is not printed
+    when the command's own last line already names what it wrote."""
+
+    def __init__(self, out):
+        self.out, self.last, self.partial = out, "", ""
+
+    def write(self, text: str) -> int:
+        *done, self.partial = (self.partial + text).split("\n")
+        self.last = next((line for line in reversed(done) if line.strip()), self.last)
+        return self.out.write(text)
+
+    def __getattr__(self, name):  # flush, isatty, encoding, ...: those of the real stream
+        return getattr(self.out, name)
+
+    @property
+    def last_line(self) -> str:
+        return self.partial if self.partial.strip() else self.last
+
+
+#: Files written this long before the command started count as written by it (file-system timestamps are coarse).
+MTIME_SLACK_S = 0.05
+
+
+def written_since(path: Path, since: float) -> list[Path]:
+    """``path`` itself if it is a file written since ``since``; a directory's files (not recursive) written since."""
+    if path.is_file():
+        return [path] if path.stat().st_mtime >= since else []
+    if path.is_dir():
+        return sorted(p for p in path.iterdir() if p.is_file() and p.stat().st_mtime >= since)
+    return []
+
+
+def train_closing(run: Path, finished_before: bool) -> str:
+    """``[train] VFX: 10 steps, loss 3.60 → RUN/final.pt``, or that the run was finished already, or where it
+    stopped (a deadline or ``stop_at``) and how to resume."""
+    cfg = json.loads((run / "config.json").read_text())
+    lines = (run / "metrics.jsonl").read_text().splitlines() if (run / "metrics.jsonl").exists() else []
+    last = json.loads(lines[-1]) if lines else {}
+    what = f"{cfg['variant']}: {last.get('step', 0)} steps"
+    if isinstance(last.get("loss"), (int, float)):
+        what += f", loss {last['loss']:.3g}"
+    if finished_before:
+        return f"[train] {run} was already finished ({what}); skipped → {run / 'final.pt'}"
+    if (run / "DONE").exists():
+        return f"[train] {what} → {run / 'final.pt'}"
+    return (f"[train] {what} of {cfg['steps']}, stopped early (deadline or --stop-at); run the same command to "
+            f"resume → {run / 'ckpt.pt'}")
+
+
+def closing_line(name: str, cfg, result, since: float) -> str:
+    """One line saying what the command wrote where, or that it found its output up to date and skipped."""
+    if isinstance(result, (list, tuple)) and result and all(isinstance(r, Path) for r in result):
+        shown = ", ".join(map(str, result[:4])) + (f" and {len(result) - 4} more" if len(result) > 4 else "")
+        return f"[{name}] {len(result)} runs → {shown}"
+    if not isinstance(result, Path):
+        if name == "stats":
+            return f"[{name}] wrote nothing; the statistics above are also in {Path(cfg.data) / 'manifest.json'}"
+        result = Path(getattr(cfg, "out", "") or ".")
+    new = written_since(result, since)
+    if not new:
+        return f"[{name}] {result} is up to date; skipped (nothing recomputed)"
+    if new == [result]:
+        return f"[{name}] wrote {result}"
+    names = ", ".join(p.name for p in new[:5]) + (f" and {len(new) - 5} more" if len(new) > 5 else "")
+    return f"[{name}] wrote {names} → {result}"
+
+
+def run_and_report(name: str, cfg, runner) -> None:
+    """Run the command, then end with one line saying what it wrote where (or that it skipped), unless the
+    command's own last line already named its output."""
+    finished_before = name == "train" and (Path(cfg.out) / "DONE").exists()
+    since = time.time() - MTIME_SLACK_S
+    tee = LastLine(sys.stdout)
+    with contextlib.redirect_stdout(tee):
+        result = runner(cfg)
+    if name == "train":
+        print(train_closing(Path(result), finished_before))
+        return
+    if isinstance(result, Path) and str(result) in tee.last_line:
+        return
+    print(closing_line(name, cfg, result, since))
 
 
 def _flag_arity(cls, prefix: str = "") -> dict[str, int]:
@@ -172,24 +370,28 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     cmd = COMMANDS[name]
     try:
-        mod = importlib.import_module(cmd.module)
-        cls = getattr(mod, cmd.config)
+        config_mod = config_module(name, argv)
+        cls = getattr(config_mod, cmd.config)
         preset, rest = split_args(argv, cmd.positional, _flag_arity(cls))
         if not cmd.make and preset != "cpu":
             raise ConfigError(f"{name} has no presets; drop --preset {preset}")
-        default = getattr(mod, cmd.make)(preset) if cmd.make else cls()
-        # the costs are per trained model, so only the commands that train quote them
-        cost = cmd.cost or (PRESET_COSTS.get(preset) if cmd.config in ("TrainConfig", "MapConfig", "RealConfig")
-                            else None)
-        cfg = tyro.cli(cls, default=default, args=rest, prog=f"pokeworld {name}",
-                       description=f"{cmd.help} (preset {preset!r}" + (f": {cost})" if cost else ")"))
-        getattr(mod, cmd.runner)(cfg)
+        default = getattr(config_mod, cmd.make)(preset) if cmd.make else cls()
+        cfg = tyro.cli(cls, default=default, args=rest, prog=command_prog(name), registry=plain_help_registry(),
+                       description=command_description(name, preset))
+        run_and_report(name, cfg, getattr(importlib.import_module(cmd.module), cmd.runner))
     except PokeworldError as e:
         print(f"pokeworld {name}: error: {e}", file=sys.stderr)
         return 2
     except FloatingPointError as e:
         print(f"pokeworld {name}: training diverged: {e}", file=sys.stderr)
         return 3
+    except KeyboardInterrupt as e:  # Ctrl-C: where it stopped (training says which checkpoint resumes), no traceback
+        import shlex
+
+        said = f"{e}; " if str(e) else ""
+        print(f"pokeworld {name}: interrupted: {said}to resume, run: pokeworld {shlex.join([name, *argv])}",
+              file=sys.stderr)
+        return 130
     return 0
 
 

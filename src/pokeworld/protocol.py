@@ -492,6 +492,10 @@ def markdown(result: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+#: The figure's lowest R²: a bar below it is cut there and marked with its true value.
+FIGURE_R2_FLOOR = -0.1
+
+
 def figure(result: dict, path: Path) -> Path:
     """Bar chart: R² per quantity (ridge, MLP, untrained) beside its certificate, gate failures marked."""
     import matplotlib
@@ -517,13 +521,20 @@ def figure(result: dict, path: Path) -> Path:
     fig, ax = plt.subplots(figsize=(1.5 * len(qs) + 2.5, 3.6))
     width = 0.8 / len(series)
     x = np.arange(len(qs))
-    for i, (label, vals, color) in enumerate(series):
-        vals = np.clip(np.asarray(vals, float), -0.1, 1.0)  # strongly negative R² is "nothing"; keep the scale
+    clipped = False
+    for i, (label, raw, color) in enumerate(series):
+        raw = np.asarray(raw, float)
+        vals = np.clip(raw, FIGURE_R2_FLOOR, 1.0)  # strongly negative R² is "nothing"; keep the scale
         hatch = [("//" if R.gate_failed(view, q) and i >= 2 else "") for q in qs]  # the model's bars
         for j, v in enumerate(vals):
             if np.isfinite(v):
-                ax.bar(x[j] + (i - (len(series) - 1) / 2) * width, v, width, color=color, hatch=hatch[j],
+                xb = x[j] + (i - (len(series) - 1) / 2) * width
+                ax.bar(xb, v, width, color=color, hatch=hatch[j],
                        edgecolor="black" if hatch[j] else color, label=label if j == 0 else None)
+                if raw[j] < FIGURE_R2_FLOOR:  # a clipped bar says so, with its true value
+                    clipped = True
+                    ax.text(xb, FIGURE_R2_FLOOR + 0.005, f"↓{raw[j]:.2f}", rotation=90, ha="center", va="bottom",
+                            fontsize=6)
     for j, q in enumerate(qs):
         if q in C.GATES:
             ax.plot([x[j] - 0.4, x[j] + 0.4], [C.GATES[q]] * 2, color="red", lw=1, ls="--")
@@ -531,10 +542,10 @@ def figure(result: dict, path: Path) -> Path:
                 ax.text(x[j], 1.03, "gate ✗: no claim", ha="center", fontsize=8, color="red")
     ax.axhline(0, color="black", lw=0.5)
     ax.set_xticks(x, [R.LABELS.get(q, q) for q in qs])
-    ax.set_ylim(-0.1, 1.12)
+    ax.set_ylim(FIGURE_R2_FLOOR, 1.12)
     ax.set_ylabel("held-out R²")
-    ax.set_title(f"{result['model']['name']}: probes vs certificate ({kind} windows; dashed: gate threshold)",
-                 fontsize=9)
+    ax.set_title(f"{result['model']['name']}: probes vs certificate ({kind} windows; dashed: gate threshold"
+                 + (f"; ↓: bar cut at {FIGURE_R2_FLOOR}, its R² printed" if clipped else "") + ")", fontsize=9)
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)

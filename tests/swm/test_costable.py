@@ -98,7 +98,7 @@ def test_bad_configs_raise():
     with pytest.raises(ConfigError, match="elites"):
         make_config("tiny", plan={"elites": 99})
     with pytest.raises(ConfigError, match="--plan.runs"):  # the runs are the shared PlanConfig's
-        costable.run(make_config("tiny", simulator_ceiling=False))
+        costable.run(make_config("tiny", simulator_ceiling=False, plan={"runs": ()}))
 
 
 def test_one_solve_hands_the_scorer_one_history_and_every_candidate_as_a_program():

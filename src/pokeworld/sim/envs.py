@@ -1,10 +1,8 @@
 """Gymnasium front-ends: ``pokeworld/PokeWorld-v0`` and its native vector env (Gymnasium 1.x).
 
-Both wrap :class:`PokeWorldSim`. Episodes truncate after ``max_steps`` control
-steps; PokeWorld has no terminal state and no task reward (reward is 0), as in
-the paper, where it is a data source for world models. The vector env uses
-Gymnasium's default NEXT_STEP autoreset: the step after a truncation resets
-that sub-environment and returns its first observation with reward 0.
+Both wrap :class:`PokeWorldSim`; :class:`PokeWorldEnv` documents the spaces, the action rule, the reward and
+the episode length. The vector env uses Gymnasium's default NEXT_STEP autoreset: the step after a truncation
+resets that sub-environment and returns its first observation with reward 0.
 """
 
 from __future__ import annotations
@@ -40,8 +38,40 @@ def _check_options(options: dict | None) -> dict:
     return options
 
 
+def bounded_actions(actions, n: int) -> np.ndarray:
+    """``actions`` as an (n, 2) float array clipped to the action space [-1, 1]² (see :class:`PokeWorldEnv`)."""
+    a = np.asarray(actions, dtype=np.float64)
+    if a.size != 2 * n:
+        raise ConfigError(f"actions must hold {n} × 2 values (the action space's shape), got shape {a.shape}")
+    a = a.reshape(n, 2)
+    if not np.all(np.isfinite(a)):
+        raise ConfigError(f"actions must be finite, got {a.tolist()}")
+    return np.clip(a, -1.0, 1.0)
+
+
 class PokeWorldEnv(gym.Env):
-    """Single-episode PokeWorld. ``info`` carries true parameters and object/finger states."""
+    """Single-episode PokeWorld: a force-controlled finger pokes an object whose mass, drag and contact stiffness
+    are hidden and resampled at every reset.
+
+    Action: a 2-d force command in the action space Box(-1, 1, (2,)); the finger is pushed with
+    ``gain · F_max · action + bias`` (gain and bias are hidden per-episode parameters). A component outside
+    [-1, 1] is clipped to it (the force saturates at F_max, the Gymnasium convention of most control envs):
+    ``[5, 0]`` acts exactly as ``[1, 0]``. A non-finite action raises ConfigError.
+
+    Observation (a dict):
+
+    * ``vision``: (image_size, image_size) uint8 grayscale frame of the arena (64 px by default);
+    * ``proprio``: (4,) finger position x, y in the unit arena and velocity vx, vy (within ±50);
+    * ``touch``: (7,) statistics of the contact force on the finger over the control step's physics sub-steps,
+      forces in units of F_max: 0-1 mean force x, y; 2 peak force magnitude; 3-4 force x, y at the step's end;
+      5 fraction of sub-steps in contact; 6 contact flag (1 when in contact at any sub-step). Channels 0-4 carry
+      Gaussian noise (``PhysicsConfig.touch_noise``).
+
+    Reward: always 0, and the episode never terminates: PokeWorld has no task; it is a data source for world
+    models (tasks such as push-to-goal are scored outside the env, :mod:`pokeworld.plan`). Episodes truncate
+    after ``max_steps`` control steps (64 by default, the corpus's episode length). ``info`` carries the true
+    parameters (``mass``, ``gamma``, ``stiffness``, ``bias_x``, ``bias_y``, ``gain``) and the finger and object states.
+    """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
 
@@ -66,8 +96,7 @@ class PokeWorldEnv(gym.Env):
         return self._single(obs), self._info()
 
     def step(self, action):
-        a = np.asarray(action, dtype=np.float64).reshape(1, 2)
-        obs = self._sim.step(a)
+        obs = self._sim.step(bounded_actions(action, 1))
         self._t += 1
         return self._single(obs), 0.0, False, self._t >= self.max_steps, self._info()
 
@@ -86,7 +115,8 @@ class PokeWorldEnv(gym.Env):
 
 
 class PokeWorldVectorEnv(VectorEnv):
-    """Natively vectorised PokeWorld (one numba kernel steps every sub-environment)."""
+    """Natively vectorised PokeWorld (one numba kernel steps every sub-environment); spaces, action clipping,
+    reward and truncation as in :class:`PokeWorldEnv`, per sub-environment."""
 
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": []}
 
@@ -114,8 +144,7 @@ class PokeWorldVectorEnv(VectorEnv):
 
     def step(self, actions):
         resetting = self._needs_reset.copy()
-        a = np.asarray(actions, dtype=np.float64).reshape(self.num_envs, 2)
-        obs = self._sim.step(a)
+        obs = self._sim.step(bounded_actions(actions, self.num_envs))
         if resetting.any():
             obs = self._sim.reset(mask=resetting)
             self._t[resetting] = 0

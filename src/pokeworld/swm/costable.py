@@ -42,10 +42,11 @@ from ..plan import (
 )
 from ..sim import PokeWorldSim
 from ..sim.policy import KNOT_SD, PROGRAM, programs
+from . import solvers
 from .require import stable_worldmodel
 
 SOLVERS = ("cem", "icem", "mppi")
-"""stable-worldmodel solvers compared (swm.solver.CEMSolver, ICEMSolver, MPPISolver)."""
+"""stable-worldmodel solvers compared (its CEMSolver, ICEMSolver, MPPISolver, found by :mod:`.solvers`)."""
 SEARCH = {"knots": 2, "actions": PROGRAM}
 """Search space -> swm planning horizon (steps of 2-d actions the solver optimises)."""
 INFO_KEYS = ("frames", "proprio", "touch", "actions")
@@ -162,18 +163,14 @@ def make_solver(name: str, cost: PlanningCost, cfg: SwmPlanConfig):
 
     common = {"batch_size": cfg.plan.episodes, "num_samples": cfg.plan.population, "var_scale": KNOT_SD,
               "n_steps": cfg.plan.iterations, "topk": cfg.plan.elites, "device": "cpu", "seed": cfg.plan.seed}
-    if name == "cem":
-        solver = swm.solver.CEMSolver(cost, **common)
-    elif name == "icem":
-        solver = swm.solver.ICEMSolver(cost, noise_beta=cfg.icem_noise_beta, alpha=cfg.icem_alpha,
-                                       n_elite_keep=min(cfg.icem_elite_keep, cfg.plan.elites), **common)
-    elif name == "mppi":
-        solver = swm.solver.MPPISolver(cost, temperature=cfg.mppi_temperature, **common)
-    else:
-        raise ConfigError(f"unknown solver {name!r}; choose from {list(SOLVERS)}")
+    extra = {"icem": {"noise_beta": cfg.icem_noise_beta, "alpha": cfg.icem_alpha,
+                      "n_elite_keep": min(cfg.icem_elite_keep, cfg.plan.elites)},
+             "mppi": {"temperature": cfg.mppi_temperature}}.get(name, {})
+    solver = solvers.make_solver(swm, name, cost, **extra, **common)  # 0.1.1's or the next release's layout
     receding = cfg.plan.replan if cfg.search == "actions" else 1
     solver.configure(action_space=Box(-1.0, 1.0, (cfg.plan.episodes, 2), np.float32), n_envs=cfg.plan.episodes,
-                     config=swm.PlanConfig(horizon=cost.horizon, receding_horizon=receding, warm_start=False))
+                     config=solvers.plan_config(swm, horizon=cost.horizon, receding_horizon=receding,
+                                                warm_start=False))
     return solver
 
 
