@@ -38,6 +38,7 @@ from ..evaluate.prediction import position_decoder, prediction_quality
 from ..evaluate.probes import fit_predict
 from ..evaluate.state import EpisodeLatents, padded_actions, window_states
 from ..io import write_json
+from ..run_store import trained_store
 from ..rundir import finished_run_config, load_model
 from ..windows import make_windows
 
@@ -285,8 +286,9 @@ def result_path(run_dir: Path, data: str) -> Path:
 def run(cfg: RealEvalConfig) -> Path:
     """Evaluate ``cfg.run_dir`` on a converted store and write ``real_eval[-<store>].json`` there."""
     run_dir = Path(cfg.run_dir)
-    run_cfg = finished_run_config(run_dir)
-    data = cfg.data or run_cfg["data"]
+    run_cfg = finished_run_config(run_dir)  # refuses an unfinished run
+    # the training store found and checked by content (run_store), never a same-named folder under the current one
+    data = cfg.data or trained_store(run_dir, "real-eval")
     out = result_path(run_dir, cfg.data)
     key = {"config": to_dict(cfg), "data_sha256": read_manifest(data).get("content_sha256"),
            "final_mtime": (run_dir / "DONE").stat().st_mtime_ns}
