@@ -130,6 +130,21 @@ def remove_owned_dir(directory: str | os.PathLike, owned: OwnedDir) -> None:
                       stacklevel=2)
 
 
+def remove_own_file(path: str | os.PathLike) -> None:
+    """Delete one file pokeworld wrote (a stale temporary, a damaged cache entry, an output it replaces): only a
+    regular file, never a folder, a link (whose target a careless delete could reach through) or a special file,
+    which are refused with a ConfigError naming them. A missing file is nothing to do."""
+    path = Path(path)
+    try:
+        mode = os.lstat(path).st_mode
+    except FileNotFoundError:
+        return
+    if not stat.S_ISREG(mode):
+        raise ConfigError(f"{path} is a {_file_kind(mode)} where pokeworld expected a file it wrote; it deletes only "
+                          "its own regular files: remove or move it yourself")
+    os.unlink(path)
+
+
 def _discard(tmp: Path) -> None:
     """Remove our own temporary name (a link there is unlinked, not followed)."""
     if tmp.is_symlink() or tmp.is_file():

@@ -9,7 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from .. import paper_values as P
-from ..io import atomic_path
+from ..io import atomic_path, remove_own_file
 
 DASH = "—"
 
@@ -397,5 +397,5 @@ def write_all(out: Path, results: dict) -> list[Path]:
     if fig is not None:
         written.append(fig)
     else:
-        (out / "scissors.png").unlink(missing_ok=True)
+        remove_own_file(out / "scissors.png")
     return written

@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import json
 import math
-import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -48,7 +47,7 @@ from .. import __version__
 from ..config import from_preset, to_dict
 from ..data import load
 from ..errors import ConfigError
-from ..io import atomic_path, write_json
+from ..io import OwnedDir, atomic_path, check_owned_dir, remove_owned_dir, write_json
 from ..sim.core import PARAM_NAMES, ParamRanges, PhysicsConfig, PokeWorldSim
 from ..sim.physics import render_kernel
 from ..sim.policy import MixedPolicy, PolicyConfig
@@ -600,13 +599,29 @@ def _scene_truth(sc: _SceneDraw, cfg: SynthConfig, samples: dict[str, list]) -> 
     }
 
 
+SYNTHETIC_SCENE = OwnedDir(
+    files=(r"metadata\.json",),
+    dirs=((r"transformed", OwnedDir(files=(r"[a-z_]+\.npy",))),
+          (r"cam_\w+", OwnedDir(files=(r"timestamps\.npy", r"color\.mp4"),
+                                dirs=((r"color", OwnedDir(files=(r"\d+\.jpg",))),)))))
+"""What :func:`write_scene` writes in a scene folder: metadata, the transformed streams and one folder a camera."""
+SYNTHETIC_CFG_DIR = OwnedDir(files=(), dirs=((r"calib", OwnedDir(files=(), dirs=((r"\d+", OwnedDir(
+    files=(r"(extrinsics|intrinsics|tcp)\.npy",))),))), (r"task_\w+", SYNTHETIC_SCENE)))
+"""A synthetic corpus's ``RH20T_cfg<N>`` folder: its calibration folders and its scene folders."""
+SYNTHETIC_TRUTH = OwnedDir(files=(r"manifest\.json", r"task_\w+\.npz"))
+"""A synthetic corpus's ``truth`` folder: the manifest and one ground-truth file a scene."""
+
+
 def write_scene(cfg_dir: Path, truth_dir: Path, plan: ScenePlan, cfg: SynthConfig, cal: dict) -> dict:
     """Simulate and write one scene folder and its truth file; returns the scene's manifest row."""
     sc = _draw_scene(plan, cfg)
     files, samples, dropped = _record_streams(sc, plan, cfg, cal)
     d = cfg_dir / sc.name
-    if d.exists():
-        shutil.rmtree(d)
+    if d.exists() or d.is_symlink():  # an earlier write of this scene: replace only what it holds of ours
+        if d.is_symlink() or not d.is_dir():
+            raise ConfigError(f"{d} is not a scene folder pokeworld wrote; move it away or choose another root")
+        check_owned_dir(d, SYNTHETIC_SCENE)
+        remove_owned_dir(d, SYNTHETIC_SCENE)
     (d / "transformed").mkdir(parents=True)
     video = _write_cameras(d, sc, plan, cfg)
     _write_streams(d, plan, files)
@@ -642,10 +657,16 @@ def run(cfg: SynthConfig) -> Path:
             pass
         if any(root.iterdir()):
             raise ConfigError(f"{root} holds a different synthetic corpus; pass --overwrite or another root")
-    if cfg.overwrite and root.exists():
-        for sub in (f"RH20T_cfg{cfg.cfg}", "truth"):
-            if (root / sub).exists():
-                shutil.rmtree(root / sub)
+    if cfg.overwrite and root.exists():  # a synthetic corpus of ours only: a real RH20T folder is refused, not deleted
+        owned = ((root / f"RH20T_cfg{cfg.cfg}", SYNTHETIC_CFG_DIR), (root / "truth", SYNTHETIC_TRUTH))
+        for sub, spec in owned:
+            if sub.exists() or sub.is_symlink():
+                if sub.is_symlink() or not sub.is_dir():
+                    raise ConfigError(f"{sub} is not a folder pokeworld wrote; move it away or choose another root")
+                check_owned_dir(sub, spec)
+        for sub, spec in owned:
+            if sub.exists():
+                remove_owned_dir(sub, spec)
     cfg_dir, truth_dir = root / f"RH20T_cfg{cfg.cfg}", root / "truth"
     cfg_dir.mkdir(parents=True, exist_ok=True)
     truth_dir.mkdir(parents=True, exist_ok=True)

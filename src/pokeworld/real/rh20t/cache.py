@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ...io import atomic_path, write_json
+from ...io import OwnedDir, atomic_path, remove_own_file, write_json
 from .config import ConvertConfig, out_dir
 from .folders import SceneRef, check_scene_name
 from .scene import process_scene
@@ -24,6 +24,10 @@ unpickled in a child process and dtype / array BUILDs are checked (``unsafe_pick
 _CACHE_FIELDS = ("cfg", "camera", "camera_serials", "image_size", "crop", "hz", "min_rating", "require_calib_dir",
                  "gripper_field", "max_gap_s", "frame_tolerance_s", "max_abs_pos_m", "max_abs_ft",
                  "max_bad_record_fraction", "ft_camera_fallback")
+
+
+SCENE_CACHE = OwnedDir(files=(r".+\.npz", r".+\.skip\.json"))
+"""What a conversion's scene cache folder holds: one ``.npz`` per converted scene or a ``.skip.json`` per skip."""
 
 
 def cache_dir(cfg: ConvertConfig) -> Path:
@@ -53,12 +57,12 @@ def convert_scene_cached(ref: SceneRef, cfg: ConvertConfig, cdir: Path) -> tuple
             with np.load(ok, allow_pickle=False) as z:
                 return {k: z[k] for k in z.files}, None
         except Exception:
-            ok.unlink()  # damaged cache entry: recompute
+            remove_own_file(ok)  # damaged cache entry: recompute
     if skip.exists():
         try:
             return None, json.loads(skip.read_text())
         except json.JSONDecodeError:
-            skip.unlink()
+            remove_own_file(skip)
     try:
         arrays = process_scene(ref, cfg)
     except SceneSkip as e:

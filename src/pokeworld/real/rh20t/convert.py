@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 from pathlib import Path
 
 from tqdm.auto import tqdm
@@ -13,11 +12,11 @@ from tqdm.auto import tqdm
 from ... import __version__
 from ...data import Dataset, check_store_destination, save, store_is_current, store_lock
 from ...errors import ConfigError, DataError
-from ...io import check_writable_dir, write_json
+from ...io import check_owned_dir, check_writable_dir, remove_owned_dir, write_json
 from ..npy_child import close_child
 from ..regular_files import read_regular
 from .assembly import ACTION_COLUMNS, PROPRIO_COLUMNS, TOUCH_COLUMNS, assemble
-from .cache import PIPELINE_VERSION, cache_dir, convert_scene_cached
+from .cache import PIPELINE_VERSION, SCENE_CACHE, cache_dir, convert_scene_cached
 from .config import ConvertConfig, content_config, out_dir
 from .folders import SceneRef, check_scene_name, scan
 from .format import ROBOTS
@@ -177,8 +176,9 @@ def _convert_into(cfg: ConvertConfig, out: Path) -> Path:
         print(f"[rh20t] {out} already holds this conversion; skipping")
         return out
     cdir = cache_dir(cfg)
-    if cfg.overwrite and cdir.exists():
-        shutil.rmtree(cdir)
+    if cfg.overwrite and cdir.exists():  # only the cache entries pokeworld wrote, checked first
+        check_owned_dir(cdir, SCENE_CACHE)
+        remove_owned_dir(cdir, SCENE_CACHE)
     cdir.mkdir(parents=True, exist_ok=True)
     root = Path(cfg.root)
     refs = scan(root / f"RH20T_cfg{cfg.cfg}" if (root / f"RH20T_cfg{cfg.cfg}").is_dir() else root)

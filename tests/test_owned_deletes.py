@@ -1,0 +1,59 @@
+"""Every delete removes only what pokeworld wrote: single files through io.remove_own_file (regular files only,
+never a link's target), folders through an OwnedDir spec checked before anything is removed."""
+
+import os
+
+import pytest
+
+from pokeworld.errors import ConfigError
+from pokeworld.io import check_owned_dir, foreign_entries, remove_own_file
+from pokeworld.real.rh20t.cache import SCENE_CACHE
+from pokeworld.real.synthetic import SYNTHETIC_CFG_DIR, SYNTHETIC_TRUTH
+
+
+def test_remove_own_file_deletes_regular_files_only(tmp_path):
+    mine = tmp_path / "scissors.png"
+    mine.write_bytes(b"png")
+    remove_own_file(mine)
+    assert not mine.exists()
+    remove_own_file(mine)  # already gone: nothing to do
+    target = tmp_path / "thesis.tex"
+    target.write_text("years of work")
+    link = tmp_path / "link.png"
+    link.symlink_to(target)
+    with pytest.raises(ConfigError, match="symbolic link"):
+        remove_own_file(link)
+    assert target.read_text() == "years of work" and link.is_symlink()
+    (tmp_path / "folder").mkdir()
+    with pytest.raises(ConfigError, match="folder"):
+        remove_own_file(tmp_path / "folder")
+
+
+def _tree(root, files):
+    for f in files:
+        p = root / f
+        p.parent.mkdir(parents=True, exist_ok=True)
+        p.write_bytes(b"x")
+
+
+def test_a_synthetic_corpus_is_ours_and_a_user_file_inside_it_is_not(tmp_path):
+    scene = "task_0001_user_0002_scene_0003_cfg_0007"
+    cfg_dir, truth = tmp_path / "RH20T_cfg7", tmp_path / "truth"
+    _tree(cfg_dir, ["calib/1650000000000/extrinsics.npy", "calib/1650000000000/intrinsics.npy",
+                    "calib/1650000000000/tcp.npy", f"{scene}/metadata.json", f"{scene}/transformed/joint.npy",
+                    f"{scene}/cam_036422060909/color.mp4", f"{scene}/cam_036422060909/timestamps.npy",
+                    f"{scene}/cam_104122063678/color/1650000000000.jpg"])
+    _tree(truth, ["manifest.json", f"{scene}.npz"])
+    assert foreign_entries(cfg_dir, SYNTHETIC_CFG_DIR) == [] and foreign_entries(truth, SYNTHETIC_TRUTH) == []
+    _tree(cfg_dir, [f"{scene}/notes.txt"])  # something a user put there: the folder is no longer only ours
+    with pytest.raises(ConfigError, match="did not write"):
+        check_owned_dir(cfg_dir, SYNTHETIC_CFG_DIR)
+    os.symlink(tmp_path / "elsewhere", truth / f"{scene}_x.npz")  # a link is never ours either
+    assert foreign_entries(truth, SYNTHETIC_TRUTH) == [f"{scene}_x.npz"]
+
+
+def test_the_scene_cache_holds_only_scene_entries(tmp_path):
+    _tree(tmp_path, ["scene_a-1f2e.npz", "scene_b-1f2e.skip.json", ".scene_c-1f2e.npz.tmp-123"])
+    assert foreign_entries(tmp_path, SCENE_CACHE) == []
+    _tree(tmp_path, ["data.csv"])
+    assert foreign_entries(tmp_path, SCENE_CACHE) == ["data.csv"]
