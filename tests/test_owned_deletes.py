@@ -57,3 +57,14 @@ def test_the_scene_cache_holds_only_scene_entries(tmp_path):
     assert foreign_entries(tmp_path, SCENE_CACHE) == []
     _tree(tmp_path, ["data.csv"])
     assert foreign_entries(tmp_path, SCENE_CACHE) == ["data.csv"]
+
+
+def test_a_lance_table_is_replaceable_and_a_user_folder_named_like_one_is_not(tmp_path):
+    from pokeworld.swm.env import LANCE_TABLE
+
+    table = tmp_path / "pokeworld.lance"
+    _tree(table, ["data/0a1b.lance", "_versions/1.manifest", "_transactions/0-abc.txn"])
+    assert foreign_entries(table, LANCE_TABLE) == []
+    _tree(table, ["my_results.csv"])
+    with pytest.raises(ConfigError, match="did not write"):
+        check_owned_dir(table, LANCE_TABLE)

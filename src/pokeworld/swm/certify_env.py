@@ -36,7 +36,7 @@ from .. import protocol as P
 from ..config import from_preset, to_dict
 from ..errors import ConfigError, DataError
 from ..evaluate import tables as R
-from ..io import atomic_path, hash_arrays, read_jsonl, write_json
+from ..io import atomic_path, hash_arrays, read_jsonl, remove_own_file, write_json
 from . import lewm_config as LC
 from .factor_gate import KIND, FactorCertifyConfig, certify_factors
 from .factor_report import factor_rows, figure, table_markdown
@@ -156,7 +156,7 @@ def collect(cfg: SwmCertifyConfig, path: Path) -> Path:
         os.replace(staging, path)  # only a finished collection appears under the final name
     finally:
         world.close()
-        staging.unlink(missing_ok=True)
+        remove_own_file(staging)  # our own pid-named staging copy, if the collection failed
     return path
 
 

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import shutil
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,6 +32,7 @@ import gymnasium as gym
 import numpy as np
 
 from ..errors import ConfigError
+from ..io import OwnedDir, check_owned_dir, remove_own_file, remove_owned_dir
 from ..plan import GOAL_BOX, PlanConfig
 from ..sim.core import PARAM_NAMES, ParamRanges, PhysicsConfig, PokeWorldSim
 from .require import stable_worldmodel
@@ -259,11 +259,22 @@ def _staged(out: Path) -> Iterator[Path]:
         _remove(staging)
 
 
+LANCE_TABLE = OwnedDir(files=(), dirs=(
+    ("data", OwnedDir(files=(r".+\.lance",))), ("_versions", OwnedDir(files=(r".+\.manifest",))),
+    ("_transactions", OwnedDir(files=(r".+\.txn",))), ("_deletions", OwnedDir(files=(r".+",))),
+    ("_indices", OwnedDir(files=(r".+",), dirs=((r".+", OwnedDir(files=(r".+",))),)))))
+"""What a Lance table folder holds: the only kind of folder :func:`_remove` replaces."""
+
+
 def _remove(path: Path) -> None:
-    if path.is_dir():
-        shutil.rmtree(path)
-    elif path.exists():
-        path.unlink()
+    """Remove a dataset swm-collect is about to replace (--overwrite) or its own staging copy: an HDF5 file (a
+    regular file only) or a Lance table (only the files a Lance table holds; anything else refuses); never a
+    link or its target."""
+    if path.is_symlink() or not path.is_dir():
+        remove_own_file(path)
+        return
+    check_owned_dir(path, LANCE_TABLE)
+    remove_owned_dir(path, LANCE_TABLE)
 
 
 def make_world(num_envs: int, steps: int, image_size: int, **env_kwargs):
