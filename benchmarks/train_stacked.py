@@ -13,7 +13,9 @@ For each preset and member count M, times full optimisation steps of
 on a synthetic dataset at the preset's image size, after warm-up, on the default path of the device
 (fast path on CUDA). ``--mix seeds``: M VFX members with different seeds; ``--mix factorial``: the
 first M variants of V, VF, VX_p, VX_t, VX, VFX (zero-embedded into the smallest variant containing
-them; M = 6 is the full factorial). ``speedup`` = sequential s/step ÷ stacked s/step; ``frames_per_s``
+them; M = 6 is the full factorial). ``--compile`` is the members' TrainConfig ``compile`` (default 'off', the eager
+path the recorded numbers measured; 'auto' compiles both sides with CUDA graphs on CUDA, as training now does by
+default). ``speedup`` = sequential s/step ÷ stacked s/step; ``frames_per_s``
 counts all members' frames. On CUDA the JSON also records the peak memory of each configuration. On a
 shared CPU the numbers are only indicative (the JSON records the load average).
 """
@@ -38,6 +40,7 @@ from pokeworld.train import (  # noqa: E402
     PRESETS,
     WindowSampler,
     auto_threads,
+    compile_mode_for,
     data_stats,
     loss_kwargs,
     make_config,
@@ -66,12 +69,13 @@ def _timed(step, steps: int, device: torch.device) -> float:
     return (time.perf_counter() - t) / steps
 
 
-def member_configs(preset: str, m: int, mix: str, device: torch.device) -> list:
+def member_configs(preset: str, m: int, mix: str, device: torch.device, compile: str = "off") -> list:
     names = list(VARIANTS)
     if mix == "factorial" and m > len(names):
         raise SystemExit(f"--mix factorial has {len(names)} variants; asked for {m}")
     return [make_config(preset, variant=names[i] if mix == "factorial" else "VFX", seed=i, device=str(device),
-                        out=f"/nonexistent/m{i}", progress=False, tensorboard=False) for i in range(m)]
+                        out=f"/nonexistent/m{i}", progress=False, tensorboard=False, compile=compile)
+            for i in range(m)]
 
 
 def bench_stacked(cfgs, ds, device: torch.device, steps: int) -> dict:
@@ -107,13 +111,16 @@ def bench_sequential(cfgs, ds, device: torch.device, steps: int) -> dict:
         m = XJEPA(**model_kwargs(c, dims))
         m.set_stats(stats)
         m = m.to(device).train()
-        runs.append((c, m, make_optimizer(m, c, fused=fast), loss_kwargs(c)))
+        mode = compile_mode_for(c, device)  # as train.run compiles a separate run
+        fn = torch.compile(m, mode=mode) if mode else m
+        runs.append((c, m, fn, make_optimizer(m, c, fused=fast), loss_kwargs(c)))
     acc = torch.zeros((), device=device)
 
     def step(i):
         nonlocal acc
-        for c, m, opt, kw in runs:
-            loss, _ = train_step(m, opt, c, sampler.sample(c.batch_size), i, device, kw, amp=amp, fast=fast)
+        for c, m, fn, opt, kw in runs:
+            loss, _ = train_step(m, opt, c, sampler.sample(c.batch_size), i, device, kw, amp=amp, fast=fast,
+                                 loss_fn=fn)
             acc = acc + loss
 
     dt = _timed(step, steps, device)
@@ -130,6 +137,8 @@ def main() -> None:
     ap.add_argument("--device", default="auto")
     ap.add_argument("--threads", type=int, default=0, help="CPU threads (0 = pokeworld.train.auto_threads())")
     ap.add_argument("--no-sequential", action="store_true", help="time the stacked groups only")
+    ap.add_argument("--compile", choices=("auto", "on", "off"), default="off",
+                    help="the members' TrainConfig compile (stacked and sequential alike)")
     ap.add_argument("--out", default="benchmarks/results/train_stacked.json")
     args = ap.parse_args()
     device = pick_device(args.device)
@@ -143,9 +152,10 @@ def main() -> None:
         c = make_config(preset)
         ds = synthetic_dataset(num_episodes=32, steps=64, size=max(64, c.image_size), seed=0)
         for m in args.members:
-            cfgs = member_configs(preset, m, args.mix, device)
+            cfgs = member_configs(preset, m, args.mix, device, args.compile)
             r = {"preset": preset, "mix": args.mix, "members": m, "variants": [x.variant for x in cfgs],
                  "superset_variant": superset_variant([x.variant for x in cfgs]), "device": str(device),
+                 "compile": args.compile,
                  "batch_size": c.batch_size, "window": c.window, "image_size": c.image_size}
             st = bench_stacked(cfgs, ds, device, args.steps)
             r.update({"stacked_sec_per_step": st["sec_per_step"], "stacked_peak_mem_bytes": st["peak_mem_bytes"],

@@ -55,7 +55,9 @@ def matmul_peak(device: torch.device, dtype: torch.dtype, n: int = 2048, reps: i
 
 
 def bench(preset: str, steps: int, device: torch.device, fast: bool = False, compile: bool = False,
-          channels_last: bool = False) -> dict:
+          channels_last: bool = False, compile_mode: str = "default") -> dict:
+    """Time ``steps`` training steps of ``preset`` on ``device`` (after 3 warm-up steps, which hold any
+    compilation); ``compile_mode`` is torch.compile's mode when ``compile``."""
     cfg = make_config(preset, device=str(device), fast="on" if fast else "off", compile=compile,
                       channels_last=channels_last)
     ds = synthetic_dataset(num_episodes=32, steps=64, size=64 if cfg.image_size <= 64 else cfg.image_size, seed=0)
@@ -67,7 +69,7 @@ def bench(preset: str, steps: int, device: torch.device, fast: bool = False, com
     opt = make_optimizer(model, cfg, fused=fast)
     amp = cfg.amp and device.type == "cuda" and torch.cuda.is_bf16_supported()
     kw = loss_kwargs(cfg)
-    loss_fn = torch.compile(model) if compile else model
+    loss_fn = torch.compile(model, mode=compile_mode) if compile else model
     acc = torch.zeros((), device=device)
 
     def step(i, fn=loss_fn):
@@ -94,7 +96,8 @@ def bench(preset: str, steps: int, device: torch.device, fast: bool = False, com
         torch.cuda.synchronize()
     dt = (time.perf_counter() - t) / steps
     peak = matmul_peak(device, torch.bfloat16 if amp else torch.float32)
-    return {"preset": preset, "device": str(device), "fast": fast, "compile": compile, "channels_last": channels_last,
+    return {"preset": preset, "device": str(device), "fast": fast, "compile": compile,
+            "compile_mode": compile_mode if compile else None, "channels_last": channels_last,
             "warmup_s": warmup_s, "batch_size": cfg.batch_size, "window": cfg.window,
             "image_size": cfg.image_size, "params": sum(p.numel() for p in model.parameters()),
             "sec_per_step": dt, "steps_per_s": 1 / dt, "frames_per_s": cfg.batch_size * cfg.window / dt,

@@ -2,8 +2,10 @@
 
 CI has no GPU, so these are the checks that the CPU suite cannot make: the fast path (pinned non-blocking
 uploads, fused AdamW, bf16 autocast) trains, resumes and is read back on the CPU; stacked members on the GPU
-equal their separate GPU runs; the compiled loss trains; a GPU-trained run is measured. The tolerances allow
-for bf16 autocast and non-deterministic cuDNN kernels, not for a wrong batch or a wrong update.
+equal their separate GPU runs; the compiled loss trains; the default on CUDA (CUDA graphs, ``compile`` 'auto'),
+single and stacked, trains like the eager path and resumes from its checkpoint like an uninterrupted run; a
+GPU-trained run is measured. The tolerances allow for bf16 autocast and non-deterministic cuDNN kernels, not for a
+wrong batch or a wrong update.
 """
 
 import copy
@@ -20,8 +22,10 @@ from pokeworld.data import save
 pytestmark = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a CUDA device")
 
 # 32 px keeps the CNN alive (at tiny's 16 px its GroupNorm zeroes the CNN gradient); dropout 0 so that
-# stacked and separate runs, and resumed and uninterrupted ones, see the same masks (none)
-BASE = dict(image_size=32, dropout=0.0, device="cuda", steps=8, log_every=2, ckpt_every=2)
+# stacked and separate runs, and resumed and uninterrupted ones, see the same masks (none). The fast-path
+# tests train eagerly (compile 'off'); the CUDA-graph default has its own tests below
+BASE = dict(image_size=32, dropout=0.0, device="cuda", steps=8, log_every=2, ckpt_every=2, compile="off")
+DEFAULT = {k: v for k, v in BASE.items() if k != "compile"}  # compile 'auto': CUDA graphs on this device
 
 
 @pytest.fixture(scope="module")
@@ -79,10 +83,56 @@ def test_stacked_members_equal_their_separate_runs_on_cuda(data_dir, tmp_path):
 
 
 def test_compiled_loss_trains_on_cuda(data_dir, tmp_path):
-    out = train.run(train.make_config("tiny", data=data_dir, out=str(tmp_path / "c"), variant="VFX", compile=True,
-                                      **BASE))
+    kw = {**BASE, "compile": "on", "compile_mode": "default"}  # torch.compile's default mode (no CUDA graphs)
+    out = train.run(train.make_config("tiny", data=data_dir, out=str(tmp_path / "c"), variant="VFX", **kw))
     rows = _rows(out)
     assert (out / "DONE").exists() and all(np.isfinite(r["loss"]) for r in rows[1:])
+
+
+@pytest.fixture
+def compile_modes(monkeypatch):
+    """The modes torch.compile is called with (it still compiles)."""
+    real, seen = torch.compile, []
+
+    def spy(fn, *a, mode=None, **kw):
+        seen.append(mode)
+        return real(fn, *a, mode=mode, **kw)
+
+    monkeypatch.setattr(torch, "compile", spy)
+    return seen
+
+
+def test_the_cuda_default_trains_as_eager_and_resumes(data_dir, tmp_path, compile_modes):
+    kw = dict(data=data_dir, variant="VFX", **DEFAULT)
+    cfg = train.make_config("tiny", out=str(tmp_path / "graphs"), **kw)
+    assert train.compile_mode_for(cfg, torch.device("cuda")) == "reduce-overhead"
+    graphs = train.run(cfg)
+    assert compile_modes == ["reduce-overhead"]
+    eager = train.run(train.make_config("tiny", out=str(tmp_path / "eager"), **{**kw, "compile": "off"}))
+    _close_runs(eager, graphs, rel=2e-2)
+    train.run(train.make_config("tiny", out=str(tmp_path / "resumed"), stop_at=4, **kw))  # checkpoint at step 4
+    assert not (tmp_path / "resumed" / "DONE").exists()
+    resumed = train.run(train.make_config("tiny", out=str(tmp_path / "resumed"), **kw))
+    _close_runs(graphs, resumed, rel=2e-2)
+    assert json.loads((resumed / "config.json").read_text())["compile"] == "auto"
+
+
+def test_the_cuda_default_trains_stacked_groups_as_eager_and_resumes(data_dir, tmp_path, compile_modes):
+    members = [dict(variant="VFX", seed=0), dict(variant="V", seed=1)]
+
+    def cfgs(name, **extra):
+        return [train.make_config("tiny", data=data_dir, out=str(tmp_path / f"{name}{i}"), **DEFAULT, **m, **extra)
+                for i, m in enumerate(members)]
+
+    graphs = train_stacked.run(cfgs("g"))
+    assert compile_modes == ["reduce-overhead"]
+    eager = train_stacked.run(cfgs("e", compile="off"))
+    train_stacked.run(cfgs("r", stop_at=4))
+    resumed = train_stacked.run(cfgs("r"))
+    for g, e, r in zip(graphs, eager, resumed):
+        assert (g / "DONE").exists() and (r / "DONE").exists()
+        _close_runs(e, g, rel=2e-2)
+        _close_runs(g, r, rel=2e-2)
 
 
 def test_a_gpu_trained_run_is_measured(data_dir, tmp_path, tiny_dataset):

@@ -55,7 +55,7 @@ def _loss_and_grads(model, batch, **kw):
 
 def test_fast_setting_is_cuda_only_by_default_and_validated():
     cfg = make_config("tiny")
-    assert cfg.fast == "auto" and not cfg.compile and not cfg.channels_last and cfg.deadline == 0
+    assert cfg.fast == "auto" and cfg.compile == "auto" and not cfg.channels_last and cfg.deadline == 0
     assert not use_fast_path(cfg, CPU) and use_fast_path(cfg, torch.device("cuda"))
     assert use_fast_path(make_config("tiny", fast="on"), CPU)
     assert not use_fast_path(make_config("tiny", fast="off"), torch.device("cuda"))

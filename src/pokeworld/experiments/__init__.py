@@ -7,6 +7,8 @@
 * :mod:`.runs` — run specs, run names and paths in a map folder;
 * :mod:`.report` — results.json, results.md and the figure; :mod:`.merge` — fold a later map's runs into a
   record (``scripts/merge_map_results.py``);
+* :mod:`.allocations` — the paper-budget map from short GPU allocations: where one ran, and the merge of any
+  number of them (``scripts/gpu_allocation.sh``, ``scripts/merge_allocations.py``);
 * :mod:`.registry` — every experiment, one module each (its run specs, its report section, its paper values):
   :mod:`.factorial`, :mod:`.lazy`, :mod:`.lambda_sweep`, :mod:`.coverage`, :mod:`.frame_averaged`,
   :mod:`.controls`, :mod:`.dose_touch`, :mod:`.dose_glide`, :mod:`.attributes`, :mod:`.belief`, :mod:`.planning`,

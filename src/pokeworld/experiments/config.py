@@ -125,6 +125,12 @@ class MapConfig(LaunchOptions):
     """Compute the certificates in a background process while the runs train, instead of before training: on a GPU
     machine training leaves the CPU cores idle. Certification is not interrupted by ``time_budget_min``: the map
     waits for it after training stops. The certificates are the same either way (same configs, same seeds)."""
+    certify: bool = True
+    """Compute the corpora's certificates. Off (``--no-certify``): none are computed, and the record's certificates
+    and gates stay empty. A GPU allocation (``scripts/gpu_allocation.sh``) spends its minutes on training and leaves
+    them to the CPU side, where ``pokeworld certify`` runs on the same seeded corpus and
+    ``scripts/merge_allocations.py --certificates`` adds them to the merged record (checked against its corpus
+    hash)."""
     stack_max_members: int = 0
     """With ``stack``: most members per stacked group (0 = no limit; lower it when a group does not fit in memory)."""
     pack: str = ""
@@ -165,6 +171,8 @@ class MapConfig(LaunchOptions):
                               f"({self.time_reserve_min}), or nothing can be trained")
         if self.stack and self.launcher != "local":
             raise ConfigError("stack trains in the map's own process: use it with --launcher local")
+        if self.certify_alongside and not self.certify:
+            raise ConfigError("certify_alongside computes the certificates, which --no-certify leaves out; drop one")
         if self.stack_max_members < 0:
             raise ConfigError(f"stack_max_members must be ≥ 0, got {self.stack_max_members}")
         if self.pack and not self.pack.endswith((".tar.gz", ".tgz")):

@@ -117,7 +117,9 @@ def _run_locked(c: MapConfig) -> Path:
             prepared = False
             break
         stages.ensure_corpus(c, corpus)
-    certify_order = [k for k in sorted(corpora, key=lambda k: k == "flow") if k != "contact_poor"]  # flow's build on the standard's
+    # flow's certificates build on the standard's; with certify off none are computed (an allocation's record takes
+    # them from the CPU side later)
+    certify_order = [k for k in sorted(corpora, key=lambda k: k == "flow") if k != "contact_poor"] if c.certify else []
     background = None
     if prepared and c.certify_alongside:
         # certificates are CPU work, training on a GPU leaves the cores idle: one spawned process computes them while

@@ -152,8 +152,8 @@ def map_matrix(results: dict) -> tuple[np.ndarray, list[str], list[str], np.ndar
         failed[i, :] = gate_failed(results, q)
     return M, [LABELS[q] for q in QUANTITIES], cols, failed
 
-def figure(results: dict, out: Path) -> list[Path]:
-    """The identifiability map: certificate and factorial variants × quantities."""
+def figure(results: dict, out: Path, stem: str = "identifiability_map") -> list[Path]:
+    """The identifiability map: certificate and factorial variants × quantities, as ``out/stem.png`` and ``.pdf``."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -177,7 +177,7 @@ def figure(results: dict, out: Path) -> list[Path]:
     ax.set_title(f"Identifiability map (ridge R², contact windows; preset {prov['preset']})", fontsize=10)
     fig.colorbar(im, ax=ax, fraction=0.04, label="held-out R²")
     fig.tight_layout()
-    return save_figure(fig, out, "identifiability_map")
+    return save_figure(fig, out, stem)
 
 def write_all(c, results: dict) -> None:
     """results.md and every figure, into the map folder."""

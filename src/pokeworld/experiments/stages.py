@@ -193,9 +193,11 @@ def write_progress(c: MapConfig, specs: list[RunSpec], started: float) -> dict:
     write_json(Path(c.out) / "progress.json", prog)
     return prog
 
-#: Files ``pack`` takes, as globs relative to the map directory (all small: JSON, markdown, figures).
-PACK_GLOBS = ("map_config.json", "progress.json", "results.json", "results.md", "identifiability_map.png",
-              "identifiability_map.pdf", "planning/planning.json", "planning/plan_episode.png", "data/*/certificates.json", "data/*/manifest.json",
+#: Files ``pack`` takes, as globs relative to the map directory (all small: JSON, markdown, figures); device.json is
+#: where a GPU allocation's map ran (``scripts/gpu_allocation.sh`` writes it there before the map starts).
+PACK_GLOBS = ("map_config.json", "progress.json", "device.json", "results.json", "results.md",
+              "identifiability_map.png", "identifiability_map.pdf", "planning/planning.json",
+              "planning/plan_episode.png", "data/*/certificates.json", "data/*/manifest.json",
               "runs/*/config.json", "runs/*/metrics.jsonl", "runs/*/measure*.json")
 
 def pack_results(c: MapConfig, dest: str | os.PathLike) -> Path:

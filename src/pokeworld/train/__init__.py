@@ -20,6 +20,7 @@ from .config import (
                      TrainConfig,
                      auto_threads,
                      check_existing,
+                     compile_mode_for,
                      field_defaults,
                      make_config,
                      resolve_device,
@@ -43,7 +44,7 @@ from .step import (
 from .synthetic import synthetic_dataset
 
 __all__ = ["TrainConfig", "PRESETS", "RESUMABLE_FIELDS", "RETIRED_FIELDS", "make_config", "validate", "field_defaults",
-           "check_existing", "auto_threads", "resolve_device", "use_fast_path", "run", "load_model",
+           "check_existing", "auto_threads", "resolve_device", "use_fast_path", "compile_mode_for", "run", "load_model",
            "finished_run_config", "WindowSampler", "data_stats", "synthetic_dataset", "model_kwargs", "lr_lambda",
            "make_optimizer", "decay_split", "loss_kwargs", "train_step", "sigreg_directions", "sigreg_row_index",
            "sigreg_seed", "to_device"]

@@ -182,13 +182,16 @@ class TrainConfig:
     """Fast path: 'auto' (on for CUDA devices, off on CPU), 'on' or 'off'. Non-blocking pinned uploads of
     the step's window indices and SIGReg directions, fused AdamW, no host sync between log/checkpoint
     steps. Samples the same windows and directions as the plain path."""
-    compile: bool = False
-    """``torch.compile`` the model's loss (forward + backward graphs). Dropout masks then come from
-    inductor's RNG, so a compiled run matches an eager one statistically, not bit-for-bit."""
-    compile_mode: str = "default"
-    """``torch.compile`` mode with ``compile``: 'default', 'reduce-overhead' (CUDA graphs: measured on an H200, the
-    ``paper`` preset at 0.0104 s/step against 0.0142 in the default mode and 0.0287 eager; a GPU lever, CUDA graphs
-    do not apply on a CPU), 'max-autotune-no-cudagraphs' or 'max-autotune'."""
+    compile: str = "auto"
+    """``torch.compile`` of the model's loss (forward + backward graphs): 'auto' (the default: on for a CUDA device,
+    off on a CPU and under DDP), 'on' or 'off'. Dropout masks then come from inductor's RNG, so a compiled run
+    matches an eager one statistically, not bit-for-bit. Configs written before this was a choice hold
+    ``true``/``false``, read as 'on'/'off'."""
+    compile_mode: str = "auto"
+    """``torch.compile`` mode of a compiled run: 'auto' ('reduce-overhead' on CUDA, 'default' on a CPU), 'default',
+    'reduce-overhead' (CUDA graphs: measured on an H200, the ``paper`` preset at 0.0104 s/step against 0.0142 in
+    the default mode and 0.0287 eager; CUDA graphs do not apply on a CPU), 'max-autotune-no-cudagraphs' or
+    'max-autotune'."""
     channels_last: bool = False
     """Keep conv weights/activations in channels-last layout (faster cuDNN convs on tensor cores).
     Fixed for a run: the optimizer state in the checkpoint inherits the layout."""
@@ -196,6 +199,10 @@ class TrainConfig:
     """Unix time after which the loop checkpoints and returns without ``DONE`` (0 = none); a run whose
     deadline has passed before it starts returns at once. For time-sliced jobs (``pokeworld map
     --time-budget-min``); re-running resumes."""
+
+    def __post_init__(self) -> None:
+        # configs and callers from before 'auto' pass a boolean; the run's config.json then records the setting
+        self.compile = legacy_compile(self.compile)
 
 #: Field overrides per preset (costs as in ``cli.PRESET_COSTS``).
 #: ``paper`` = App. B; needs a GPU: on one H100 0.041 s/step on the fast path (≈ 14 min per 20k-step model), 0.030
@@ -218,8 +225,10 @@ PRESETS: dict[str, dict[str, Any]] = {
 PRESETS["demo"] = {**PRESETS["cpu"], "vec_dim": 64, "batch_size": 8, "steps": 2200, "ckpt_every": 1000,
                    "log_every": 100}
 
-COMPILE_MODES = ("default", "reduce-overhead", "max-autotune-no-cudagraphs", "max-autotune")
-"""``torch.compile`` modes a run may name (``TrainConfig.compile_mode``)."""
+COMPILE_SETTINGS = ("auto", "on", "off")
+"""Values of ``TrainConfig.compile``."""
+COMPILE_MODES = ("auto", "default", "reduce-overhead", "max-autotune-no-cudagraphs", "max-autotune")
+"""``torch.compile`` modes a run may name (``TrainConfig.compile_mode``; 'auto' is resolved per device)."""
 
 #: Fields that may differ when re-running into an existing run directory.
 RESUMABLE_FIELDS = ("steps", "stop_at", "ckpt_every", "log_every", "tensorboard", "progress", "threads", "device",
@@ -275,10 +284,13 @@ def validate(cfg: TrainConfig) -> None:
         raise ConfigError(f"sigreg_rows must be ≥ 1, got {cfg.sigreg_rows}")
     if not 0.0 <= cfg.program_aligned_share <= 1.0:
         raise ConfigError(f"program_aligned_share must be in [0, 1], got {cfg.program_aligned_share}")
+    if cfg.compile not in COMPILE_SETTINGS:
+        raise ConfigError(f"compile must be one of {list(COMPILE_SETTINGS)}, got {cfg.compile!r}")
     if cfg.compile_mode not in COMPILE_MODES:
         raise ConfigError(f"compile_mode must be one of {list(COMPILE_MODES)}, got {cfg.compile_mode!r}")
-    if cfg.compile_mode != "default" and not cfg.compile:
-        raise ConfigError(f"compile_mode={cfg.compile_mode!r} applies with --compile only")
+    # 'default' is what every config written before 'auto' existed holds, compiled or not
+    if cfg.compile == "off" and cfg.compile_mode not in ("auto", "default"):
+        raise ConfigError(f"compile_mode={cfg.compile_mode!r} applies to a compiled run; --compile off trains eagerly")
     if cfg.sigreg_reference_rows < 0:
         raise ConfigError(f"sigreg_reference_rows must be ≥ 0 (0: the rows' own count), "
                           f"got {cfg.sigreg_reference_rows}")
@@ -311,6 +323,27 @@ def use_fast_path(cfg: TrainConfig, dev: torch.device) -> bool:
     """Whether ``cfg.fast`` selects the fast path on ``dev`` ('auto': CUDA only)."""
     return cfg.fast == "on" or (cfg.fast == "auto" and dev.type == "cuda")
 
+def compile_mode_for(cfg: TrainConfig, dev: torch.device) -> str | None:
+    """The ``torch.compile`` mode a run of ``cfg`` uses on ``dev``, or None when it trains eagerly.
+
+    'auto' compiles only on a CUDA device outside DDP: there CUDA graphs ('reduce-overhead') remove the host
+    dispatch that bounds a step, while on a CPU compilation costs minutes for a few per cent (docs/model.md), so CPU
+    runs stay eager and bit-identical to earlier ones. Under DDP the gradient all-reduce runs in DDP's hooks, which
+    CUDA graphs have not been checked with here. A mode of 'auto' is 'reduce-overhead' on CUDA, 'default' elsewhere.
+    """
+    if cfg.compile == "off" or (cfg.compile == "auto" and (dev.type != "cuda" or cfg.ddp)):
+        return None
+    if cfg.compile_mode != "auto":
+        return cfg.compile_mode
+    return "reduce-overhead" if dev.type == "cuda" else "default"
+
+def legacy_compile(value: Any) -> Any:
+    """``compile`` as the current setting: the booleans of configs written before 'auto' existed map to 'on'/'off'
+    (anything else is returned as it is, for :func:`validate` to judge)."""
+    if isinstance(value, bool):
+        return "on" if value else "off"
+    return value
+
 def check_existing(cfg: TrainConfig) -> None:
     """Raise ConfigError if ``cfg.out`` holds a run whose config differs in anything but :data:`RESUMABLE_FIELDS`
     (fields added since are compared at their default, retired ones at :data:`RETIRED_FIELDS`)."""
@@ -337,5 +370,6 @@ def resolve_device(cfg: TrainConfig, local_rank: int = 0) -> torch.device:
     return pick_device(cfg.device, local_rank)
 
 
-__all__ = ["TrainConfig", "PRESETS", "RESUMABLE_FIELDS", "RETIRED_FIELDS", "field_defaults", "make_config", "validate",
-           "use_fast_path", "check_existing", "auto_threads", "resolve_device"]
+__all__ = ["TrainConfig", "PRESETS", "RESUMABLE_FIELDS", "RETIRED_FIELDS", "COMPILE_SETTINGS", "COMPILE_MODES",
+           "field_defaults", "make_config", "validate", "use_fast_path", "compile_mode_for", "legacy_compile",
+           "check_existing", "auto_threads", "resolve_device"]

@@ -7,8 +7,9 @@ is one), so window sampling never bottlenecks a step.
 
 Fast path (``fast``; on by default on CUDA): the step's window indices and SIGReg directions are drawn on the
 host exactly as on the plain path but uploaded from pinned memory without blocking, AdamW is fused, and nothing
-in a step waits for the GPU. ``compile`` and ``channels_last`` are separate options; ``deadline`` checkpoints and
-returns early (without ``DONE``) for time-sliced jobs.
+in a step waits for the GPU. ``compile`` ('auto': CUDA graphs on a CUDA device, eager on a CPU) and
+``channels_last`` are separate options; ``deadline`` checkpoints and returns early (without ``DONE``) for
+time-sliced jobs.
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ from .config import (
     TrainConfig,
     auto_threads,
     check_existing,
+    compile_mode_for,
     resolve_device,
     use_fast_path,
     validate,
@@ -162,8 +164,12 @@ class _SingleRun:
             net = DDP(self.model, device_ids=[dev.index] if dev.type == "cuda" else None,
                       find_unused_parameters=cfg.objective == "recon")
         # compile the module call (forward + loss); the optimizer step stays eager, so the lr schedule
-        # (a Python float per step) causes no recompiles
-        self.loss_fn = torch.compile(net, mode=cfg.compile_mode) if cfg.compile else net
+        # (a Python float per step) causes no recompiles. On CUDA this is the default, as CUDA graphs
+        # (compile_mode_for): the step's inputs are device tensors uploaded ahead and nothing in the global-latent
+        # loss reads a value back on the host, so the graphs capture forward and backward whole (the token variant
+        # draws its SIGReg row subset on the host inside the loss: that part runs outside the graphs)
+        mode = compile_mode_for(cfg, dev)
+        self.loss_fn = torch.compile(net, mode=mode) if mode else net
 
     # ------------------------------------------------------------------ Trainee
     def step(self, step: int) -> dict[str, torch.Tensor]:

@@ -35,8 +35,13 @@ that read them are zero (a fixed point of the loss and of AdamW: their output an
 exactly zero), missing forecasting heads are zero and weighted 0 in the loss. Only the member's own
 parameters are saved.
 
+Compilation follows the runs' ``compile`` setting (:func:`~pokeworld.train.config.compile_mode_for`; 'auto': CUDA
+graphs on a CUDA device, eager on a CPU): the vmapped loss is compiled as one graph (dynamo traces
+``torch.vmap`` with per-member dropout and the math attention kernel without a graph break); the optimizer and
+the per-member clipping stay eager.
+
 Not supported (ConfigError): ``ddp``, ``tokens`` (the token SIGReg subsamples rows from a per-run
-integer seed, which vmap cannot batch), ``compile`` and ``channels_last``.
+integer seed, which vmap cannot batch) and ``channels_last``.
 """
 
 from __future__ import annotations
@@ -73,6 +78,7 @@ from .config import (
     TrainConfig,
     auto_threads,
     check_existing,
+    compile_mode_for,
     make_config as make_train_config,
     resolve_device,
     use_fast_path,
@@ -189,7 +195,6 @@ def superset_variant(variants: Sequence[str]) -> str:
 #: TrainConfig flags no stacked group supports, and why.
 UNSTACKABLE = (("ddp", "train multi-GPU runs with `pokeworld train --ddp`"),
                ("tokens", "the token SIGReg draws its row subset from a per-run integer seed"),
-               ("compile", "torch.compile of a vmapped loss is not supported here"),
                ("channels_last", "stacked conv weights have no channels-last layout"))
 
 
@@ -340,6 +345,14 @@ class StackedGroup:
                                        dict(sigreg_directions=dirs, **mkw, **self.shared_kw))
 
         self.vloss = torch.vmap(member_loss, randomness="different")
+        mode = compile_mode_for(c0, dev)  # compile is a group-key field: one setting for the whole group
+        if mode:
+            # the stacked state is updated in place and never moves: marked static, CUDA graphs read it where it
+            # lives (a plain tensor argument would be copied in before every replay, and its in-place BatchNorm
+            # update would keep the graph from being recorded at all)
+            for t in (*self.params.values(), *self.buffers.values()):
+                torch._dynamo.mark_static_address(t)
+            self.vloss = torch.compile(self.vloss, mode=mode)
         self.use_amp = c0.amp and dev.type == "cuda" and torch.cuda.is_bf16_supported()
 
     def step(self, step: int) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:

@@ -1,0 +1,14 @@
+"""Merge GPU allocations of the paper-budget map (``scripts/gpu_allocation.sh``) into one record and its report.
+
+The logic and its documentation live in :mod:`pokeworld.experiments.allocations`; this is its command line.
+
+    python scripts/merge_allocations.py ALLOC_A ALLOC_B ... --certificates certificates_paper.json \
+        --out docs/results/map_paper.json --markdown docs/results/map_paper.md
+"""
+
+import sys
+
+from pokeworld.experiments.allocations import main
+
+if __name__ == "__main__":
+    sys.exit(main())

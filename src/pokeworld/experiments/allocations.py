@@ -1,0 +1,389 @@
+"""The paper-budget map from short GPU allocations: where an allocation ran, and the merge of any number of them.
+
+A GPU comes in short allocations (a fresh machine for minutes at a time), so the paper-budget factorial is trained
+in pieces: ``bash scripts/gpu_allocation.sh OUT`` spends one allocation on the CUDA tests, a short benchmark and as
+many complete ``paper``-preset runs as fit, and brings back small files only: ``device.json`` (:func:`device_record`:
+which GPU, driver, torch, the date) and the map's pack (each run's config, metrics and measurement, the corpus
+manifest, progress.json and device.json again; no checkpoints, no data). ``scripts/merge_allocations.py`` assembles
+any number of them into one record (:func:`merge_allocations`):
+
+* every allocation must have trained on the same corpus (the seeded paper corpus: its manifest's content hash) with
+  the same map-wide settings (:data:`AGREE`); otherwise the merge is refused with one line;
+* an allocation contributes its finished runs only (progress.json): a run its time budget cut short is named, not
+  counted;
+* each run record is the map's own (:func:`.report.collect`) plus where it was trained (``run["allocation"]``:
+  device, date, torch, steps and s/step);
+* a run present in two allocations is kept once, the later allocation's (device.json dates), and the largest
+  difference of the two ridge readouts is recorded (:func:`.merge.merge`, :func:`.merge.max_difference`);
+* certificates come from a certify JSON computed elsewhere (``--certificates``; the allocations compute none),
+  refused when it certifies another corpus.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import platform
+import shutil
+import statistics
+import subprocess
+import sys
+import tarfile
+import tempfile
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+
+from .. import __version__, paper_values as P
+from ..config import from_dict
+from ..errors import ConfigError, PokeworldError
+from ..evaluate.tables import fmt, git_commit, probe
+from ..io import atomic_path, check_regular_file, read_regular_bytes, write_json
+from . import merge, report, stages
+from .config import VARIANT_ORDER, MapConfig
+from .factorial import FACTORIAL
+from .runs import spec_measure_path
+
+DEVICE_FILE = "device.json"
+"""Where an allocation records its machine (:func:`device_record`), in its output folder and inside its pack."""
+
+#: Map settings every merged allocation must share: they decide the corpus, the runs' training and what is measured.
+AGREE = ("preset", "train_preset", "train_steps", "train_batch_size", "num_episodes", "data_seed", "split_fractions",
+         "contact_damping", "sigreg_weight", "sigreg_pool", "sigreg_reference_rows", "gnll_variance",
+         "measure_max_windows", "measure_kinds")
+MAX_PACK_BYTES = 64 << 20
+"""Largest pack read (a device machine returns files of at most 16 MiB)."""
+MAX_UNPACKED_BYTES = 512 << 20
+"""Largest total size of a pack's files once unpacked (an allocation's records are a few MiB)."""
+MAX_JSON_BYTES = 64 << 20
+
+
+def device_record() -> dict:
+    """Where this process runs: the GPU as nvidia-smi names it (torch's name without nvidia-smi; the processor
+    without a GPU), the driver, torch and CUDA versions, the UTC date and time, the git commit and the CPU count."""
+    import torch
+
+    name, driver = gpu_name()
+    return {"device": name, "driver": driver, "torch": torch.__version__, "cuda": torch.version.cuda,
+            "date": datetime.now(timezone.utc).isoformat(timespec="seconds"), "git": git_commit(),
+            "cpu_count": os.cpu_count(), "python": platform.python_version(), "pokeworld": __version__}
+
+
+def gpu_name() -> tuple[str, str | None]:
+    """(name, driver version) of the first GPU; ("cpu (<processor>)", None) on a machine without one."""
+    smi = shutil.which("nvidia-smi")
+    if smi:
+        try:
+            lines = subprocess.run([smi, "--query-gpu=name,driver_version", "--format=csv,noheader"],
+                                   capture_output=True, text=True, timeout=30).stdout.strip().splitlines()
+        except (OSError, subprocess.SubprocessError):
+            lines = []
+        if lines:
+            name, _, driver = lines[0].partition(",")
+            return name.strip(), driver.strip() or None
+    import torch
+
+    if torch.cuda.is_available():
+        return torch.cuda.get_device_name(), None
+    return f"cpu ({platform.processor() or platform.machine()})", None
+
+
+def write_device(path: str | os.PathLike) -> dict:
+    """Write :func:`device_record` to ``path`` (parents created); returns it."""
+    rec = device_record()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    write_json(path, rec)
+    return rec
+
+
+# ---------------------------------------------------------------------- one allocation
+
+
+@dataclass
+class Allocation:
+    """One allocation's records, unpacked."""
+
+    source: str
+    """The path it was read from, as given."""
+    root: Path
+    """Its map folder (map_config.json, progress.json, data/*/manifest.json, runs/*)."""
+    device: dict
+    map_config: dict
+    corpus_sha256: str
+    progress: dict
+
+
+def read_json(path: Path, what: str) -> dict:
+    """A JSON object from a regular file; one ConfigError line naming the file otherwise."""
+    try:
+        data = json.loads(read_regular_bytes(path, what, MAX_JSON_BYTES).decode("utf-8"))
+    except PokeworldError as e:
+        raise ConfigError(str(e)) from None
+    except (OSError, ValueError, RecursionError) as e:
+        raise ConfigError(f"{path} is not {what} ({e})") from None
+    if not isinstance(data, dict):
+        raise ConfigError(f"{path} is not {what} (a JSON {type(data).__name__}, not an object)")
+    return data
+
+
+def unpack(pack: Path, scratch: Path) -> Path:
+    """A map pack unpacked into a new folder under ``scratch``: regular files and folders only, nothing outside it
+    (tarfile's 'data' filter), at most :data:`MAX_UNPACKED_BYTES` in all."""
+    try:
+        check_regular_file(pack, "a map pack", MAX_PACK_BYTES)
+    except PokeworldError as e:
+        raise ConfigError(str(e)) from None
+    dest = Path(tempfile.mkdtemp(prefix="allocation-", dir=scratch))
+    try:
+        with tarfile.open(pack, "r:gz") as tar:
+            members = tar.getmembers()
+            odd = [m.name for m in members if not (m.isfile() or m.isdir())]
+            if odd:
+                raise ConfigError(f"{pack} holds entries that are neither files nor folders: {odd[:3]}")
+            if sum(m.size for m in members) > MAX_UNPACKED_BYTES:
+                raise ConfigError(f"{pack} unpacks to more than {MAX_UNPACKED_BYTES >> 20} MiB; not a map pack")
+            tar.extractall(dest, members=members, filter="data")
+    except (tarfile.TarError, OSError, EOFError) as e:
+        raise ConfigError(f"{pack} is not a map pack pokeworld wrote ({e})") from None
+    return dest
+
+
+def open_allocation(path: str | os.PathLike, scratch: Path) -> Allocation:
+    """The allocation at ``path``: a folder as a device machine returns it (device.json beside one map pack), a
+    pack (.tar.gz), or a map folder; packs are unpacked under ``scratch``."""
+    path = Path(path)
+    outer_device = None
+    if path.is_dir() and not (path / "map_config.json").exists():
+        packs = sorted(p for p in path.iterdir() if p.name.endswith((".tar.gz", ".tgz")))
+        if len(packs) != 1:
+            raise ConfigError(f"{path}: an allocation folder holds one map pack (*.tar.gz); found {len(packs)}")
+        root, outer_device = unpack(packs[0], scratch), path / DEVICE_FILE
+    elif path.is_dir():
+        root = path
+    elif path.name.endswith((".tar.gz", ".tgz")):
+        root = unpack(path, scratch)
+    else:
+        raise ConfigError(f"{path} is neither an allocation folder, a map pack (.tar.gz) nor a map folder")
+    device_path = root / DEVICE_FILE
+    if not device_path.exists() and outer_device is not None:
+        device_path = outer_device
+    if not device_path.exists():
+        raise ConfigError(f"{path} has no {DEVICE_FILE}: which device trained its runs is unknown "
+                          "(scripts/gpu_allocation.sh writes it)")
+    manifest = read_json(root / "data" / "standard" / "manifest.json", "a corpus manifest")
+    if not isinstance(manifest.get("content_sha256"), str):
+        raise ConfigError(f"{path}: its corpus manifest records no content hash")
+    return Allocation(str(path), root, read_json(device_path, "a device record"),
+                      read_json(root / "map_config.json", "a map config"), manifest["content_sha256"],
+                      read_json(root / "progress.json", "a map's progress record"))
+
+
+def training_facts(a: Allocation, name: str) -> dict:
+    """Where and how run ``name`` of ``a`` was trained: device, date, torch, the steps it was configured for and
+    reached, the median s/step over its logged rows (the first row holds any compilation), its compile setting."""
+    run = a.root / "runs" / name
+    cfg = read_json(run / "config.json", "a run config")
+    rows = []
+    metrics = run / "metrics.jsonl"
+    if metrics.exists():
+        try:
+            text = read_regular_bytes(metrics, "a metrics log", MAX_JSON_BYTES).decode("utf-8")
+            rows = [json.loads(line) for line in text.splitlines() if line.strip()]
+        except (PokeworldError, ValueError) as e:
+            raise ConfigError(f"{metrics} is not a metrics log pokeworld wrote ({e})") from None
+    rates = [r["steps_per_s"] for r in rows if isinstance(r.get("steps_per_s"), (int, float)) and r["steps_per_s"] > 0]
+    return {"source": a.source, "device": a.device.get("device"), "date": a.device.get("date"),
+            "torch": a.device.get("torch"), "steps": cfg.get("steps"),
+            "steps_trained": max((r.get("step", 0) for r in rows), default=0),
+            "sec_per_step": statistics.median(1 / r for r in rates) if rates else None,
+            "compile": cfg.get("compile"), "compile_mode": cfg.get("compile_mode")}
+
+
+def allocation_record(a: Allocation, certificates: dict) -> dict:
+    """The finished runs of ``a`` as a map record (:func:`.report.collect`), each naming where it was trained."""
+    c = from_dict(MapConfig, {**a.map_config, "out": str(a.root)})
+    finished = set(a.progress.get("finished", []))
+    specs = [s for s in stages.all_specs(c) if s.name in finished]
+    for s in specs:
+        if not spec_measure_path(c, s).exists():
+            raise ConfigError(f"{a.source}: run {s.name} is listed as finished but its measurement is missing")
+    rec = report.collect(c, specs, certificates)
+    # the experiments' finished runs only; planning's runs are the factorial's, its table reads rec["planning"]
+    rec["experiments"] = {e: [n for n in names if n in rec["runs"]] for e, names in rec["experiments"].items()
+                          if e != "planning"}
+    rec["experiments"] = {e: names for e, names in rec["experiments"].items() if names}
+    rec["map_config"] = dict(a.map_config)
+    for name, run in rec["runs"].items():
+        run["allocation"] = training_facts(a, name)
+    rec["provenance"].update(command=f"allocation {a.source} ({a.device.get('device')}, {a.device.get('date')})",
+                             git=a.device.get("git", "?"))
+    results = a.root / "results.json"
+    if results.exists():
+        planning = read_json(results, "a results record").get("planning")
+        if isinstance(planning, dict):
+            rec["planning"] = planning
+    return rec
+
+
+# ---------------------------------------------------------------------- the merge
+
+
+def check_agreement(allocs: list[Allocation]) -> None:
+    """ConfigError (one line) unless every allocation trained on the first one's corpus with its map settings."""
+    first = allocs[0]
+    for a in allocs[1:]:
+        if a.corpus_sha256 != first.corpus_sha256:
+            raise ConfigError(f"{a.source} trained on corpus {a.corpus_sha256[:12]}, {first.source} on "
+                              f"{first.corpus_sha256[:12]}: allocations merge only when they share the seeded corpus")
+        diff = {k: (first.map_config.get(k), a.map_config.get(k)) for k in AGREE
+                if first.map_config.get(k) != a.map_config.get(k)}
+        if diff:
+            raise ConfigError(f"{a.source} ran the map with other settings than {first.source} (first, this): {diff}")
+
+
+def read_certificates(path: Path, corpus_sha256: str) -> dict:
+    """A certify JSON (``pokeworld certify``'s certificates.json) of the allocations' corpus; ConfigError when it
+    certifies another corpus or is not one."""
+    cert = read_json(path, "a certify JSON")
+    if not (isinstance(cert.get("estimators"), dict) and isinstance(cert.get("certificate"), dict)):
+        raise ConfigError(f"{path} is not a certify JSON (no 'estimators' and 'certificate' objects)")
+    sha = (cert.get("dataset") or {}).get("content_sha256")
+    if sha != corpus_sha256:
+        raise ConfigError(f"{path} certifies corpus {str(sha)[:12]}, the allocations trained on {corpus_sha256[:12]}: "
+                          "certificates must come from the same seeded corpus")
+    return cert
+
+
+def ridge_difference(old: dict, new: dict) -> float | str:
+    """The largest ridge difference of a run trained twice, in JSON (no infinity: a lost number is said in words)."""
+    d = merge.max_difference(old, new)
+    return d if math.isfinite(d) else "a number of the earlier run is missing or NaN in the later"
+
+
+def merge_allocations(allocs: list[Allocation], certificates: dict | None = None, tol: float = 1e-4,
+                      command: str = "") -> dict:
+    """One record from ``allocs`` (later allocations win a run trained twice; see the module docstring)."""
+    if not allocs:
+        raise ConfigError("no allocation to merge")
+    check_agreement(allocs)
+    order = sorted(allocs, key=lambda a: str(a.device.get("date", "")))  # stable: equal dates keep the given order
+    certs = {"standard": certificates} if certificates else {}
+    merged, duplicates, planning = None, [], None
+    for a in order:
+        rec = allocation_record(a, certs)
+        planning = rec.pop("planning", planning)
+        if merged is None:
+            merged = rec
+            continue
+        for name, run in rec["runs"].items():
+            if name in merged["runs"]:
+                old = merged["runs"][name]
+                duplicates.append({"run": name, "kept": a.source, "dropped": old["allocation"]["source"],
+                                   "largest_ridge_difference": ridge_difference(old, run)})
+        if rec["experiments"]:
+            merged, _ = merge.merge(merged, rec, list(rec["experiments"]), tol, replace_differing=True)
+    if planning is not None:
+        merged["planning"] = planning
+    names = {r["train"]["variant"] for r in merged["runs"].values()}
+    merged["map_config"]["variants"] = [v for v in VARIANT_ORDER if v in names] + sorted(names - set(VARIANT_ORDER))
+    merged["map_config"]["seeds"] = sorted({r["train"]["seed"] for r in merged["runs"].values()})
+    merged["provenance"] = {**merged["provenance"], "command": command or "merge_allocations", "git": git_commit(),
+                            "pokeworld": __version__, "python": platform.python_version(),
+                            "corpus_sha256": allocs[0].corpus_sha256, "duplicates": duplicates,
+                            "allocations": [allocation_summary(a) for a in order]}
+    return merged
+
+
+def allocation_summary(a: Allocation) -> dict:
+    """What the record says of one allocation: its device and what it finished or left unfinished."""
+    return {"source": a.source, **{k: a.device.get(k) for k in ("device", "driver", "date", "torch", "cuda", "git")},
+            "finished": list(a.progress.get("finished", [])), "partial": dict(a.progress.get("partial", {})),
+            "pending": list(a.progress.get("pending", [])), "elapsed_min": a.progress.get("elapsed_min")}
+
+
+# ---------------------------------------------------------------------- the report
+
+
+def allocation_lines(merged: dict) -> list[str]:
+    """Every allocation: device, date, torch, what it finished and what its budget cut short."""
+    lines = ["## Allocations", "", "| allocation | device | date (UTC) | torch | finished | not finished |",
+             "|---|---|---|---|---|---|"]
+    for a in merged["provenance"]["allocations"]:
+        cut = [f"{n} (step {s})" for n, s in a["partial"].items()] + [f"{n} (not started)" for n in a["pending"]]
+        lines.append(f"| {a['source']} | {a['device']} | {a['date']} | {a['torch']} | "
+                     f"{', '.join(a['finished']) or '—'} | {', '.join(cut) or '—'} |")
+    for d in merged["provenance"].get("duplicates", []):
+        diff = d["largest_ridge_difference"]
+        lines.append(f"\n`{d['run']}` was trained in two allocations: the later ({d['kept']}) is kept; the largest "
+                     f"ridge difference to the earlier ({d['dropped']}) is "
+                     + (f"{diff:.4f}." if isinstance(diff, float) else f"unknown: {diff}."))
+    return lines + [""]
+
+
+def run_lines(merged: dict) -> list[str]:
+    """Every run with its device and date, our numbers beside the paper's (ridge R², contact windows)."""
+    lines = ["## Runs (ridge R², contact windows; paper values beside ours)", "",
+             "| run | device | date (UTC) | steps | s/step | log k (ours / paper) | log m (ours / paper) | γ | "
+             "obj. position | direct-16 |", "|---|---|---|---|---|---|---|---|---|---|"]
+    for name, r in sorted(merged["runs"].items()):
+        al, pv = r.get("allocation", {}), FACTORIAL.get(r["train"]["variant"], {})
+        s = al.get("sec_per_step")
+        lines.append(f"| {name} | {al.get('device', '—')} | {al.get('date', '—')} | {al.get('steps_trained', '—')} | "
+                     f"{'—' if s is None else f'{s:.4f}'} | {fmt(probe(r, 'log_k'))} / {fmt(pv.get('log_k'))} | "
+                     f"{fmt(probe(r, 'log_m'))} / {fmt(pv.get('log_m'))} | {fmt(probe(r, 'gamma'))} | "
+                     f"{fmt(probe(r, 'object_pos'))} | {fmt(r['prediction'].get('direct16'), 3)} |")
+    # the paper gives its decoded 16-step error once (§4.2), not per variant
+    return lines + ["", f"Paper values: log k and log m from Table \"targets\" (mean of two seeds, 20k steps); "
+                        f"direct-16 {P.PREDICTION['direct16']} arena units (§4.2, one number, not per variant).", ""]
+
+
+def markdown(merged: dict) -> str:
+    """The merged record's report: allocations and runs with their devices, then the map's own report."""
+    body = report.markdown(merged).split("\n", 1)[1]  # its sections, under this report's title
+    head = ["# Identifiability map at the paper's budget, from GPU allocations", "",
+            f"Corpus {merged['provenance']['corpus_sha256'][:12]} (content hash of the seeded corpus every allocation "
+            "trained on). Paper values are the paper's own numbers, shown beside ours; they are never used as ours. "
+            "Certificates: " + ("from a CPU-side certify JSON." if merged["certificates"] else "none given."), ""]
+    return "\n".join(head + allocation_lines(merged) + run_lines(merged)) + body
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description="Merge GPU allocations of the paper-budget map into one record.")
+    ap.add_argument("allocations", nargs="+", type=Path,
+                    help="allocation folders as returned (device.json beside the map's pack), packs or map folders")
+    ap.add_argument("--out", type=Path, required=True, help="the merged record (results.json format)")
+    ap.add_argument("--markdown", type=Path, help="also write its report here")
+    ap.add_argument("--certificates", type=Path, help="certify JSON of the same corpus, computed on the CPU side")
+    ap.add_argument("--figure", type=Path, help="the identifiability-map figure (.png, a .pdf beside it); "
+                                                "default: --out with .png")
+    ap.add_argument("--no-figure", action="store_true", help="write no figure")
+    ap.add_argument("--tol", type=float, default=1e-4, help="ridge difference below which a run trained twice "
+                                                            "counts as reproduced")
+    a = ap.parse_args(argv)
+    try:
+        with tempfile.TemporaryDirectory(prefix="pokeworld-allocations-") as scratch:
+            allocs = [open_allocation(p, Path(scratch)) for p in a.allocations]
+            cert = read_certificates(a.certificates, allocs[0].corpus_sha256) if a.certificates else None
+            words = sys.argv[1:] if argv is None else argv
+            merged = merge_allocations(allocs, cert, a.tol,
+                                       command=" ".join(["python scripts/merge_allocations.py", *map(str, words)]))
+    except PokeworldError as e:  # one line, nothing written
+        raise SystemExit(f"error: {e}") from None
+    write_json(a.out, merged)
+    if a.markdown:
+        with atomic_path(a.markdown) as tmp:
+            tmp.write_text(markdown(merged))
+    if not a.no_figure:
+        fig = a.figure or a.out.with_suffix(".png")
+        report.figure(merged, fig.parent, stem=fig.stem)
+    print(f"[merge_allocations] {len(merged['runs'])} runs from {len(allocs)} allocations "
+          f"({len(merged['provenance']['duplicates'])} trained twice) -> {a.out}")
+    return 0
+
+
+__all__ = ["DEVICE_FILE", "AGREE", "Allocation", "device_record", "gpu_name", "write_device", "read_json", "unpack",
+           "open_allocation", "training_facts", "allocation_record", "check_agreement", "read_certificates",
+           "ridge_difference", "merge_allocations", "allocation_summary", "allocation_lines", "run_lines", "markdown",
+           "main"]

@@ -1,0 +1,194 @@
+"""GPU allocations of the paper-budget map, checked on a CPU at the tiny preset: scripts/gpu_allocation.sh end to end,
+and the merge of allocations (scripts/merge_allocations.py) into one record naming each run's device and date."""
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tarfile
+from datetime import datetime
+from pathlib import Path
+
+import pytest
+
+from pokeworld import certify
+from pokeworld import experiments as experiment
+from pokeworld.errors import ConfigError
+from pokeworld.experiments import allocations
+from pokeworld.experiments.record import record_problem
+
+ROOT = Path(__file__).resolve().parents[1]
+V, VFX, VX_t = (f"{v}-h1-4-16-lam0.02-standard-s0" for v in ("V", "VFX", "VX_t"))
+
+
+@pytest.fixture(scope="module")
+def allocation_a(tmp_path_factory):
+    """The allocation script at the tiny preset on this CPU (the CUDA tests skip, the benchmark times tiny)."""
+    base = tmp_path_factory.mktemp("alloc")
+    out, work = base / "A", base / "A_work"
+    env = {**os.environ, "PYTHON": sys.executable, "ALLOC_PRESET": "tiny", "ALLOC_BENCH_PRESETS": "tiny",
+           "ALLOC_BENCH_CONFIGS": "fast", "ALLOC_BENCH_STEPS": "2", "ALLOC_BUDGET_MIN": "5", "ALLOC_RESERVE_MIN": "1",
+           "ALLOC_WORK": str(work)}
+    proc = subprocess.run(["bash", "scripts/gpu_allocation.sh", str(out), "V", "VFX"], cwd=ROOT, env=env,
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    return out, work
+
+
+@pytest.fixture(scope="module")
+def allocation_b(tmp_path_factory):
+    """A second allocation (VFX again, and VX_t) as a bare pack whose device.json names another device, a day later."""
+    base = tmp_path_factory.mktemp("alloc_b")
+    work = base / "map"
+    work.mkdir()
+    (work / "device.json").write_text(json.dumps({"device": "NVIDIA H200", "date": "2099-01-02T00:00:00+00:00",
+                                                  "torch": "2.11.0+cu130", "git": "abc1234"}))
+    pack = base / "map_tiny.tar.gz"
+    experiment.run(experiment.make_config("tiny", out=str(work), variants=("VFX", "VX_t"), certify=False,
+                                          workers=1, pack=str(pack)))
+    return pack
+
+
+def _merge(tmp_path, *args):
+    out = tmp_path / "merged" / "map_paper.json"
+    allocations.main([*map(str, args), "--out", str(out), "--markdown", str(out.with_suffix(".md"))])
+    return json.loads(out.read_text()), out.with_suffix(".md").read_text()
+
+
+def _unpacked(pack: Path, dest: Path) -> Path:
+    with tarfile.open(pack) as tar:
+        tar.extractall(dest, filter="data")
+    return dest
+
+
+@pytest.mark.slow
+def test_the_allocation_script_runs_end_to_end_and_brings_back_small_files(allocation_a):
+    out, work = allocation_a
+    files = sorted(p.name for p in out.iterdir())
+    assert files == ["allocation.log", "bench.json", "cuda_tests.log", "device.json", "map_tiny.tar.gz"]
+    assert all(p.stat().st_size < 16 << 20 for p in out.iterdir())
+    device = json.loads((out / "device.json").read_text())
+    assert device["device"].startswith("cpu") and datetime.fromisoformat(device["date"]) and device["torch"]
+    bench = json.loads((out / "bench.json").read_text())["results"]
+    assert [(r["preset"], r["config"]) for r in bench] == [("tiny", "fast")] and bench[0]["sec_per_step"] > 0
+    assert "exit status" in (out / "cuda_tests.log").read_text()
+    with tarfile.open(out / "map_tiny.tar.gz") as tar:
+        names = set(tar.getnames())
+    assert {"device.json", "progress.json", "map_config.json", "data/standard/manifest.json",
+            f"runs/{V}/measure.json", f"runs/{VFX}/metrics.jsonl"} <= names
+    # no certificates computed, no checkpoint or data travels
+    assert not any(n.endswith(("certificates.json", ".pt", ".h5")) for n in names)
+    assert not (work / "map" / "data" / "standard" / "certificates.json").exists()
+    assert (work / "map" / "runs" / V / "final.pt").exists()  # the heavy files stayed in the work folder
+    cfg = json.loads((work / "map" / "map_config.json").read_text())
+    assert cfg["variants"] == ["V", "VFX"] and not cfg["certify"] and not cfg["mlp_probes"]
+    assert cfg["time_budget_min"] > 0
+
+
+@pytest.mark.slow
+def test_the_merge_names_each_runs_device_and_date_and_keeps_a_run_trained_twice_once(allocation_a, allocation_b,
+                                                                                      tmp_path):
+    out, _ = allocation_a
+    merged, md = _merge(tmp_path, allocation_b, out)  # given out of date order: the dates decide which is later
+    assert record_problem(merged) is None  # a results record: merge_map_results.py and the report read it
+    assert set(merged["runs"]) == {V, VFX, VX_t} and merged["experiments"]["factorial"]
+    assert merged["map_config"]["variants"] == ["V", "VX_t", "VFX"]  # the paper's order
+    a_device = json.loads((out / "device.json").read_text())
+    assert merged["runs"][V]["allocation"]["device"] == a_device["device"]
+    assert merged["runs"][V]["allocation"]["date"] == a_device["date"]
+    for name in (VFX, VX_t):  # the later allocation's
+        assert merged["runs"][name]["allocation"]["device"] == "NVIDIA H200"
+        assert merged["runs"][name]["allocation"]["date"].startswith("2099-01-02")
+        assert merged["runs"][name]["allocation"]["steps_trained"] == 10
+    [dup] = merged["provenance"]["duplicates"]
+    assert dup["run"] == VFX and dup["kept"] == str(allocation_b) and dup["dropped"] == str(out)
+    assert isinstance(dup["largest_ridge_difference"], float)
+    assert [a["device"] for a in merged["provenance"]["allocations"]] == [a_device["device"], "NVIDIA H200"]
+    assert len(merged["provenance"]["corpus_sha256"]) == 64
+    row = next(line for line in md.splitlines() if line.startswith(f"| {VFX} |"))
+    assert "NVIDIA H200" in row and "2099-01-02" in row and "/ +0.49" in row  # the paper's log k beside ours
+    assert f"`{VFX}` was trained in two allocations" in md
+    assert (tmp_path / "merged" / "map_paper.png").exists()
+
+
+@pytest.mark.slow
+def test_the_merge_refuses_another_corpus_or_other_settings(allocation_a, allocation_b, tmp_path):
+    out, _ = allocation_a
+    other = _unpacked(allocation_b, tmp_path / "other")
+    manifest = other / "data" / "standard" / "manifest.json"
+    m = json.loads(manifest.read_text())
+    manifest.write_text(json.dumps({**m, "content_sha256": "0" * 64}))
+    with pytest.raises(SystemExit, match="000000000000.*share the seeded corpus"):
+        allocations.main([str(out), str(other), "--out", str(tmp_path / "m.json")])
+    assert not (tmp_path / "m.json").exists()
+    manifest.write_text(json.dumps(m))
+    cfg_path = other / "map_config.json"
+    cfg_path.write_text(json.dumps({**json.loads(cfg_path.read_text()), "train_steps": 20000}))
+    with pytest.raises(SystemExit, match="other settings.*train_steps"):
+        allocations.main([str(out), str(other), "--out", str(tmp_path / "m.json")])
+    bad = tmp_path / "bad.tar.gz"
+    bad.write_bytes(b"not a tar")
+    with pytest.raises(SystemExit, match="not a map pack"):
+        allocations.main([str(bad), "--out", str(tmp_path / "m.json")])
+
+
+@pytest.mark.slow
+def test_certificates_come_from_a_certify_json_of_the_same_corpus(allocation_a, tmp_path):
+    out, work = allocation_a
+    cert = certify.run(certify.make_config("tiny", data=str(work / "map" / "data" / "standard"),
+                                           estimators=("linear", "drag"), out=str(tmp_path / "cert.json")))
+    merged, md = _merge(tmp_path, out, "--certificates", cert)
+    assert set(merged["certificates"]) == {"standard"} and merged["certificates"]["standard"]["gate"]
+    assert "Recoverability certificates" in md and "Certificates: from a CPU-side certify JSON" in md
+    c = json.loads(Path(cert).read_text())
+    c["dataset"]["content_sha256"] = "f" * 64
+    Path(cert).write_text(json.dumps(c))
+    with pytest.raises(SystemExit, match="certifies corpus ffffffffffff"):
+        _merge(tmp_path, out, "--certificates", cert)
+
+
+@pytest.mark.slow
+def test_a_run_the_budget_cut_short_is_named_not_counted(allocation_a, tmp_path):
+    out, _ = allocation_a
+    cut = _unpacked(out / "map_tiny.tar.gz", tmp_path / "cut")
+    prog_path = cut / "progress.json"
+    prog = json.loads(prog_path.read_text())
+    prog_path.write_text(json.dumps({**prog, "finished": [VFX], "partial": {V: 5}, "complete": False}))
+    merged, md = _merge(tmp_path, cut)
+    assert set(merged["runs"]) == {VFX}
+    assert merged["provenance"]["allocations"][0]["partial"] == {V: 5}
+    assert f"{V} (step 5)" in md
+
+
+def test_an_allocation_without_a_device_record_is_refused(allocation_b, tmp_path):
+    bare = _unpacked(allocation_b, tmp_path / "bare")
+    (bare / "device.json").unlink()
+    with pytest.raises(ConfigError, match="device.json"):
+        allocations.open_allocation(bare, tmp_path)
+    folder = tmp_path / "returned"
+    folder.mkdir()
+    shutil.copy(allocation_b, folder)
+    shutil.copy(allocation_b, folder / "second.tar.gz")
+    with pytest.raises(ConfigError, match="one map pack"):
+        allocations.open_allocation(folder, tmp_path)
+
+
+def test_the_device_record_names_this_machine(tmp_path):
+    rec = allocations.write_device(tmp_path / "sub" / "device.json")
+    assert json.loads((tmp_path / "sub" / "device.json").read_text()) == rec
+    assert rec["device"] and rec["torch"] and datetime.fromisoformat(rec["date"]).tzinfo is not None
+
+
+def test_certify_off_cannot_certify_alongside():
+    with pytest.raises(ConfigError, match="no-certify"):
+        experiment.make_config("tiny", certify=False, certify_alongside=True)
+
+
+def test_the_script_keeps_the_heavy_work_folder_out_of_what_comes_back(tmp_path):
+    out = tmp_path / "out"
+    env = {**os.environ, "PYTHON": sys.executable, "ALLOC_WORK": str(out / "work")}
+    proc = subprocess.run(["bash", "scripts/gpu_allocation.sh", str(out)], cwd=ROOT, env=env, capture_output=True,
+                          text=True, timeout=60)
+    assert proc.returncode == 2 and "must not lie inside OUT" in proc.stderr
+    assert not out.exists()  # refused before anything was written
