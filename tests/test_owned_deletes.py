@@ -68,3 +68,22 @@ def test_a_lance_table_is_replaceable_and_a_user_folder_named_like_one_is_not(tm
     _tree(table, ["my_results.csv"])
     with pytest.raises(ConfigError, match="did not write"):
         check_owned_dir(table, LANCE_TABLE)
+
+
+def test_a_failed_folder_write_removes_its_temporary_but_never_a_links_target(tmp_path):
+    """atomic_path's temporary folder is removed entry by entry on failure: a link planted inside it is unlinked and
+    the file it points at (outside, the user's) survives."""
+    from pokeworld.io import atomic_path
+
+    user = tmp_path / "user.txt"
+    user.write_text("keep me")
+    final = tmp_path / "out" / "store"
+    with pytest.raises(RuntimeError):
+        with atomic_path(final) as tmp:
+            (tmp / "sub").mkdir(parents=True)
+            (tmp / "sub" / "part.bin").write_bytes(b"x")
+            (tmp / "link").symlink_to(user)
+            (tmp / "dirlink").symlink_to(tmp_path, target_is_directory=True)
+            raise RuntimeError("crash mid-write")
+    assert user.read_text() == "keep me"
+    assert not final.exists() and not list((tmp_path / "out").iterdir())

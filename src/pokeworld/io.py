@@ -21,7 +21,6 @@ import hashlib
 import json
 import os
 import re
-import shutil
 import stat
 import tempfile
 import warnings
@@ -122,7 +121,7 @@ def remove_owned_dir(directory: str | os.PathLike, owned: OwnedDir) -> None:
             if inner is not None:
                 remove_owned_dir(e.path, inner)
             elif owned.owns_file(e):
-                os.unlink(e.path)
+                remove_own_file(e.path)
     try:
         os.rmdir(directory)
     except OSError as e:
@@ -146,11 +145,30 @@ def remove_own_file(path: str | os.PathLike) -> None:
 
 
 def _discard(tmp: Path) -> None:
-    """Remove our own temporary name (a link there is unlinked, not followed)."""
+    """Remove our own temporary name ``.<final>.tmp-<pid>`` (only :func:`atomic_path` makes such names): a link there
+    is unlinked, never followed; a folder is emptied entry by entry (:func:`_remove_temporary_tree`)."""
     if tmp.is_symlink() or tmp.is_file():
         tmp.unlink()
     elif tmp.is_dir():
-        shutil.rmtree(tmp, ignore_errors=True)
+        _remove_temporary_tree(tmp)
+
+
+def _remove_temporary_tree(folder: Path) -> None:
+    """Delete a temporary folder :func:`atomic_path` handed out, walking it without following any link: regular files
+    and links are unlinked (a link's target is never touched), real subfolders recursed into; anything else (a FIFO, a
+    socket, a device) is left, and the folder with it, with a warning naming it."""
+    with os.scandir(folder) as it:
+        for e in it:
+            if e.is_dir(follow_symlinks=False):
+                _remove_temporary_tree(Path(e.path))
+            elif e.is_symlink() or e.is_file(follow_symlinks=False):
+                os.unlink(e.path)
+            else:
+                warnings.warn(f"left {e.path} in place: not a file, link or folder", stacklevel=2)
+    try:
+        os.rmdir(folder)
+    except OSError as err:
+        warnings.warn(f"left temporary folder {folder} in place: {err.strerror}", stacklevel=2)
 
 
 def _refuse_link(final: Path) -> None:
