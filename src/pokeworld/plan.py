@@ -28,11 +28,12 @@ import torch
 
 from .config import from_preset, to_dict
 from .data import load, read_manifest
+from .devices import pick_device
 from .errors import ConfigError
 from .evaluate.counterfactual import counterfactual_fit
-from .evaluate.measure import EpisodeLatents, position_decoder
+from .evaluate.measure import EpisodeLatents, full_precision, position_decoder
 from .evaluate.ranking import agreement
-from .evaluate.state import encode_observations
+from .evaluate.state import encode_observations, model_device
 from .io import atomic_path, check_writable_dir, save_figure, write_json
 from .paper_values import PLANNING
 from .preflight import require_finished_runs
@@ -110,8 +111,14 @@ class PlanConfig:
     ranked perfectly, the planner's ceiling on these starts. Runs may then be empty (``--runs`` with no value)."""
     seed: int = 0
     """Seed of starts, goals and CEM noise."""
+    device: str = "auto"
+    """Where each model predicts and its candidates are scored: 'auto' (cuda when available, else cpu), 'cpu', 'cuda'
+    or 'cuda:N'. On CUDA the predicted latents are decoded and costed there (:meth:`LatentScorer.device_score`, TF32
+    off), and only each CEM iteration's (episodes, population) costs come to the host; on the CPU the numpy decoder
+    path is unchanged. Not part of a map's planning key."""
 
     def __post_init__(self) -> None:
+        pick_device(self.device)  # a clear error now rather than inside torch later
         if self.elites > self.population or self.elites < 1:
             raise ConfigError("need 1 <= elites <= population")
         if self.replan < 1 or self.replan > PROGRAM:
@@ -149,10 +156,14 @@ def make_config(preset: str = "cpu", **overrides) -> PlanConfig:
 class LatentScorer:
     """Scores action programs with one model's direct heads: against its encoding of the goal observation
     (``cost`` 'goal_l2' / 'goal_l1') or through its position decoder ('decoder'). The decoder is fit either way:
-    the rank test's diagnostics read predicted latents as positions through it."""
+    the rank test's diagnostics read predicted latents as positions through it.
+
+    The model runs on ``device``. On CUDA the decoder cost stays there (:meth:`device_score`: the fitted ridge as one
+    affine map on the latents' device, the costs computed beside it); on the CPU it is the numpy decoder path, and
+    :meth:`device_positions` / :meth:`device_score` are the device path run on the CPU (equal to float rounding)."""
 
     def __init__(self, run_dir: str, data: str, heads: str = "direct", cost: str = "decoder",
-                 goal_finger: str = "behind", physics: PhysicsConfig | None = None):
+                 goal_finger: str = "behind", physics: PhysicsConfig | None = None, device: str = "cpu"):
         if heads not in PLANNING_HEADS:
             raise ConfigError(f"heads must be one of {list(PLANNING_HEADS)}, got {heads!r}")
         if cost not in PLANNING_COSTS:
@@ -160,7 +171,7 @@ class LatentScorer:
         self.heads, self.cost, self.goal_finger = heads, cost, goal_finger
         self.physics = physics or PhysicsConfig()
         self._goal: tuple[dict, np.ndarray, torch.Tensor] | None = None  # (history, goal, goal latents)
-        self.model = load_model(run_dir, map_location="cpu")
+        self.model = load_model(run_dir, map_location=pick_device(device))
         if not {4, 16} <= set(self.model.horizons):
             raise ConfigError(f"{run_dir}: planning needs Δ=4 and Δ=16 heads, model has {self.model.horizons}")
         if not data:
@@ -169,14 +180,42 @@ class LatentScorer:
         fit = ds.episodes("probe_fit")
         lat = EpisodeLatents(self.model, ds, fit, 64)
         self.decoder = position_decoder(ds, lat, fit, np.random.default_rng(0))
+        # the same decoder as float64 weights on the model's device, its standardisation folded in: predicted
+        # latents are decoded where they are computed
+        dev = model_device(self.model)
+        self.decoder_affine = tuple(torch.as_tensor(a, dtype=torch.float64, device=dev)
+                                    for a in self.decoder.affine())
         self._encoded: tuple[dict, torch.Tensor] | None = None  # (history, its latents): one encode per replan
+
+    @property
+    def on_device(self) -> bool:
+        """Whether decoder costs are computed on the model's device (:meth:`device_score`): a CUDA model."""
+        return model_device(self.model).type == "cuda"
 
     def positions(self, hist: dict, cand: np.ndarray) -> dict[int, np.ndarray]:
         """hist: frames (E, C, H, W), proprio, touch (E, C, .), actions (E, C-1, 2); cand (E, P, 16, 2) ->
         {Δ: (E, P, 2) decoded object position Δ steps into each program} for the Δ of COST_TERMS."""
+        if self.on_device:
+            return {d: p.cpu().numpy() for d, p in self.device_positions(hist, cand).items()}
         E, P = cand.shape[:2]
         return {d: self.decoder.predict(z.float().numpy()).reshape(E, P, 2)
                 for d, z in self.latents(hist, cand).items()}
+
+    @torch.no_grad()
+    def device_positions(self, hist: dict, cand: np.ndarray) -> dict[int, torch.Tensor]:
+        """:meth:`positions` as float64 tensors on the model's device: the latents never leave it."""
+        E, P = cand.shape[:2]
+        W, b = self.decoder_affine
+        return {d: (z.double() @ W + b).reshape(E, P, -1) for d, z in self.latents(hist, cand).items()}
+
+    @torch.no_grad()
+    def device_score(self, hist: dict, cand: np.ndarray, goal: np.ndarray) -> np.ndarray:
+        """The decoder cost of :meth:`score`, computed on the model's device; the (E, P) costs are the one copy to
+        the host."""
+        pos = self.device_positions(hist, cand)
+        g = torch.as_tensor(goal, dtype=torch.float64, device=self.decoder_affine[0].device)[:, None]
+        total = sum(w * torch.linalg.vector_norm(pos[d] - g, dim=-1) for d, w in COST_TERMS)
+        return total.cpu().numpy()
 
     @torch.no_grad()
     def latents(self, hist: dict, cand: np.ndarray) -> dict[int, torch.Tensor]:
@@ -219,7 +258,7 @@ class LatentScorer:
             diff = latents[d].float().reshape(E, -1, z_goal.shape[-1]) - z_goal.float()[:, None]
             dist = diff.abs().sum(-1) if self.cost == "goal_l1" else diff.pow(2).sum(-1)
             total = total + w * dist
-        return total.numpy()
+        return total.cpu().numpy()
 
     def decode(self, obs: dict) -> np.ndarray:
         """Observations (N, ...) -> (N, 2): the object position this model's encoder and decoder read from them
@@ -228,6 +267,8 @@ class LatentScorer:
 
     def score(self, hist: dict, cand: np.ndarray, goal: np.ndarray) -> np.ndarray:
         """(E, P) planning cost of ``cand`` (COST_TERMS): against the encoded goal, or of decoded positions."""
+        if self.cost == "decoder" and self.on_device:
+            return self.device_score(hist, cand, goal)
         if self.cost == "decoder":
             pos = self.positions(hist, cand)
             return sum(w * np.linalg.norm(pos[d] - goal[:, None], axis=-1) for d, w in COST_TERMS)
@@ -477,11 +518,14 @@ def plan_runs(cfg: PlanConfig, runs: dict[str, list[str]], data: str = "") -> di
     for label, dirs in runs.items():
         per = {}
         for r in dirs:
-            scorer = LatentScorer(r, data or cfg.data, cfg.heads, cfg.cost, cfg.goal_finger, setup["physics"])
-            started = time.perf_counter()
-            res = control(cfg, setup, scorer)
-            res["seconds_per_decision"] = (time.perf_counter() - started) / -(-cfg.steps // cfg.replan)
-            rank = rank_test(cfg, setup, scorer)
+            scorer = LatentScorer(r, data or cfg.data, cfg.heads, cfg.cost, cfg.goal_finger, setup["physics"],
+                                  cfg.device)
+            # fp32 on CUDA (no TF32), so a GPU ranks candidates as the CPU does, to float rounding
+            with full_precision(pick_device(cfg.device)):
+                started = time.perf_counter()
+                res = control(cfg, setup, scorer)
+                res["seconds_per_decision"] = (time.perf_counter() - started) / -(-cfg.steps // cfg.replan)
+                rank = rank_test(cfg, setup, scorer)
             episodes.setdefault(label, res)
             per[Path(r).name] = ({k: res[k] for k in METRICS} | {k: rank.get(k, float("nan")) for k in RANK_METRICS}
                                  | {"seconds_per_decision": res["seconds_per_decision"]})
@@ -526,7 +570,8 @@ def showcase_episode(episodes: dict, left: str, right: str) -> int:
     return int(np.argmax(gain))
 
 
-def figure(planned: dict, out: Path, goal_radius: float, left: str | None = None, right: str | None = None) -> list[Path]:
+def figure(planned: dict, out: Path, goal_radius: float, left: str | None = None,
+           right: str | None = None) -> list[Path]:
     """The paper's plan figure: one held-out episode under two representations, plus both distance curves.
 
     ``left`` / ``right`` default to the first and last planned representation (e.g. V and VFX).
@@ -611,7 +656,8 @@ def table_lines(summary: dict) -> list[str]:
         control = v.get("decoded_truth_miss_displacement")
         disp += " | " + ("—" if control is None or not np.isfinite(control) else f"{control:.3f}")
         lines.append(f"| {k} | {v['reach']:.0%} / {f'{p[0]:.0%}' if p else '—'} | "
-                     f"{v['median_improvement']:+.3f} / {f'{p[1]:.2f}' if p else '—'} | {extra} | {rank} | {cf} | {disp} |")
+                     f"{v['median_improvement']:+.3f} / {f'{p[1]:.2f}' if p else '—'} | {extra} | {rank} | {cf} | "
+                     f"{disp} |")
     # a table of nan and R² in the hundreds below zero reads as a bug; at the tiny preset it is the expected output
     # of an untrained-sized model on a handful of starts, so say so under the table (trained cpu-preset models read
     # a within-start R² down to about -5, docs/design.md "Planning: open-loop behaviour data and the rank test")

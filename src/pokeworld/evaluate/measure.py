@@ -77,12 +77,14 @@ from .probes import (  # noqa: F401
     probe_windows,
 )
 from .state import (  # noqa: F401
+    PROBE_DEVICES,
     EpisodeLatents,
     as_model_input,
     encode_episodes,
     model_device,
     neutral_last,
     padded_actions,
+    probes_on_device,
     window_states,
 )
 
@@ -129,15 +131,23 @@ class MeasureConfig:
     """Recompute even if measure.json is up to date."""
     device: str = "auto"
     """Where the model runs while its states are read: 'auto' (cuda when available, else cpu), 'cpu', 'cuda' or
-    'cuda:N'. The probes are fit on the CPU either way; on CUDA the states are read with TF32 off (:func:`full_precision`),
-    so GPU and CPU states differ by float rounding only (tests/test_cuda.py) and the
-    device is not part of the measurement's key (a measurement made on either is up to date for both)."""
+    'cuda:N'. On CUDA the states are read with TF32 off (:func:`full_precision`), so GPU and CPU states differ by float
+    rounding only (tests/test_cuda.py) and the device is not part of the measurement's key (a measurement made on
+    either is up to date for both)."""
+    probe_device: str = "auto"
+    """Where the probes run: 'auto' — on the model's device when that is CUDA (the states never leave it; the probes
+    run there in torch, ridge in float64, and only the R² numbers come back), else on the host in numpy / sklearn,
+    the path every recorded measurement was made with; 'host' — always the latter; 'model' — always the former (on
+    a CPU: torch on the CPU, equal to the numpy path to float rounding, tests/test_device_probes.py). Not part of
+    the measurement's key."""
 
     def __post_init__(self) -> None:
         bad = (set(self.kinds) | set(self.action_conditioned_kinds)) - set(KINDS)
         if bad:
             raise ConfigError(f"unknown window kinds {sorted(bad)}; choose from {list(KINDS)}")
         pick_device(self.device)  # a clear error now rather than inside torch later
+        if self.probe_device not in PROBE_DEVICES:
+            raise ConfigError(f"probe_device must be one of {list(PROBE_DEVICES)}, got {self.probe_device!r}")
         if self.context < 1 or self.window < 2:
             raise ConfigError(f"context must be ≥ 1 and window ≥ 2, got context={self.context}, window={self.window}")
         if not self.kinds:
@@ -156,24 +166,27 @@ MAX_MEASUREMENT_BYTES = 64 << 20
 
 # --------------------------------------------------------------------------- belief objective
 @torch.no_grad()
-def belief_states(model, lat: EpisodeLatents, w, acts: np.ndarray, which: str, batch: int = 512) -> np.ndarray:
+def belief_states(model, lat: EpisodeLatents, w, acts: np.ndarray, which: str, batch: int = 512,
+                  on_device: bool = False):
     """Belief readout per window: ``prior`` -> μ_p at the last observation (causal, neutral last action);
-    ``posterior`` -> μ_q of the window, which ends at that observation (no future). (W, K)."""
+    ``posterior`` -> μ_q of the window, which ends at that observation (no future). (W, K): an array, or with
+    ``on_device`` a tensor left on the model's device."""
     z, a = lat.gather(w), neutral_last(w.gather(acts))
     out = []
     for i in range(0, len(z), batch):
         zt, at = as_model_input(model, z[i:i + batch]), a[i:i + batch]
         mu = model.prior(zt, at)[0][:, -1] if which == "prior" else model.posterior(zt, at)[0]
-        out.append(mu.float().cpu().numpy())
-    return np.concatenate(out)
+        out.append(mu.float() if on_device else mu.float().cpu().numpy())
+    return torch.cat(out) if on_device else np.concatenate(out)
 
 
 def probe_belief(model, ds: Dataset, cfg: MeasureConfig, latents) -> dict:
     """Ridge probes of the belief objective's prior mean (causal) and posterior mean (same history)."""
     acts = padded_actions(ds)
     lat = dict(zip(("fit", "test"), latents))
+    dev = probes_on_device(cfg.probe_device, model)
     return {f"{which}_mean": probe_windows(ds, lambda w, part, which=which: belief_states(model, lat[part], w, acts,
-                                                                                         which),
+                                                                                         which, on_device=dev),
                                            cfg.kinds, cfg.window, cfg.stride, cfg.max_windows, cfg.seed, mlp=False)
             for which in ("prior", "posterior")}
 
@@ -275,7 +288,7 @@ def run(cfg: MeasureConfig) -> Path:
     cfg_key = to_dict(cfg)
     if cfg.context == CONTEXT:  # added later: left out at its default so earlier measurements stay up to date
         del cfg_key["context"]
-    del cfg_key["device"]  # where the states were computed, not what was measured
+    del cfg_key["device"], cfg_key["probe_device"]  # where states and probes were computed, not what was measured
     key = {"config": cfg_key, "data_sha256": read_manifest(data).get("content_sha256"),
            "final_mtime": (run_dir / "DONE").stat().st_mtime_ns}
     if out.exists() and not cfg.overwrite:

@@ -4,18 +4,20 @@ Every fit is episode-grouped (ridge alpha by grouped CV, MLP early stopping on h
 scored on episodes the fit never saw. :func:`fit_predict` is the one place probes are fitted; the
 simulator's R^2 tables (:func:`fit_probes`, :func:`probe_windows`) and the real-data metrics
 (:mod:`pokeworld.real.evaluate`: force / position R^2, onset AUC, force forecasting) all read its
-predictions.
+predictions. States given as tensors are probed on their device (:mod:`pokeworld.regressors`); only the R^2
+numbers come to the host.
 """
 
 from __future__ import annotations
 
 import numpy as np
+import torch
 
 from ..data import Dataset
 from ..errors import DataError
 from ..regressors import RidgeCV, TorchRegressor, r2_scores
 from ..windows import make_windows
-from .state import EpisodeLatents, padded_actions, window_states
+from .state import EpisodeLatents, padded_actions, probes_on_device, window_states
 
 PARAM_TARGETS = ("log_m", "gamma", "log_k", "bias_x", "bias_y", "gain")
 STATE_TARGETS = ("object_pos", "object_vel", "finger_pos", "object_rel")
@@ -63,34 +65,44 @@ def fit_predict(X_fit, g_fit, T_fit: dict, X_tests: dict, mlp: bool, seed: int) 
 
 
 def fit_probes(X_fit, g_fit, T_fit, X_test, T_test, mlp: bool, seed: int) -> dict:
-    """R^2 of ridge (and MLP) probes per target; multi-dimensional targets average their per-dim R^2."""
+    """R^2 of ridge (and MLP) probes per target; multi-dimensional targets average their per-dim R^2.
+    Tensor states: fit and scored on their device, each R^2 the one number copied to the host."""
     preds = fit_predict(X_fit, g_fit, T_fit, {"test": X_test}, mlp, seed)
-    return {fam: {name: float(np.mean(r2_scores(T_test[name], p["test"]))) for name, p in per.items()}
-            for fam, per in preds.items()}
+    return {fam: {name: mean_r2(T_test[name], p["test"]) for name, p in per.items()} for fam, per in preds.items()}
 
 
-def probe_latents(model, ds: Dataset, cfg) -> tuple[EpisodeLatents, EpisodeLatents]:
-    """Encoder latents of the probe-fit and probe-test episodes (shared by every readout of one model).
+def mean_r2(y_true, y_pred) -> float:
+    """The mean over columns of :func:`~pokeworld.regressors.r2_scores`, as a float (tensors: on their device)."""
+    r2 = r2_scores(y_true, y_pred)
+    return float(r2.mean()) if isinstance(r2, torch.Tensor) else float(np.mean(r2))
+
+
+def probe_latents(model, ds: Dataset, cfg, on_device: bool = False) -> tuple[EpisodeLatents, EpisodeLatents]:
+    """Encoder latents of the probe-fit and probe-test episodes (shared by every readout of one model); with
+    ``on_device`` the predictor's inputs stay on the model's device (:class:`EpisodeLatents`).
 
     ``cfg`` needs ``batch_episodes`` (a MeasureConfig or any config carrying it)."""
     fit_eps, test_eps = ds.episodes("probe_fit"), ds.episodes("probe_test")
     if np.intersect1d(fit_eps, test_eps).size:
         raise DataError("probe-fit and probe-test episodes overlap")
-    return (EpisodeLatents(model, ds, fit_eps, cfg.batch_episodes),
-            EpisodeLatents(model, ds, test_eps, cfg.batch_episodes))
+    return (EpisodeLatents(model, ds, fit_eps, cfg.batch_episodes, on_device),
+            EpisodeLatents(model, ds, test_eps, cfg.batch_episodes, on_device))
 
 
 def probe_model(model, ds: Dataset, cfg, mlp: bool, kinds: tuple[str, ...] | None = None,
                 neutral_last_action: bool = True, latents=None) -> tuple[dict, tuple]:
     """Probe R^2 per family and window kind: ``({"counts", "ridge", ["mlp"]}, (lat_fit, lat_test))``.
 
-    ``cfg`` carries ``kinds``, ``window``, ``stride``, ``max_windows``, ``seed``, ``batch_episodes``
-    (:class:`pokeworld.evaluate.measure.MeasureConfig`)."""
+    ``cfg`` carries ``kinds``, ``window``, ``stride``, ``max_windows``, ``seed``, ``batch_episodes`` and
+    ``probe_device`` (:class:`pokeworld.evaluate.measure.MeasureConfig`); the latter says whether the states stay
+    on the model's device and are probed there (:func:`~pokeworld.evaluate.state.probes_on_device`)."""
     kinds = cfg.kinds if kinds is None else kinds
-    lat_fit, lat_test = latents if latents is not None else probe_latents(model, ds, cfg)
+    on_device = probes_on_device(cfg.probe_device, model)
+    lat_fit, lat_test = latents if latents is not None else probe_latents(model, ds, cfg, on_device)
     acts = padded_actions(ds)
     lat = {"fit": lat_fit, "test": lat_test}
-    out = probe_windows(ds, lambda w, part: window_states(model, ds, lat[part], w, acts, neutral_last_action),
+    out = probe_windows(ds, lambda w, part: window_states(model, ds, lat[part], w, acts, neutral_last_action,
+                                                          on_device=on_device),
                         kinds, cfg.window, cfg.stride, cfg.max_windows, cfg.seed, mlp)
     return out, (lat_fit, lat_test)
 

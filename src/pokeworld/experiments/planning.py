@@ -42,7 +42,9 @@ def ensure_planning(c: MapConfig) -> dict:
     runs: dict[str, list[str]] = {}
     for s in (with_map_training(c, s) for s in specs(c)):
         runs.setdefault(s.train["variant"], []).append(str(run_dir(c, s.name)))
-    key = {"config": to_dict(pcfg), "runs": {v: [[Path(d).name, (Path(d) / "DONE").stat().st_mtime_ns]
+    # where the models ran is not part of what was planned (the device path equals the CPU's to float rounding)
+    planned_config = {k: v for k, v in to_dict(pcfg).items() if k != "device"}
+    key = {"config": planned_config, "runs": {v: [[Path(d).name, (Path(d) / "DONE").stat().st_mtime_ns]
                                                   for d in dirs] for v, dirs in runs.items()}}
     out = planning_dir(c)
     path = out / "planning.json"

@@ -234,7 +234,7 @@ def compare(cfg: SwmPlanConfig) -> dict:
     if cfg.simulator_ceiling:
         record("simulator/swm-cem", lambda: solver_control(cfg, setup, "cem", SimulatorScorer))
     for r in cfg.plan.runs:
-        label, scorer = run_label(r), LatentScorer(r, cfg.plan.data)
+        label, scorer = run_label(r), LatentScorer(r, cfg.plan.data, device=cfg.plan.device)
         ranks[label] = rank_test(pc, setup, scorer)
         if cfg.ours:
             record(f"{label}/ours", lambda s=scorer: control(pc, setup, s))
