@@ -67,7 +67,7 @@ COMMANDS: dict[str, Command] = {
     "map": Command("pokeworld.experiments", "MapConfig", "the identifiability map end to end", "out"),
     "demo": Command("pokeworld.experiments", "MapConfig", "small map on CPU in minutes", "out",
                     make="make_demo_config",
-                    cost="≈ 7.5 min on 2 CPU cores: 2,400 episodes, four 2,200-step models of train's "
+                    cost="≈ 8 min on 2 CPU cores: 2,400 episodes, four 2,200-step models of train's "
                          "'demo' preset, demo certificates"),
     "pairs": Command("pokeworld.sim.pairs", "PairsConfig", "matched-pairs figure", "out"),
     "plan": Command("pokeworld.plan", "PlanConfig", "CEM push-to-goal with trained runs", "out"),
