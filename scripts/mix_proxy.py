@@ -21,22 +21,11 @@ import time
 from pathlib import Path
 
 from pokeworld.io import atomic_path, write_json
+from pokeworld.sim import generate
 
 VARIANTS = ("V", "VX_p", "VF", "VFX")
 TARGETS = ("log_k", "log_m", "gamma")
 POKEWORLD = str(Path(sys.executable).with_name("pokeworld"))
-
-
-def generate_args(point: dict, data: Path, episodes: int) -> list[str]:
-    """The ``pokeworld generate`` command of one grid point's corpus (the demo's size and split)."""
-    cmd = [POKEWORLD, "generate", "--preset", "cpu", "--out", str(data), "--num-episodes", str(episodes),
-           "--split-fractions", "0.4", "0.4", "0.2"]
-    for key, value in point.get("physics", {}).items():
-        cmd += [f"--physics.{key.replace('_', '-')}", str(value)]
-    for key, value in point["policy"].items():
-        values = value if isinstance(value, (list, tuple)) else [value]
-        cmd += [f"--policy.{key.replace('_', '-')}", *map(str, values)]
-    return cmd
 
 
 def run_parallel(commands: list[list[str]], parallel: int, log: Path) -> None:
@@ -67,7 +56,9 @@ def proxy_point(row: dict, work: Path, args) -> dict:
     work.mkdir(parents=True, exist_ok=True)
     log = work / "log.txt"
     data = work / "data"
-    run_parallel([generate_args(row["point"], data, args.episodes)], 1, log)
+    # the point's overrides through the generator's own preset layering, as the grid's corpora were built
+    generate.run(generate.make_config("cpu", out=str(data), num_episodes=args.episodes,
+                                      split_fractions=(0.4, 0.4, 0.2), **row["point"]))
     runs = {v: work / "runs" / v for v in VARIANTS}
     run_parallel([[POKEWORLD, "train", "--preset", "demo", "--variant", v, "--seed", "0", "--threads", "1",
                    "--data", str(data), "--out", str(r)] for v, r in runs.items()], args.parallel, log)

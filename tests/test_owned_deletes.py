@@ -87,3 +87,26 @@ def test_a_failed_folder_write_removes_its_temporary_but_never_a_links_target(tm
             raise RuntimeError("crash mid-write")
     assert user.read_text() == "keep me"
     assert not final.exists() and not list((tmp_path / "out").iterdir())
+
+
+def test_stale_temporaries_are_the_only_files_removed(tmp_path):
+    from pokeworld.io import remove_stale_temporaries
+
+    (tmp_path / ".results.json.tmp-123").write_text("half")
+    for name in ("results.json", "notes.tmp", ".hidden.tmp-x"):
+        (tmp_path / name).write_text("keep")
+    target = tmp_path / "target.txt"
+    target.write_text("keep")
+    os.symlink(target, tmp_path / ".link.tmp-7")  # a link under a temporary name: neither it nor its target goes
+    assert remove_stale_temporaries(tmp_path) == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".hidden.tmp-x", ".link.tmp-7", "notes.tmp",
+                                                          "results.json", "target.txt"]
+    assert target.read_text() == "keep"
+
+
+def test_the_writability_check_leaves_the_folder_as_it_was(tmp_path):
+    from pokeworld.io import check_writable_dir
+
+    (tmp_path / "mine.txt").write_text("keep")
+    check_writable_dir(tmp_path)
+    assert [p.name for p in tmp_path.iterdir()] == ["mine.txt"]

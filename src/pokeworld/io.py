@@ -144,9 +144,34 @@ def remove_own_file(path: str | os.PathLike) -> None:
     os.unlink(path)
 
 
+def temporary_name(final: Path) -> Path:
+    """The temporary sibling :func:`atomic_path` writes ``final`` under: ``.<name>.tmp-<pid>``, a name no user file
+    has by accident and the one :class:`OwnedDir` and :func:`remove_stale_temporaries` recognise."""
+    return final.with_name(f".{final.name}.tmp-{os.getpid()}")
+
+
+_TEMPORARY = re.compile(r"\..+\.tmp-\d+")
+
+
+def remove_stale_temporaries(folder: str | os.PathLike) -> int:
+    """Delete the regular files an interrupted atomic write left directly in ``folder`` (``.<name>.tmp-<pid>``,
+    :func:`temporary_name`); a link or folder under such a name is left alone. Only for a folder whose writers have
+    all stopped (the caller holds its lock). Returns how many were removed."""
+    removed = 0
+    with os.scandir(folder) as it:
+        for e in it:
+            if _TEMPORARY.fullmatch(e.name) and e.is_file(follow_symlinks=False):
+                remove_own_file(e.path)
+                removed += 1
+    return removed
+
+
 def _discard(tmp: Path) -> None:
-    """Remove our own temporary name ``.<final>.tmp-<pid>`` (only :func:`atomic_path` makes such names): a link there
-    is unlinked, never followed; a folder is emptied entry by entry (:func:`_remove_temporary_tree`)."""
+    """Remove our own temporary name ``.<final>.tmp-<pid>`` (:func:`temporary_name`; only :func:`atomic_path` makes
+    such names, and any other name is refused): a link there is unlinked, never followed; a folder is emptied entry
+    by entry (:func:`_remove_temporary_tree`)."""
+    if not _TEMPORARY.fullmatch(tmp.name):
+        raise ValueError(f"{tmp} is not a pokeworld temporary name; refusing to delete it")
     if tmp.is_symlink() or tmp.is_file():
         tmp.unlink()
     elif tmp.is_dir():
@@ -226,7 +251,7 @@ def atomic_path(final: str | os.PathLike, replace: OwnedDir | None = None) -> It
     final = Path(final)
     _refuse_link(final)
     final.parent.mkdir(parents=True, exist_ok=True)
-    tmp = final.with_name(f".{final.name}.tmp-{os.getpid()}")
+    tmp = temporary_name(final)
     _discard(tmp)  # left by a crashed process that had our pid
     try:
         yield tmp
@@ -238,7 +263,7 @@ def atomic_path(final: str | os.PathLike, replace: OwnedDir | None = None) -> It
 
 
 def check_writable_dir(directory: str | os.PathLike) -> None:
-    """Create ``directory`` if needed and prove it writable by creating and removing a probe file, so that a
+    """Create ``directory`` if needed and prove it writable by creating an unnamed temporary file there, so that a
     long computation does not end in a write error; raise ConfigError saying why not."""
     directory = Path(directory)
     try:
@@ -247,9 +272,9 @@ def check_writable_dir(directory: str | os.PathLike) -> None:
         raise ConfigError(f"cannot create output folder {directory}: {e.strerror or e}; choose another output "
                           "path") from None
     try:
-        fd, probe = tempfile.mkstemp(dir=directory, prefix=".pokeworld-write-probe-")
-        os.close(fd)
-        os.unlink(probe)
+        # an unnamed file where the OS offers one (O_TMPFILE): nothing is left to delete, not even our own probe
+        with tempfile.TemporaryFile(dir=directory):
+            pass
     except OSError as e:
         raise ConfigError(f"output folder {directory} is not writable ({e.strerror or e}); choose another output "
                           "path or fix its permissions") from None

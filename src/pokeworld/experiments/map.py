@@ -16,7 +16,7 @@ from pathlib import Path
 
 from .. import clock
 from ..config import to_dict
-from ..io import check_writable_dir, dir_lock, remove_own_file, write_json
+from ..io import check_writable_dir, dir_lock, remove_stale_temporaries, write_json
 from ..train.loop import past
 from . import report, stages
 from .config import MapConfig
@@ -93,9 +93,7 @@ def run(c: MapConfig) -> Path:
             print(f"[map] the previous holder of {out} ({stale}) is gone; taking over its lock and resuming")
         # temporary copies a killed map left of its top-level files (results, report, figures): only the lock's
         # holder writes these, so none of them is in use
-        for tmp in out.glob(".*.tmp-*"):
-            if tmp.is_file() and not tmp.is_symlink():
-                remove_own_file(tmp)
+        remove_stale_temporaries(out)
         return _run_locked(c)
 
 def _run_locked(c: MapConfig) -> Path:

@@ -12,7 +12,7 @@ from typing import Any
 from .. import certify, clock, train
 from ..evaluate import measure
 from ..evaluate.coordinate import build_flow_corpus
-from ..io import write_json
+from ..io import atomic_path, write_json
 from ..models import flow
 from ..rundir import last_logged_step
 from ..sim import generate
@@ -204,12 +204,10 @@ def pack_results(c: MapConfig, dest: str | os.PathLike) -> Path:
     """Tar+gzip the small result files of ``c.out`` (:data:`PACK_GLOBS`) into ``dest``; returns it."""
     out, dest = Path(c.out), Path(dest)
     dest.parent.mkdir(parents=True, exist_ok=True)
-    tmp = dest.with_name(f".{dest.name}.tmp-{os.getpid()}")
-    with tarfile.open(tmp, "w:gz") as tar:
+    with atomic_path(dest) as tmp, tarfile.open(tmp, "w:gz") as tar:  # no half-written pack under its name
         for pattern in PACK_GLOBS:
             for path in sorted(out.glob(pattern)):
                 tar.add(path, arcname=str(path.relative_to(out)))
-    os.replace(tmp, dest)
     size = dest.stat().st_size
     # the device machine returns files of at most 16 MiB each
     print(f"[map] packed results into {dest} ({size / 2 ** 20:.2f} MiB)"
