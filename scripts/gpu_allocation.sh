@@ -1,48 +1,64 @@
 #!/usr/bin/env bash
 # One GPU allocation of the paper-budget map, in one command that ends inside the allocation (docs/model.md
-# "GPU allocations"): the CUDA tests, a short benchmark (s/step of the cpu and paper presets, eager against CUDA
-# graphs), then as many complete paper-preset factorial runs (seed 0, 20,000 steps) as the time left allows, in
-# the priority order of VARIANTS, each measured with ridge probes. No certificates are computed here (the CPU side
-# certifies the same seeded corpus). Everything that comes back is small and lands in OUT, at most 8 files:
-#   device.json       the GPU (nvidia-smi name, driver), torch, CUDA, the UTC date, the git commit
-#   cuda_tests.log    tests/test_cuda.py
-#   bench.json        benchmarks/train_fast_path.py
-#   map_<preset>.tar.gz  the map's pack: map_config/progress/device JSON, the corpus manifest (its content hash),
-#                     each run's config, metrics and measurement; never checkpoints or data
-#   allocation.log    this script's output
-# A run the budget cuts short is listed as partial in progress.json and left out of the merged record.
-# Merge any number of allocations: python scripts/merge_allocations.py OUT1 OUT2 ... --out ... (see there).
+# "GPU allocations"). A device machine comes bare, for 15 minutes, at most 10 a command, and returns at most 8 files
+# of at most 16 MiB (64 MiB together) from OUT, so this script spends the allocation on training and returns each
+# run as soon as it is measured:
+#   1. device.json: the GPU (nvidia-smi name, driver), torch, CUDA, the UTC date, the commit (ALLOC_COMMIT);
+#   2. a smoke check of at most a minute: the two tests of tests/test_cuda.py on the map's path (the CUDA-graph
+#      default trains and resumes; a GPU-trained run is measured), skipped on a CPU;
+#   3. the runs of VARIANTS one at a time (pokeworld.experiments.allocation_run), each started only when its
+#      predicted time fits what is left, measured with ridge probes and packed into OUT before the next starts;
+#      the checkpoint of the run training is packed too, every ALLOC_SNAPSHOT_S seconds, so a kill at any moment
+#      loses at most the run in progress, and a later allocation given this OUT in ALLOC_RESUME resumes it.
+# OUT then holds allocation.log, device.json, .pokeworld-owned (pokeworld's record of what it wrote), records.tar.gz
+# (the map's records: configs, metrics, measurements, progress, the corpus manifest, returned.json) and
+# pack.tar.part00.. (the finished runs' final weights and the unfinished run's checkpoint, large tensors in
+# bfloat16; pokeworld.experiments.allocation_pack). No certificates are computed here (the CPU side certifies the
+# same seeded corpus). ALLOC_MODE=bench instead runs the full CUDA tests and the benchmark, and trains nothing.
+# Then, on the CPU side:  python scripts/merge_allocations.py OUT1 OUT2 ... --out ...   (merge; see there)
+#                         python scripts/merge_allocations.py --plan OUT1 OUT2 ...     (the next allocation's command)
 #
 # Usage (repository root; pokeworld importable, e.g. PYTHONPATH=/tmp/site:$PWD/src as in ../shared/device/README.md):
-#   bash scripts/gpu_allocation.sh OUT [VARIANTS...]        VARIANTS default: VFX VF V VX_t VX_p VX
+#   bash scripts/gpu_allocation.sh OUT [RUNS...]     RUNS: VARIANT or VARIANT@SEED in priority order
+#                                                    (default VFX VF V VX_t VX_p VX, then VF@1 VFX@1)
 # Environment (all optional):
-#   ALLOC_BUDGET_MIN     minutes for the whole script, compilation included (default 8.5)
-#   ALLOC_RESERVE_MIN    minutes the map keeps for measuring a run that just finished and packing (default 1.5)
+#   ALLOC_MODE           train (default) or bench (full CUDA tests and the benchmark, no training)
+#   ALLOC_COMMIT         the commit this copy of the repository is (the device copy has no .git); into device.json
+#   ALLOC_RESUME         folders earlier allocations returned (space-separated): their checkpoints are resumed and
+#                        the runs they finished skipped (merge_allocations.py --plan prints which to give)
+#   ALLOC_BUDGET_MIN     minutes for the whole script, its start to its last pack (default 8.5)
+#   ALLOC_RESERVE_MIN    minutes kept at the end for the last pack; training stops there (default 0.5)
 #   ALLOC_PRESET         map preset (default paper; tiny checks the script on a CPU in seconds)
 #   ALLOC_STEPS          training steps per run (default 0: the preset's, 20,000 at paper)
-#   ALLOC_TESTS          1 runs tests/test_cuda.py first, 0 skips it (default 1)
-#   ALLOC_TESTS_MAX_S    seconds the tests may take (default 180)
-#   ALLOC_BENCH_PRESETS  benchmark presets (default "cpu paper"; set empty to skip the benchmark)
-#   ALLOC_BENCH_CONFIGS  benchmark configurations (default "fast fast+reduce-overhead": eager and CUDA graphs)
-#   ALLOC_BENCH_STEPS    timed steps per configuration (default 30)
-#   ALLOC_BENCH_MAX_S    seconds the benchmark may take (default 150)
-#   ALLOC_MAP_ARGS       more `pokeworld map` options (e.g. "--experiments factorial planning")
+#   ALLOC_TESTS          smoke (default in train mode), full (default in bench mode) or 0 (none)
+#   ALLOC_TESTS_MAX_S    seconds the tests may take (default 60 for smoke, 180 for full)
+#   ALLOC_SNAPSHOT_S     seconds between checkpoint snapshots into OUT while a run trains (default 30)
+#   ALLOC_S_PER_STEP     s/step predicted before this allocation has timed a run (default: the preset's prior,
+#                        0.0104 at paper, the H200's with CUDA graphs)
+#   ALLOC_OVERHEAD_S     seconds a run takes beside its steps, predicted likewise (default: paper 90)
+#   ALLOC_BENCH_PRESETS  bench mode: benchmark presets (default "cpu paper"; empty skips the benchmark)
+#   ALLOC_BENCH_CONFIGS  bench mode: configurations (default "fast fast+reduce-overhead": eager and CUDA graphs)
+#   ALLOC_BENCH_STEPS    bench mode: timed steps per configuration (default 30)
+#   ALLOC_BENCH_MAX_S    bench mode: seconds the benchmark may take (default 150)
 #   ALLOC_WORK           the map's working folder (corpus, checkpoints; default a new folder under /tmp, never in OUT)
 #   PYTHON               the interpreter (default python3)
 set -uo pipefail
-OUT=${1:?usage: bash scripts/gpu_allocation.sh OUT [VARIANTS...]}
+OUT=${1:?usage: bash scripts/gpu_allocation.sh OUT [RUNS...]}
 shift
-VARIANTS=("$@")
-[ ${#VARIANTS[@]} -eq 0 ] && VARIANTS=(VFX VF V VX_t VX_p VX)
+RUNS=("$@")
 PY=${PYTHON:-python3}
+MODE=${ALLOC_MODE:-train}
 BUDGET_MIN=${ALLOC_BUDGET_MIN:-8.5}
-RESERVE_MIN=${ALLOC_RESERVE_MIN:-1.5}
 PRESET=${ALLOC_PRESET:-paper}
-STEPS=${ALLOC_STEPS:-0}
 BENCH_PRESETS=${ALLOC_BENCH_PRESETS-cpu paper}  # '-', not ':-': an empty value skips the benchmark
 BENCH_CONFIGS=${ALLOC_BENCH_CONFIGS:-fast fast+reduce-overhead}
 START=$(date +%s.%N)
+export PYTHONUNBUFFERED=1
 
+case "$MODE" in train) TESTS=${ALLOC_TESTS:-smoke} ;; bench) TESTS=${ALLOC_TESTS:-full} ;;
+  *) echo "ALLOC_MODE must be train or bench, not $MODE" >&2; exit 2 ;; esac
+case "$TESTS" in smoke) TESTS_MAX_S=${ALLOC_TESTS_MAX_S:-60} ;;
+  full|1) TESTS=full; TESTS_MAX_S=${ALLOC_TESTS_MAX_S:-180} ;; 0) ;; *) echo "ALLOC_TESTS must be smoke, full or 0, not $TESTS" >&2; exit 2 ;; esac
 OUT=$(realpath -m "$OUT")
 WORK=$(realpath -m "${ALLOC_WORK:-$(mktemp -d /tmp/pokeworld-allocation.XXXXXX)}")
 # the device machine returns everything under OUT: the corpus and checkpoints (gigabytes) must stay outside it
@@ -53,47 +69,51 @@ exec > >(tee -a "$OUT/allocation.log") 2>&1
 elapsed_s() { awk -v s="$START" -v n="$(date +%s.%N)" 'BEGIN { printf "%.0f", n - s }'; }
 log() { echo "[gpu_allocation +$(elapsed_s)s] $*"; }
 
-log "device -> $OUT/device.json"
+log "mode $MODE, device -> $OUT/device.json"
 "$PY" -c 'import json, sys; from pokeworld.experiments.allocations import write_device
 print(json.dumps(write_device(sys.argv[1])))' "$OUT/device.json" || exit 3
-cp "$OUT/device.json" "$WORK/map/device.json"  # the map's pack takes it along
+cp "$OUT/device.json" "$WORK/map/device.json"  # the records take it along
 
-if [ "${ALLOC_TESTS:-1}" = 1 ]; then
-  log "CUDA tests (at most ${ALLOC_TESTS_MAX_S:-180} s)"
-  timeout "${ALLOC_TESTS_MAX_S:-180}" "$PY" -m pytest -q -p no:cacheprovider tests/test_cuda.py >"$OUT/cuda_tests.log" 2>&1
+if [ "$TESTS" = smoke ]; then
+  # the map's path on the GPU: CUDA-graph training with its resume, and the measurement of a GPU-trained run
+  log "smoke check: tests/test_cuda.py, the map's path (at most $TESTS_MAX_S s)"
+  timeout "$TESTS_MAX_S" "$PY" -m pytest -q -p no:cacheprovider tests/test_cuda.py \
+    -k "cuda_default_trains_as_eager_and_resumes or gpu_trained_run_is_measured" 2>&1 | tail -n 5
+  log "smoke check exit status ${PIPESTATUS[0]}"
+elif [ "$TESTS" = full ]; then
+  log "CUDA tests (at most $TESTS_MAX_S s) -> cuda_tests.log"
+  timeout "$TESTS_MAX_S" "$PY" -m pytest -q -p no:cacheprovider tests/test_cuda.py >"$OUT/cuda_tests.log" 2>&1
   echo "exit status $?" >>"$OUT/cuda_tests.log"
   tail -n 3 "$OUT/cuda_tests.log"
 fi
 
-if [ -n "$BENCH_PRESETS" ]; then
-  log "benchmark: presets $BENCH_PRESETS, configurations $BENCH_CONFIGS (at most ${ALLOC_BENCH_MAX_S:-150} s)"
-  # shellcheck disable=SC2086  # word lists
-  timeout "${ALLOC_BENCH_MAX_S:-150}" "$PY" benchmarks/train_fast_path.py --presets $BENCH_PRESETS \
-    --configs $BENCH_CONFIGS --steps "${ALLOC_BENCH_STEPS:-30}" --out "$OUT/bench.json" \
-    || log "the benchmark did not finish (exit status $?)"
-fi
-
-LEFT_MIN=$(awk -v b="$BUDGET_MIN" -v e="$(elapsed_s)" 'BEGIN { printf "%.2f", b - e / 60 }')
 RC=0
-if awk -v l="$LEFT_MIN" -v r="$RESERVE_MIN" 'BEGIN { exit !(l > r + 0.25) }'; then
-  log "map: preset $PRESET, variants ${VARIANTS[*]}, $LEFT_MIN min left (reserve $RESERVE_MIN)"
-  args=(map --preset "$PRESET" --out "$WORK/map" --experiments factorial --seeds 0 --variants "${VARIANTS[@]}"
-        --no-certify --no-mlp-probes --no-untrained --time-budget-min "$LEFT_MIN" --time-reserve-min "$RESERVE_MIN"
-        --pack "$OUT/map_$PRESET.tar.gz")
-  [ "$STEPS" != 0 ] && args+=(--train-steps "$STEPS")
-  # shellcheck disable=SC2086  # ALLOC_MAP_ARGS is a word list
-  "$PY" -m pokeworld.cli "${args[@]}" ${ALLOC_MAP_ARGS:-}
-  RC=$?
-  [ -f "$WORK/map/progress.json" ] && log "progress: $(cat "$WORK/map/progress.json" | tr -d ' \n')"
+if [ "$MODE" = bench ]; then
+  if [ -n "$BENCH_PRESETS" ]; then
+    log "benchmark: presets $BENCH_PRESETS, configurations $BENCH_CONFIGS (at most ${ALLOC_BENCH_MAX_S:-150} s)"
+    # shellcheck disable=SC2086  # word lists
+    timeout "${ALLOC_BENCH_MAX_S:-150}" "$PY" benchmarks/train_fast_path.py --presets $BENCH_PRESETS \
+      --configs $BENCH_CONFIGS --steps "${ALLOC_BENCH_STEPS:-30}" --out "$OUT/bench.json" \
+      || log "the benchmark did not finish (exit status $?)"
+  fi
 else
-  log "only $LEFT_MIN min left of $BUDGET_MIN: no map started"
-  RC=4
+  args=("$OUT" --work "$WORK" --preset "$PRESET" --steps "${ALLOC_STEPS:-0}" --budget-min "$BUDGET_MIN"
+        --reserve-min "${ALLOC_RESERVE_MIN:-0.5}" --started "$START" --snapshot-s "${ALLOC_SNAPSHOT_S:-30}")
+  [ ${#RUNS[@]} -gt 0 ] && args+=(--runs "${RUNS[@]}")
+  [ -n "${ALLOC_S_PER_STEP:-}" ] && args+=(--prior-s-per-step "$ALLOC_S_PER_STEP")
+  [ -n "${ALLOC_OVERHEAD_S:-}" ] && args+=(--prior-overhead-s "$ALLOC_OVERHEAD_S")
+  # shellcheck disable=SC2086  # ALLOC_RESUME is a list of folders
+  [ -n "${ALLOC_RESUME:-}" ] && args+=(--resume $ALLOC_RESUME)
+  log "training: preset $PRESET, runs ${RUNS[*]:-(the default queue)}, budget $BUDGET_MIN min"
+  "$PY" -m pokeworld.experiments.allocation_run "${args[@]}"
+  RC=$?
 fi
 
-# what the device machine returns: at most 8 files of at most 16 MiB each
-n=$(find "$OUT" -type f | wc -l)
-big=$(find "$OUT" -type f -size +16M)
-log "OUT holds $n files ($(du -sh "$OUT" | cut -f1))${big:+; over 16 MiB: $big}"
-[ "$n" -le 8 ] || log "more than 8 files in OUT: not all of them come back"
+# what the device machine returns: at most 8 files of at most 16 MiB each, 64 MiB together
+problems=$("$PY" -c 'import sys; from pathlib import Path
+from pokeworld.experiments.allocation_pack import check_return_folder
+print("; ".join(check_return_folder(Path(sys.argv[1]))))' "$OUT")
+[ -n "$problems" ] && problems="; NOT ALL OF IT COMES BACK: $problems"
+log "OUT holds $(find "$OUT" -type f | wc -l) files ($(du -sh "$OUT" | cut -f1))$problems"
 log "done (exit status $RC)"
 exit $RC

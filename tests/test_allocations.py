@@ -1,5 +1,7 @@
-"""GPU allocations of the paper-budget map, checked on a CPU at the tiny preset: scripts/gpu_allocation.sh end to end,
-and the merge of allocations (scripts/merge_allocations.py) into one record naming each run's device and date."""
+"""GPU allocations of the paper-budget map, checked on a CPU at the tiny preset: scripts/gpu_allocation.sh end to end
+(training mode and bench mode), and the merge of allocations (scripts/merge_allocations.py) into one record naming
+each run's device and date and reading its returned weights. A killed allocation and its resumption:
+tests/test_allocation_crash.py."""
 
 import json
 import os
@@ -11,12 +13,14 @@ from datetime import datetime
 from pathlib import Path
 
 import pytest
+import torch
 
-from pokeworld import certify
-from pokeworld import experiments as experiment
+from pokeworld import certify, experiments as experiment
 from pokeworld.errors import ConfigError
 from pokeworld.experiments import allocations
+from pokeworld.experiments.allocation_pack import check_return_folder, read_stream
 from pokeworld.experiments.record import record_problem
+from pokeworld.rundir import load_model
 
 ROOT = Path(__file__).resolve().parents[1]
 V, VFX, VX_t = (f"{v}-h1-4-16-lam0.02-standard-s0" for v in ("V", "VFX", "VX_t"))
@@ -24,12 +28,12 @@ V, VFX, VX_t = (f"{v}-h1-4-16-lam0.02-standard-s0" for v in ("V", "VFX", "VX_t")
 
 @pytest.fixture(scope="module")
 def allocation_a(tmp_path_factory):
-    """The allocation script at the tiny preset on this CPU (the CUDA tests skip, the benchmark times tiny)."""
+    """The allocation script's default (training) mode at the tiny preset on this CPU, two runs (the smoke check
+    skips without a GPU)."""
     base = tmp_path_factory.mktemp("alloc")
     out, work = base / "A", base / "A_work"
-    env = {**os.environ, "PYTHON": sys.executable, "ALLOC_PRESET": "tiny", "ALLOC_BENCH_PRESETS": "tiny",
-           "ALLOC_BENCH_CONFIGS": "fast", "ALLOC_BENCH_STEPS": "2", "ALLOC_BUDGET_MIN": "5", "ALLOC_RESERVE_MIN": "1",
-           "ALLOC_WORK": str(work)}
+    env = {**os.environ, "PYTHON": sys.executable, "ALLOC_PRESET": "tiny", "ALLOC_BUDGET_MIN": "5",
+           "ALLOC_WORK": str(work), "ALLOC_COMMIT": "abc1234"}
     proc = subprocess.run(["bash", "scripts/gpu_allocation.sh", str(out), "V", "VFX"], cwd=ROOT, env=env,
                           capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
@@ -63,41 +67,69 @@ def _unpacked(pack: Path, dest: Path) -> Path:
 
 
 @pytest.mark.slow
-def test_the_allocation_script_runs_end_to_end_and_brings_back_small_files(allocation_a):
+def test_the_allocation_script_runs_end_to_end_and_brings_back_small_files(allocation_a, tmp_path):
     out, work = allocation_a
     files = sorted(p.name for p in out.iterdir())
-    assert files == ["allocation.log", "bench.json", "cuda_tests.log", "device.json", "map_tiny.tar.gz"]
-    assert all(p.stat().st_size < 16 << 20 for p in out.iterdir())
+    assert files == [".pokeworld-owned", "allocation.log", "device.json", "pack.tar.part00", "records.tar.gz"]
+    assert check_return_folder(out) == []  # at most 8 files, none over 16 MiB
     device = json.loads((out / "device.json").read_text())
     assert device["device"].startswith("cpu") and datetime.fromisoformat(device["date"]) and device["torch"]
-    bench = json.loads((out / "bench.json").read_text())["results"]
-    assert [(r["preset"], r["config"]) for r in bench] == [("tiny", "fast")] and bench[0]["sec_per_step"] > 0
-    assert "exit status" in (out / "cuda_tests.log").read_text()
-    with tarfile.open(out / "map_tiny.tar.gz") as tar:
+    assert device["git"] == "abc1234"  # ALLOC_COMMIT: the device's copy has no .git
+    log = (out / "allocation.log").read_text()
+    assert "smoke check exit status 0" in log and "benchmark" not in log
+    with tarfile.open(out / "records.tar.gz") as tar:
         names = set(tar.getnames())
-    assert {"device.json", "progress.json", "map_config.json", "data/standard/manifest.json",
+    assert {"device.json", "progress.json", "map_config.json", "data/standard/manifest.json", "returned.json",
             f"runs/{V}/measure.json", f"runs/{VFX}/metrics.jsonl"} <= names
-    # no certificates computed, no checkpoint or data travels
+    # no certificates computed, no checkpoint or data among the records
     assert not any(n.endswith(("certificates.json", ".pt", ".h5")) for n in names)
     assert not (work / "map" / "data" / "standard" / "certificates.json").exists()
-    assert (work / "map" / "runs" / V / "final.pt").exists()  # the heavy files stayed in the work folder
+    # the final weights of both runs came back in the parts, and load
+    assert sorted((m.run, m.kind) for m in read_stream(out)) == [(V, "final"), (VFX, "final")]
+    a = allocations.open_allocation(out, tmp_path)
+    assert a.weights == {V: "returned", VFX: "returned"} and a.checkpoints == {}
+    model = load_model(a.root / "runs" / VFX)
+    trained = load_model(work / "map" / "runs" / VFX)
+    for (k, x), y in zip(model.state_dict().items(), trained.state_dict().values()):
+        assert x.dtype == y.dtype and torch.allclose(x, y, rtol=1e-2, atol=1e-6), k  # large tensors: bfloat16
     cfg = json.loads((work / "map" / "map_config.json").read_text())
     assert cfg["variants"] == ["V", "VFX"] and not cfg["certify"] and not cfg["mlp_probes"]
     assert cfg["time_budget_min"] > 0
 
 
 @pytest.mark.slow
+def test_bench_mode_runs_the_full_cuda_tests_and_the_benchmark_and_trains_nothing(tmp_path):
+    out = tmp_path / "bench"
+    env = {**os.environ, "PYTHON": sys.executable, "ALLOC_MODE": "bench", "ALLOC_BENCH_PRESETS": "tiny",
+           "ALLOC_BENCH_CONFIGS": "fast", "ALLOC_BENCH_STEPS": "2", "ALLOC_WORK": str(tmp_path / "work")}
+    proc = subprocess.run(["bash", "scripts/gpu_allocation.sh", str(out)], cwd=ROOT, env=env, capture_output=True,
+                          text=True, timeout=600)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    files = sorted(p.name for p in out.iterdir())
+    assert files == [".pokeworld-owned", "allocation.log", "bench.json", "cuda_tests.log", "device.json"]
+    bench = json.loads((out / "bench.json").read_text())["results"]
+    assert [(r["preset"], r["config"]) for r in bench] == [("tiny", "fast")] and bench[0]["sec_per_step"] > 0
+    assert "exit status" in (out / "cuda_tests.log").read_text()
+    assert not (tmp_path / "work" / "map" / "runs").exists()
+
+
+@pytest.mark.slow
 def test_the_merge_names_each_runs_device_and_date_and_keeps_a_run_trained_twice_once(allocation_a, allocation_b,
                                                                                       tmp_path):
     out, _ = allocation_a
-    merged, md = _merge(tmp_path, allocation_b, out)  # given out of date order: the dates decide which is later
+    merged, md = _merge(tmp_path, allocation_b, out, "--runs-out", tmp_path / "runs")  # dates decide the order
     assert record_problem(merged) is None  # a results record: merge_map_results.py and the report read it
     assert set(merged["runs"]) == {V, VFX, VX_t} and merged["experiments"]["factorial"]
     assert merged["map_config"]["variants"] == ["V", "VX_t", "VFX"]  # the paper's order
     a_device = json.loads((out / "device.json").read_text())
     assert merged["runs"][V]["allocation"]["device"] == a_device["device"]
     assert merged["runs"][V]["allocation"]["date"] == a_device["date"]
+    assert merged["runs"][V]["allocation"]["weights"] == "returned"
+    # the kept runs whose weights came back (VFX is kept from the later allocation, a bare pack without weights)
+    assert sorted(p.name for p in (tmp_path / "runs").iterdir()) == [V]
+    assert load_model(tmp_path / "runs" / V).state_dict()  # a run folder the CPU side can probe
     for name in (VFX, VX_t):  # the later allocation's
+        assert merged["runs"][name]["allocation"]["weights"] == "not returned"  # a bare pack of records
         assert merged["runs"][name]["allocation"]["device"] == "NVIDIA H200"
         assert merged["runs"][name]["allocation"]["date"].startswith("2099-01-02")
         assert merged["runs"][name]["allocation"]["steps_trained"] == 10
@@ -151,7 +183,7 @@ def test_certificates_come_from_a_certify_json_of_the_same_corpus(allocation_a, 
 @pytest.mark.slow
 def test_a_run_the_budget_cut_short_is_named_not_counted(allocation_a, tmp_path):
     out, _ = allocation_a
-    cut = _unpacked(out / "map_tiny.tar.gz", tmp_path / "cut")
+    cut = _unpacked(out / "records.tar.gz", tmp_path / "cut")
     prog_path = cut / "progress.json"
     prog = json.loads(prog_path.read_text())
     prog_path.write_text(json.dumps({**prog, "finished": [VFX], "partial": {V: 5}, "complete": False}))

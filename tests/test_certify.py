@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from pokeworld.certify import ESTIMATORS, certify, drag_estimates, make_config, pixel_object_state
+from pokeworld.certify import DEFAULT_ESTIMATORS, ESTIMATORS, certify, drag_estimates, make_config, pixel_object_state
 
 from pokeworld.errors import ConfigError, DataError
 from pokeworld.regressors import RidgeCV, TorchRegressor, r2_scores
@@ -55,7 +55,7 @@ def test_gru_recovers_a_planted_temporally_gated_parameter(rng):
 
 
 def test_certify_on_tiny_corpus_reports_every_estimator(tiny_dataset):
-    cfg = make_config("tiny", kinds=("contact",))
+    cfg = make_config("tiny", kinds=("contact",), estimators=DEFAULT_ESTIMATORS)  # tiny's own default: gru, linear, drag
     res = certify(tiny_dataset, cfg)
     assert set(res["estimators"]) == set(cfg.estimators) == set(ESTIMATORS) - {"linear_logspeed"}  # needs a flow corpus
     assert set(res["gate"]) == {"log_m", "gamma", "log_k"}

@@ -72,7 +72,8 @@ def test_lewm_help_lists_its_options_and_how_to_install_the_extra(capsys):
     out = " ".join(capsys.readouterr().out.split())
     assert "--embed-dim" in out and "--compare-runs" in out
     if importlib.util.find_spec("stable_worldmodel") is None:
-        assert "Needs the swm extra, not installed here: pip install -e '.[swm]'" in out
+        assert "Needs the swm extra, not installed here; in an environment of its own" in out
+        assert ".venv-swm/bin/pip install -e '.[swm]'" in out
 
 
 def test_plain_text_keeps_the_words_of_roles_and_literals():

@@ -1,5 +1,6 @@
-"""Every command line of the README's command table runs as written (with ``--preset tiny`` and tiny paths), so
-the table stays true; the positional forms it uses are the ones each command's usage line shows.
+"""Every ``pokeworld`` command line of the README runs as written, and every row of the command table in
+docs/commands.md runs as written (with ``--preset tiny`` and tiny paths), so both stay true; the positional forms
+the table uses are the ones each command's usage line shows.
 
 One generated store and two trained runs are shared by all rows (module fixture). Rows that need the swm extra or
 RH20T data, and the two whole-pipeline rows that take most of a minute even at tiny, are skipped with the reason
@@ -17,7 +18,9 @@ import pytest
 
 from pokeworld.cli import COMMANDS, _flag_arity, command_prog, main, split_args
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+ROOT = Path(__file__).resolve().parents[1]
+README = ROOT / "README.md"
+COMMANDS_PAGE = ROOT / "docs" / "commands.md"
 
 SKIPPED = {
     "certify-curve": "certifies at several corpus sizes, a minute even at tiny; tests/test_certificate_corpus.py",
@@ -33,9 +36,33 @@ SKIPPED = {
 
 
 def table_commands() -> list[str]:
-    """The command line of each row of the README's command table (its first code span)."""
-    section = README.read_text().split("## Commands", 1)[1].split("\n## ", 1)[0]
-    return [m[1] for m in re.finditer(r"^\| `(pokeworld [^`]+)`", section, re.M)]
+    """The command line of each row of the command table in docs/commands.md (its first code span)."""
+    return [m[1] for m in re.finditer(r"^\| `(pokeworld [^`]+)`", COMMANDS_PAGE.read_text(), re.M)]
+
+
+def readme_command_lines() -> list[str]:
+    """Every ``pokeworld`` command in the README's shell blocks, in order (``&&`` chains split, continuations
+    joined)."""
+    blocks = re.findall(r"```bash\n(.*?)```", README.read_text(), re.S)
+    commands = []
+    for block in blocks:
+        text = block.replace("\\\n", " ")
+        for line in text.splitlines():
+            commands += [c.strip() for c in line.split("#", 1)[0].split("&&") if c.strip().startswith("pokeworld ")]
+    return commands
+
+
+def test_readme_commands_run_in_order(tmp_path, monkeypatch, capsys):
+    """The README's own lines, as a newcomer types them in an empty folder (the demo is tests/test_map.py's)."""
+    lines = readme_command_lines()
+    assert "pokeworld demo" in lines and len(lines) >= 5, lines
+    monkeypatch.chdir(tmp_path)
+    for line in lines:
+        if line == "pokeworld demo":
+            continue
+        assert main(shlex.split(line)[1:]) == 0, line
+        last = capsys.readouterr().out.strip().splitlines()[-1]
+        assert last.startswith("[") and ("wrote" in last or "→" in last), (line, last)
 
 
 ROWS = table_commands()

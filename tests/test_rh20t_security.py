@@ -371,9 +371,12 @@ def test_a_child_killed_while_unpickling_skips_that_scene_and_the_conversion_com
     assert rep["scenes_converted"] == len(fx["good"]) - 1
 
 
-def test_a_child_that_hangs_is_killed_after_the_timeout_and_the_skip_is_not_cached(tmp_path, monkeypatch):
+def test_a_child_that_hangs_is_killed_after_the_timeout_and_the_verdict_is_cached(tmp_path, monkeypatch):
     path = tmp_path / "gripper.npy"
     np.save(path, {"a": 1}, allow_pickle=True)
+    other = tmp_path / "tcp.npy"
+    np.save(other, {"b": 2}, allow_pickle=True)
+    monkeypatch.setattr(npy_child._CHILD, "timed_out", {})  # this test's verdicts only
     npy_child.close_child()
     monkeypatch.setenv("POKEWORLD_PAUSE_AT", f"unpickle:{path.resolve()}:60")
     monkeypatch.setattr(npy_child, "PICKLE_TIMEOUT_S", 2.0)
@@ -385,8 +388,11 @@ def test_a_child_that_hangs_is_killed_after_the_timeout_and_the_skip_is_not_cach
         monkeypatch.delenv("POKEWORLD_PAUSE_AT")
         npy_child.close_child()
     assert time.monotonic() - start < 30
-    assert e.value.reason == "unsafe_pickle" and not e.value.cacheable and "within 2 s" in e.value.message
-    assert rh20t.load_pickled_dict(path, "transformed/gripper.npy") == {"a": 1}  # a fresh child serves the next
+    # cached like any unsafe_pickle verdict (issue #50): N such files must not cost N x the timeout every conversion
+    assert e.value.reason == "unsafe_pickle" and e.value.cacheable and "within 2 s" in e.value.message
+    with pytest.raises(rh20t.SceneSkip, match="refused without retrying"):  # the same content: refused at once
+        rh20t.load_pickled_dict(path, "transformed/gripper.npy")
+    assert rh20t.load_pickled_dict(other, "transformed/tcp.npy") == {"b": 2}  # a fresh child serves the next
 
 
 def test_the_child_returns_what_np_load_returns(tmp_path):

@@ -125,7 +125,7 @@ def test_checkpoint_load_refuses_a_fifo_or_folder_without_hanging(tmp_path):
 
 @pytest.mark.parametrize("content, match", [
     ('{"variant": "VX_t", "da', "config.json is not valid JSON"),
-    ("[1, 2]", "holds a JSON list, not an object"),
+    ("[1, 2]", "holds a JSON array, not a JSON object"),
     ('{"variant": "VX_t", "data": 5}', "names no dataset"),
     ("\xff\xfe", "config.json is not valid JSON"),
 ], ids=["truncated", "a list", "data not a path", "not utf-8"])
@@ -224,7 +224,7 @@ def test_check_model_kwargs_covers_every_constructor_argument():
 
 def test_out_that_is_a_file_is_refused_before_the_data_is_read(tmp_path):
     (tmp_path / "out").write_text("not a folder")
-    with pytest.raises(ConfigError, match="out is an existing file, not a run folder"):
+    with pytest.raises(ConfigError, match="out is a file, not a run folder"):
         run(make_config("tiny", data=str(tmp_path / "no_such_data"), out=str(tmp_path / "out"), **RUN_KW))
 
 

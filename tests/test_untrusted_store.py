@@ -169,7 +169,7 @@ def test_atomic_path_never_removes_a_folder_it_did_not_verify(tmp_path):
     with atomic_path(final, replace=OwnedDir(files=(r"data\.h5",))) as tmp:
         tmp.mkdir()
         (tmp / "data.h5").write_text("new")
-    assert (final / "data.h5").read_text() == "new" and sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+    assert (final / "data.h5").read_text() == "new" and sorted(p.name for p in tmp_path.iterdir()) == [".pokeworld-owned", "out"]
 
 
 # ---------------------------------------------------------------- 2. links are never written through

@@ -41,8 +41,8 @@ def ensure(store: Dataset, data: str | Path, episodes: int) -> Dataset:
         raise ConfigError(f"fit_episodes > 0 needs a store written by `pokeworld generate` (its generator config "
                           f"makes the certificate corpus); {data} was written by "
                           f"{store.manifest.get('generator', 'an unknown generator')}: use fit_episodes=0")
-    cfg = generate.generator_config(store.manifest)
-    cfg = apply_overrides(cfg, {"out": str(path(data, episodes)), "seed": fit_seed(store.manifest["seed"]),
+    cfg = generate.generator_config(store.manifest, f"{data}/manifest.json")  # checked: data, not configuration
+    cfg = apply_overrides(cfg, {"out": str(path(data, episodes)), "seed": fit_seed(cfg.seed),
                                          "num_episodes": int(episodes), "split_fractions": (0.0, 1.0, 0.0)})
     print(f"[certify] certificate corpus: {episodes} episodes from the store's generator (seed {cfg.seed})")
     return load(generate.run(cfg))

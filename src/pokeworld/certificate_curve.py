@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from . import certificate_corpus, certify
-from .config import from_preset, to_dict
+from .config import Limit, check_fields, from_preset, to_dict
 from .data import load
 from .errors import ConfigError
 from .io import write_json
@@ -39,7 +39,10 @@ class CurveConfig:
     plateau_tol: float = 0.02
     """A curve has plateaued at the first size whose R² is within this of the largest size's."""
 
+    LIMITS = {"sizes": Limit(1, 10**6), "max_windows": Limit(1, 10**9), "plateau_tol": Limit(0, 1)}
+
     def __post_init__(self) -> None:
+        check_fields(self)
         if not self.sizes or min(self.sizes) < 1 or list(self.sizes) != sorted(set(self.sizes)):
             raise ConfigError(f"sizes must be increasing positive episode counts, got {self.sizes}")
 

@@ -34,17 +34,19 @@ whenever the two verdicts disagree; only the paper's rule licenses a claim.
 from __future__ import annotations
 
 import functools
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from . import certificate_corpus
-from .config import from_preset, to_dict
+from .config import SEED, Limit, check_fields, from_preset, to_dict
 from .data import Dataset, load
 from .errors import ConfigError, DataError
-from .io import write_json
+from .io import adopt_legacy, check_outputs, read_json, read_json_if_present, write_json
 from .models.xjepa import area_downsample
+from .progress import heartbeat
 from .regressors import RidgeCV, TorchRegressor, r2_scores
 from .windows import Windows, make_windows, wall_contact
 
@@ -103,7 +105,12 @@ class CertifyConfig:
     A joint fit shares one early stop (neural) or one ridge penalty (linear) across targets, which cuts a
     slow, low-variance target short: on the ±0.5 bias corpus the joint GRU reads bias 0.06, per-target 0.8."""
 
+    LIMITS = {"pixel_size": Limit(0, 1024), "window": Limit(3, 4096), "stride": Limit(1, 4096),
+              "max_windows": Limit(1, 10**8), "fit_episodes": Limit(0, 10**6), "gru_hidden": Limit(1, 8192),
+              "gru_layers": Limit(1, 64), "epochs": Limit(1, 10**5), "patience": Limit(1, 10**5), "seed": SEED}
+
     def __post_init__(self) -> None:
+        check_fields(self)
         bad = set(self.estimators) - set(ESTIMATORS)
         if bad:
             raise ConfigError(f"unknown estimators {sorted(bad)}; choose from {list(ESTIMATORS)}")
@@ -119,7 +126,8 @@ class CertifyConfig:
 
 
 PRESETS = {
-    "tiny": {"epochs": 4, "patience": 2, "max_windows": 400, "gru_hidden": 32},
+    # the cpu preset's three estimators at smoke-test sizes: a newcomer's tiny run should show what cpu will
+    "tiny": {"epochs": 4, "patience": 2, "max_windows": 400, "gru_hidden": 32, "estimators": ("gru", "linear", "drag")},
     # the gate's instruments (GRU oracle, linear floor, drag) on contact windows, fit on a 1,920-episode
     # certificate corpus with every window kept: where the GRU oracle's γ stops being fit-set limited
     # (docs/results/certificate_fit_curve_cpu.md); the other estimators are one --estimators away
@@ -271,6 +279,83 @@ def observed_state(ds: Dataset, episodes: np.ndarray, pixels: bool, pixel_size: 
     return state
 
 
+def _estimator_r2(est: str, ds: Dataset, fit_ds: Dataset, cfg: CertifyConfig, windows, targets, states,
+                  dt: float) -> dict[str, float] | None:
+    """One estimator's held-out R² per target on one window kind (None when it does not apply to this store)."""
+    w_fit, w_test = windows
+    y_fit, y_test = targets
+    fit_state, test_state = states
+    source = "pixel" if "_pixel" in est else "state"
+    (pos_fit, vel_fit), (pos, vel) = fit_state[source], test_state[source]
+    if est == "linear_logspeed":
+        channel, fit_channel = log_speed_channel(ds), log_speed_channel(fit_ds)
+        if channel is None or fit_channel is None or "gamma" not in cfg.targets:
+            print(f"[certify] {est}: this store has no log_speed channel (or gamma is not a target); skipping")
+            return None
+        g_idx = cfg.targets.index("gamma")
+        r2 = {"gamma": linear_sequence_r2(w_fit.gather(fit_channel), y_fit[:, g_idx], w_fit.episode,
+                                          w_test.gather(channel), y_test[:, g_idx])}
+    elif est.startswith("drag"):
+        if "gamma" not in cfg.targets:
+            return None
+        g_idx = cfg.targets.index("gamma")
+        fallback = float(np.median(y_fit[:, g_idx]))
+        speed = np.linalg.norm(w_test.gather(vel), axis=-1)
+        pred = drag_estimates(speed, _glide_pairs(ds, w_test), dt, fallback)
+        # the only thing this estimator learns from probe-fit: the parameter's support,
+        # which bounds wild ratios from noisy (pixel) speeds
+        pred = np.clip(pred, y_fit[:, g_idx].min(), y_fit[:, g_idx].max())
+        r2 = {"gamma": float(r2_scores(y_test[:, g_idx], pred)[0])}
+    else:
+        geometry = est in GEOMETRY
+        X_fit = window_features(fit_ds, w_fit, pos_fit, vel_fit, geometry)
+        X_test = window_features(ds, w_test, pos, vel, geometry)
+        if est.endswith("_notouch"):
+            X_fit, X_test = X_fit[..., NO_TOUCH], X_test[..., NO_TOUCH]
+        if est == "linear":
+            X_fit, X_test = X_fit.reshape(len(X_fit), -1), X_test.reshape(len(X_test), -1)
+            make = RidgeCV
+        else:
+            arch = "mlp" if est == "mlp" else "gru"
+            kw = dict(hidden=cfg.gru_hidden, layers=cfg.gru_layers) if arch == "gru" else {}
+            make = functools.partial(TorchRegressor, arch, epochs=cfg.epochs, patience=cfg.patience,
+                                     seed=cfg.seed, **kw)
+        pred = fit_targets(make, X_fit, y_fit, w_fit.episode, X_test, cfg.separate_targets)
+        r2 = {t: float(v) for t, v in zip(cfg.targets, r2_scores(y_test, pred))}
+    return r2
+
+
+def _certify_kinds(ds: Dataset, fit_ds: Dataset, cfg: CertifyConfig, episodes, states, params, dt: float,
+                   rng: np.random.Generator, results: dict, now: dict) -> None:
+    """Every estimator on every window kind, into ``results`` (``now["what"]``: what is being fit, for the
+    heartbeat)."""
+    fit_eps, test_eps = episodes
+    fit_state, test_state = states
+    Y_fit_all, Y_test_all = params
+    own = fit_ds is ds
+    for kind in cfg.kinds:
+        available = make_windows(fit_ds, fit_eps, cfg.window, cfg.stride).kind(kind)
+        w_fit = available.subsample(cfg.max_windows, rng)
+        w_test = make_windows(ds, test_eps, cfg.window, cfg.stride).kind(kind)
+        results["counts"][kind] = {"fit": len(w_fit), "fit_available": len(available), "test": len(w_test)}
+        if cfg.fit_episodes and len(w_fit) < len(available):
+            results["warnings"].append(capped_corpus_warning(kind, len(w_fit), len(available), cfg))
+            print(f"[certify] warning: {results['warnings'][-1]}")
+        if len(w_fit) < 10 or len(w_test) < 10:
+            print(f"[certify] too few {kind} windows ({len(w_fit)} fit / {len(w_test)} test); skipping")
+            continue
+        assert not own or not np.intersect1d(w_fit.episode, w_test.episode).size
+        y_fit, y_test = Y_fit_all[w_fit.episode], Y_test_all[w_test.episode]
+        for i, est in enumerate(cfg.estimators):
+            now["what"] = f"{est} on {kind} windows ({len(w_fit)} fit / {len(w_test)} test; estimator {i + 1} of " \
+                          f"{len(cfg.estimators)})"
+            r2 = _estimator_r2(est, ds, fit_ds, cfg, (w_fit, w_test), (y_fit, y_test), (fit_state, test_state), dt)
+            if r2 is None:
+                continue
+            results["estimators"].setdefault(est, {})[kind] = r2
+            print(f"[certify] {kind:8s} {est:11s} " + " ".join(f"{t}={v:+.3f}" for t, v in r2.items()), flush=True)
+
+
 def certify(ds: Dataset, cfg: CertifyConfig, fit_ds: Dataset | None = None) -> dict:
     """Run every requested estimator; return the certificates dictionary.
 
@@ -304,59 +389,10 @@ def certify(ds: Dataset, cfg: CertifyConfig, fit_ds: Dataset | None = None) -> d
     Y_fit_all = np.stack([fit_ds.params[t] for t in cfg.targets], 1).astype(np.float64)
     Y_test_all = np.stack([ds.params[t] for t in cfg.targets], 1).astype(np.float64)
     results: dict = {"estimators": {}, "counts": {}, "warnings": []}
-    for kind in cfg.kinds:
-        available = make_windows(fit_ds, fit_eps, cfg.window, cfg.stride).kind(kind)
-        w_fit = available.subsample(cfg.max_windows, rng)
-        w_test = make_windows(ds, test_eps, cfg.window, cfg.stride).kind(kind)
-        results["counts"][kind] = {"fit": len(w_fit), "fit_available": len(available), "test": len(w_test)}
-        if cfg.fit_episodes and len(w_fit) < len(available):
-            results["warnings"].append(capped_corpus_warning(kind, len(w_fit), len(available), cfg))
-            print(f"[certify] warning: {results['warnings'][-1]}")
-        if len(w_fit) < 10 or len(w_test) < 10:
-            print(f"[certify] too few {kind} windows ({len(w_fit)} fit / {len(w_test)} test); skipping")
-            continue
-        assert not own or not np.intersect1d(w_fit.episode, w_test.episode).size
-        y_fit, y_test = Y_fit_all[w_fit.episode], Y_test_all[w_test.episode]
-        for est in cfg.estimators:
-            source = "pixel" if "_pixel" in est else "state"
-            (pos_fit, vel_fit), (pos, vel) = fit_state[source], test_state[source]
-            if est == "linear_logspeed":
-                channel, fit_channel = log_speed_channel(ds), log_speed_channel(fit_ds)
-                if channel is None or fit_channel is None or "gamma" not in cfg.targets:
-                    print(f"[certify] {est}: this store has no log_speed channel (or gamma is not a target); skipping")
-                    continue
-                g_idx = cfg.targets.index("gamma")
-                r2 = {"gamma": linear_sequence_r2(w_fit.gather(fit_channel), y_fit[:, g_idx], w_fit.episode,
-                                                  w_test.gather(channel), y_test[:, g_idx])}
-            elif est.startswith("drag"):
-                if "gamma" not in cfg.targets:
-                    continue
-                g_idx = cfg.targets.index("gamma")
-                fallback = float(np.median(y_fit[:, g_idx]))
-                speed = np.linalg.norm(w_test.gather(vel), axis=-1)
-                pred = drag_estimates(speed, _glide_pairs(ds, w_test), dt, fallback)
-                # the only thing this estimator learns from probe-fit: the parameter's support,
-                # which bounds wild ratios from noisy (pixel) speeds
-                pred = np.clip(pred, y_fit[:, g_idx].min(), y_fit[:, g_idx].max())
-                r2 = {"gamma": float(r2_scores(y_test[:, g_idx], pred)[0])}
-            else:
-                geometry = est in GEOMETRY
-                X_fit = window_features(fit_ds, w_fit, pos_fit, vel_fit, geometry)
-                X_test = window_features(ds, w_test, pos, vel, geometry)
-                if est.endswith("_notouch"):
-                    X_fit, X_test = X_fit[..., NO_TOUCH], X_test[..., NO_TOUCH]
-                if est == "linear":
-                    X_fit, X_test = X_fit.reshape(len(X_fit), -1), X_test.reshape(len(X_test), -1)
-                    make = RidgeCV
-                else:
-                    arch = "mlp" if est == "mlp" else "gru"
-                    kw = dict(hidden=cfg.gru_hidden, layers=cfg.gru_layers) if arch == "gru" else {}
-                    make = functools.partial(TorchRegressor, arch, epochs=cfg.epochs, patience=cfg.patience,
-                                             seed=cfg.seed, **kw)
-                pred = fit_targets(make, X_fit, y_fit, w_fit.episode, X_test, cfg.separate_targets)
-                r2 = {t: float(v) for t, v in zip(cfg.targets, r2_scores(y_test, pred))}
-            results["estimators"].setdefault(est, {})[kind] = r2
-            print(f"[certify] {kind:8s} {est:11s} " + " ".join(f"{t}={v:+.3f}" for t, v in r2.items()))
+    now = {"what": "preparing windows"}
+    with heartbeat("certify", lambda: now["what"]):
+        _certify_kinds(ds, fit_ds, cfg, (fit_eps, test_eps), (fit_state, test_state), (Y_fit_all, Y_test_all), dt,
+                       rng, results, now)
     results["certificate"] = certificate_table(results["estimators"], cfg.targets)
     results["gate"] = gate(results["certificate"], results["estimators"])
     results["config"] = to_dict(cfg)
@@ -480,10 +516,11 @@ def run(cfg: CertifyConfig) -> Path:
     """Certify the dataset at ``cfg.data`` and write ``certificates.json``; skip if already done."""
     out = Path(cfg.out) if cfg.out else Path(cfg.data) / "certificates.json"
     ds = load(cfg.data)
-    if out.exists():
-        import json
-
-        prev = json.loads(out.read_text())
+    prev = read_json_if_present(out, "a certificate record (certificates.json)")
+    if isinstance(prev, dict) and "certificate" in prev:  # ours, from before ownership records: replaceable
+        adopt_legacy(out.parent, [out.name])
+    check_outputs(out.parent, out.name)  # a user's file under that name is refused before hours of fitting
+    if prev is not None:
         if prev.get("config") == to_dict(cfg) and prev.get("dataset", {}).get("content_sha256") == \
                 ds.manifest.get("content_sha256"):
             print(format_table(prev))
@@ -499,12 +536,10 @@ def run(cfg: CertifyConfig) -> Path:
 
 def load_gate(path: str | Path) -> dict:
     """Read the gate verdicts from a certificates.json (raises DataError when absent)."""
-    import json
-
     path = Path(path)
-    if not path.exists():
+    if not os.path.lexists(path):
         raise DataError(f"no certificates at {path}; run `pokeworld certify` first")
-    return gate_of(json.loads(path.read_text()))
+    return gate_of(read_json(path, "a certificate record (certificates.json)"))
 
 
 __all__ = ["CertifyConfig", "PRESETS", "GATES", "GATE_ESTIMATOR", "certify", "gate", "gate_of", "load_gate", "run",

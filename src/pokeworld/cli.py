@@ -14,7 +14,6 @@ import contextlib
 import dataclasses
 import importlib
 import importlib.util
-import json
 import re
 import sys
 import time
@@ -22,7 +21,9 @@ import typing
 from dataclasses import dataclass
 from pathlib import Path
 
+from .config import parsing_command_line
 from .errors import ConfigError, PokeworldError
+from .io import read_json, read_jsonl
 
 
 @dataclass(frozen=True)
@@ -44,6 +45,9 @@ class Command:
     extra, so ``--help`` works (and names the extra) where the extra is missing."""
     extra: str = ""
     """The optional dependency group the command needs (named in its help when it is not installed)."""
+    own_preset: str = ""
+    """A function of the config module naming the preset a parsed config's input was made with (``probe``: the
+    run's training preset); without --preset the command then uses that one instead of ``cpu``."""
 
 
 #: How a positional argument is named in usage lines: what it is, not the config field it fills.
@@ -63,7 +67,8 @@ COMMANDS: dict[str, Command] = {
     "train-stacked": Command("pokeworld.train.stacked", "StackedConfig",
                              "train a grid of runs (variants × seeds × λ) stacked in one process",
                              runner="run_config"),
-    "probe": Command("pokeworld.evaluate.measure", "MeasureConfig", "probe and evaluate one trained run", "run_dir"),
+    "probe": Command("pokeworld.evaluate.measure", "MeasureConfig", "probe and evaluate one trained run", "run_dir",
+                     own_preset="run_preset"),
     "map": Command("pokeworld.experiments", "MapConfig", "the identifiability map end to end", "out"),
     "demo": Command("pokeworld.experiments", "MapConfig", "small map on CPU in minutes", "out",
                     make="make_demo_config",
@@ -113,14 +118,29 @@ PRESET_COSTS: dict[str, str] = {
 }
 
 
-def command_prog(name: str) -> str:
-    """The head of a command's usage line: the command, its positional argument, and ``--preset`` where it has
-    presets (tyro's own usage line shows neither, as both are taken out of argv before tyro parses it)."""
+#: The presets a usage line names when the command's module does not list its own.
+USUAL_PRESETS = ("tiny", "cpu", "paper")
+
+
+def command_prog(name: str, presets=USUAL_PRESETS) -> str:
+    """The head of a command's usage line: the command, its positional argument, and ``--preset`` with the names
+    of its ``presets`` where it has presets (tyro's own usage line shows neither, as both are taken out of argv
+    before tyro parses it)."""
     cmd = COMMANDS[name]
     head = f"pokeworld {name}"
     if cmd.positional:
         head += f" [{cmd.metavar or METAVARS.get(cmd.positional, cmd.positional.upper())}]"
-    return head + (" [--preset tiny|cpu|paper]" if cmd.make else "")
+    return head + (f" [--preset {'|'.join(presets)}]" if cmd.make else "")
+
+
+def module_presets(config_mod) -> tuple[str, ...]:
+    """The preset names a command's config module defines (its ``PRESETS``), in the order of :data:`PRESET_COSTS`
+    (train also has ``demo``); :data:`USUAL_PRESETS` for a module without that table."""
+    names = getattr(config_mod, "PRESETS", None)
+    if not isinstance(names, dict):
+        return USUAL_PRESETS
+    return tuple(sorted(names, key=lambda p: (list(PRESET_COSTS).index(p) if p in PRESET_COSTS else len(PRESET_COSTS),
+                                                p)))
 
 
 #: reStructuredText a docstring may hold, and what a terminal shows instead: a role's target (the last dotted
@@ -129,10 +149,15 @@ RST_ROLE = re.compile(r":(?:[a-z]+:)+`([^`]+)`")
 RST_LITERAL = re.compile(r"``([^`]+)``")
 
 
+#: A line break inside a paragraph (not a blank line), with the next line's indentation.
+SOURCE_BREAK = re.compile(r"(?<!\n)[ \t]*\n(?!\s*\n)[ \t]*")
+
+
 def plain_text(text: str) -> str:
-    """``text`` with its reStructuredText roles and literals replaced by their plain words."""
+    """``text`` with its reStructuredText roles and literals replaced by their plain words, and its paragraphs as
+    one line each: the help rewraps them to the terminal, where the source's line breaks would fall mid-line."""
     text = RST_ROLE.sub(lambda m: m[1].rsplit(".", 1)[-1] if m[1].startswith("~") else m[1], text)
-    return RST_LITERAL.sub(r"\1", text)
+    return SOURCE_BREAK.sub(" ", RST_LITERAL.sub(r"\1", text))
 
 
 def plain_help_registry():
@@ -152,6 +177,8 @@ def plain_help_registry():
             return lambda: plain(helptext())
         return plain_text(helptext) if helptext else helptext
 
+    advanced_help: dict[type, dict] = {}  # the "advanced" dataclasses made below -> their fields' help
+
     @registry.struct_rule
     def plain_help(info):
         if resolving or not dataclasses.is_dataclass(info.type):
@@ -163,23 +190,65 @@ def plain_help_registry():
             resolving.pop()
         if not isinstance(spec, StructConstructorSpec):
             return spec
-        return dataclasses.replace(spec, fields=tuple(dataclasses.replace(f, helptext=plain(f.helptext))
-                                                      for f in spec.fields))
+        helps = advanced_help.get(info.type, {})  # made classes have no source for tyro to read docstrings from
+        fields = tuple(dataclasses.replace(f, helptext=helps.get(f.name) or plain(f.helptext)) for f in spec.fields)
+        common = COMMON_OPTIONS.get(info.type.__name__)
+        if common:
+            return advanced_group(spec.instantiate, fields, common, advanced_help)
+        return dataclasses.replace(spec, fields=fields)
 
     return registry
 
 
-def command_description(name: str, preset: str) -> str:
+#: Per config class: the options most runs set, listed first by ``--help``; the others are listed after them under
+#: "advanced options" (their flags unchanged). ``pokeworld train --help`` otherwise lists 60 options in the order of
+#: the dataclass, where the model's and the loss's details come before ``--lr`` or ``--device``.
+COMMON_OPTIONS: dict[str, tuple[str, ...]] = {
+    "TrainConfig": ("variant", "data", "out", "seed", "steps", "stop_at", "batch_size", "lr", "objective",
+                    "sigreg_weight", "device", "threads", "ckpt_every", "log_every", "tensorboard", "progress",
+                    "deadline"),
+}
+
+
+def advanced_group(instantiate, fields, common: tuple[str, ...], advanced_help: dict[type, dict]):
+    """A struct spec listing the ``common`` fields, then every other one inside a nested ``advanced`` struct whose
+    flags keep their names (OmitArgPrefixes): tyro shows a nested struct as a box of its own, and the config is
+    built from both parts exactly as from the flat fields."""
+    import tyro
+    from tyro.constructors import StructConstructorSpec, StructFieldSpec
+
+    first = sorted((f for f in fields if f.name in common), key=lambda f: common.index(f.name))
+    rest = [f for f in fields if f.name not in common]
+    advanced = dataclasses.make_dataclass(
+        "advanced", [(f.name, f.type, dataclasses.field(default_factory=lambda d=f.default: d)) for f in rest])
+    advanced_help[advanced] = {f.name: f.helptext for f in rest}
+    defaults = advanced(**{f.name: f.default for f in rest})
+
+    def build(**kw):
+        adv = kw.pop("advanced")
+        return instantiate(**kw, **{f.name: getattr(adv, f.name) for f in rest})
+
+    group = StructFieldSpec("advanced", typing.Annotated[advanced, tyro.conf.OmitArgPrefixes], defaults,
+                            "Rarely changed: the model's sizes, the loss's terms and weights, and how a step runs.")
+    return StructConstructorSpec(instantiate=build, fields=(*first, group))
+
+
+def command_description(name: str, preset: str, own: bool = False) -> str:
     """The help's first paragraph: what the command does, the preset and (for training commands) its cost, and how
-    to install the command's extra when it is missing."""
+    to install the command's extra when it is missing. ``own``: no --preset was given to a command that then uses
+    its input's own (:attr:`Command.own_preset`)."""
     cmd = COMMANDS[name]
     # the costs are per trained model, so only the commands that train quote them
     cost = cmd.cost or (PRESET_COSTS.get(preset) if cmd.config in ("TrainConfig", "MapConfig", "RealConfig")
                         else None)
-    text = f"{cmd.help} (preset {preset!r}" + (f": {cost})" if cost else ")")
+    if own:
+        text = f"{cmd.help} (preset: the run's own, tiny, cpu or paper, unless --preset names another)"
+    else:
+        text = f"{cmd.help} (preset {preset!r}" + (f": {cost})" if cost else ")")
     if cmd.extra and importlib.util.find_spec(EXTRA_PACKAGES[cmd.extra]) is None:
-        text += (f". Needs the {cmd.extra} extra, not installed here: pip install -e '.[{cmd.extra}]' "
-                 "(docs/stable_worldmodel.md)")
+        text += (f". Needs the {cmd.extra} extra, not installed here; in an environment of its own (it moves torch "
+                 f"to 2.14.1): python -m venv .venv-{cmd.extra} && .venv-{cmd.extra}/bin/pip install -e "
+                 f"'.[{cmd.extra}]' (docs/stable_worldmodel.md)")
     return text
 
 
@@ -247,9 +316,9 @@ def written_since(path: Path, since: float) -> list[Path]:
 def train_closing(run: Path, finished_before: bool) -> str:
     """``[train] VFX: 10 steps, loss 3.60 → RUN/final.pt``, or that the run was finished already, or where it
     stopped (a deadline or ``stop_at``) and how to resume."""
-    cfg = json.loads((run / "config.json").read_text())
-    lines = (run / "metrics.jsonl").read_text().splitlines() if (run / "metrics.jsonl").exists() else []
-    last = json.loads(lines[-1]) if lines else {}
+    cfg = read_json(run / "config.json", "a run's config.json")
+    rows = read_jsonl(run / "metrics.jsonl", "a run's metrics.jsonl")
+    last = rows[-1] if rows else {}
     what = f"{cfg['variant']}: {last.get('step', 0)} steps"
     if isinstance(last.get("loss"), (int, float)):
         what += f", loss {last['loss']:.3g}"
@@ -290,9 +359,19 @@ def run_and_report(name: str, cfg, runner) -> None:
     if name == "train":
         print(train_closing(Path(result), finished_before))
         return
-    if isinstance(result, Path) and str(result) in tee.last_line:
-        return
-    print(closing_line(name, cfg, result, since))
+    named = isinstance(result, Path) and str(result) in tee.last_line
+    if name in SMOKE_NOTE_COMMANDS and getattr(cfg, "preset", "") == "tiny":
+        print(SMOKE_NOTE)
+    if not named:
+        print(closing_line(name, cfg, result, since))
+
+
+#: Commands whose tables, at the tiny preset, show numbers a newcomer would take for results (errors in the
+#: thousands, "no effect at this budget"); ``plan`` says so under its own table (plan.table_lines).
+SMOKE_NOTE_COMMANDS = ("map",)
+SMOKE_NOTE = ("Note: the tiny preset's models are smoke-test sized, so the numbers above (prediction errors in the "
+              "hundreds or thousands, no effects) test the pipeline, not the paper: run --preset cpu (or paper) for "
+              "numbers worth reading.")
 
 
 def _flag_arity(cls, prefix: str = "") -> dict[str, int]:
@@ -358,9 +437,55 @@ def split_args(argv: list[str], positional: str | None, arity: dict[str, int]) -
     return preset, out
 
 
-def main(argv: list[str] | None = None) -> int:
+def preset_given(argv: list[str]) -> bool:
+    """Whether ``argv`` names a preset (``--preset X`` or ``--preset=X``)."""
+    return any(tok == "--preset" or tok.startswith("--preset=") for tok in argv)
+
+
+def parse_config(name: str, argv: list[str]):
+    """The command's config from ``argv``: the preset's defaults (the one --preset names; else, for a command with
+    :attr:`Command.own_preset`, the one its input was made with; else ``cpu``) overridden by the flags."""
     import tyro
 
+    cmd = COMMANDS[name]
+    config_mod = config_module(name, argv)
+    cls = getattr(config_mod, cmd.config)
+    preset, rest = split_args(argv, cmd.positional, _flag_arity(cls))
+    if not cmd.make and preset != "cpu":
+        raise ConfigError(f"{name} has no presets; drop --preset {preset}")
+
+    own = bool(cmd.own_preset) and not preset_given(argv)
+
+    def parse(preset: str):
+        default = getattr(config_mod, cmd.make)(preset) if cmd.make else cls()
+        with parsing_command_line():  # a field out of range: one line, not the parser's help box
+            return tyro.cli(cls, default=default, args=rest, prog=command_prog(name, module_presets(config_mod)),
+                            registry=plain_help_registry(), description=command_description(name, preset, own))
+
+    cfg = parse(preset)
+    if own:
+        # the input (probe: the run) is only known once parsed; parsing again layers the flags over its preset
+        run_preset = getattr(config_mod, cmd.own_preset)(cfg)
+        if run_preset != preset:
+            cfg = parse(run_preset)
+    return cfg
+
+
+def interrupted_exit(name: str, argv: list[str], e: KeyboardInterrupt) -> int:
+    """One line for a command stopped by Ctrl-C or SIGTERM, and the shell's exit status for it. Training that
+    checkpointed at the step it stopped says so itself; otherwise the line adds the command that resumes."""
+    import shlex
+
+    if getattr(e, "checkpointed", False):  # train.loop.TrainingInterrupted, read without importing torch here
+        print(f"[{name}] {e}", file=sys.stderr)
+        return e.exit_code
+    said = f"{e}; " if str(e) else ""
+    print(f"pokeworld {name}: interrupted: {said}to resume, run: pokeworld {shlex.join([name, *argv])}",
+          file=sys.stderr)
+    return 130
+
+
+def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv or argv[0] in ("-h", "--help"):
         print(usage())
@@ -371,14 +496,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     cmd = COMMANDS[name]
     try:
-        config_mod = config_module(name, argv)
-        cls = getattr(config_mod, cmd.config)
-        preset, rest = split_args(argv, cmd.positional, _flag_arity(cls))
-        if not cmd.make and preset != "cpu":
-            raise ConfigError(f"{name} has no presets; drop --preset {preset}")
-        default = getattr(config_mod, cmd.make)(preset) if cmd.make else cls()
-        cfg = tyro.cli(cls, default=default, args=rest, prog=command_prog(name), registry=plain_help_registry(),
-                       description=command_description(name, preset))
+        cfg = parse_config(name, argv)
         run_and_report(name, cfg, getattr(importlib.import_module(cmd.module), cmd.runner))
     except PokeworldError as e:
         print(f"pokeworld {name}: error: {e}", file=sys.stderr)
@@ -386,13 +504,8 @@ def main(argv: list[str] | None = None) -> int:
     except FloatingPointError as e:
         print(f"pokeworld {name}: training diverged: {e}", file=sys.stderr)
         return 3
-    except KeyboardInterrupt as e:  # Ctrl-C: where it stopped (training says which checkpoint resumes), no traceback
-        import shlex
-
-        said = f"{e}; " if str(e) else ""
-        print(f"pokeworld {name}: interrupted: {said}to resume, run: pokeworld {shlex.join([name, *argv])}",
-              file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as e:  # Ctrl-C or SIGTERM: where it stopped and how to resume, no traceback
+        return interrupted_exit(name, argv, e)
     return 0
 
 

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import json
+import io
 import os
 import stat
 from pathlib import Path
@@ -41,9 +41,11 @@ from typing import Any, Iterator
 import h5py
 import numpy as np
 
+from .config import MAX_STORE_BYTES, apply_overrides
 from .errors import ConfigError, DataError
-from .io import OwnedDir, atomic_path, check_owned_dir, check_regular_file, dir_lock, hash_arrays, \
-    read_regular_bytes, write_json
+from .io import OwnedDir, atomic_path, check_owned_dir, check_regular_file, dir_lock, hash_arrays, read_json, write_json
+from .sim.core import PhysicsConfig
+from .sim.generate_config import generator_config
 
 FORMAT_VERSION = 1
 SPLITS = {"train": 0, "probe_fit": 1, "probe_test": 2, "heldout": 3}
@@ -56,11 +58,10 @@ certificate corpora (stores themselves, with their ``.n<episodes>.lock``). A fol
 not one pokeworld may replace (:func:`check_store_destination`)."""
 # certificate_corpus.FOLDER (not imported: certificate_corpus imports the generator, which imports this module)
 _CERTIFICATE_CORPORA = OwnedDir(files=(r"\.n\d+\.lock",), dirs=((r"n\d+", OwnedDir(files=STORE_FILES)),))
-MAX_MANIFEST_BYTES = 256 << 20
-"""A manifest is JSON metadata (an RH20T store's lists every scene: a few MB); more is not a manifest."""
-MAX_STORE_BYTES = 64 << 30
-"""Most array bytes a store may declare in all (the paper's corpus is about 2.5 GiB): :func:`load` refuses more
-before reading anything, so a forged header cannot make it allocate without bound."""
+MAX_MANIFEST_BYTES = 16 << 20
+"""A manifest is JSON metadata: a generated store's is about 2 KB; an RH20T store's lists every scene (about 1 KB
+each, 4,258 in the largest configuration: a few MB). More is not a manifest, and parsing costs many times a file's
+size in memory."""
 MAX_EXPANSION = 1100
 """Most a dataset may expand over the bytes it stores (deflate cannot exceed about 1032:1): a declared shape far
 beyond what the file holds is a forged or damaged header whose read would only return fill values."""
@@ -167,12 +168,19 @@ def save(ds: Dataset, out_dir: str | os.PathLike, manifest: dict[str, Any] | Non
     man["split_counts"] = {k: int((ds.split == v).sum()) for k, v in SPLITS.items()}
     with atomic_path(out_dir, replace=_owned_store(None)) as tmp:
         tmp.mkdir(parents=True)
-        with h5py.File(tmp / "data.h5", "w", track_order=True) as f:
+        # HDF5 is built in memory (compressed, a fraction of the arrays already held) and written by Python: a
+        # full disk or a file-size limit is then an OSError here, which atomic_path turns into one line, instead of
+        # a failed write inside the HDF5 library, which crashed the interpreter on its way out
+        image = io.BytesIO()
+        with h5py.File(image, "w", track_order=True) as f:
             for name, a in arrays.items():
                 # one chunk per episode, deflate level 1; not LZF: h5py's LZF leaves its hash table
                 # uninitialised, so the same array can compress to different bytes from run to run
                 per_episode = {"chunks": (1,) + a.shape[1:], "compression": "gzip", "compression_opts": 1}
                 f.create_dataset(name, data=a, track_times=False, **(per_episode if a.ndim >= 2 else {}))
+        with open(tmp / "data.h5", "xb") as fh:  # a new file in our private temporary folder
+            fh.write(image.getbuffer())
+        del image
         write_json(tmp / "manifest.json", man)
     ds.manifest = man
     return out_dir
@@ -180,14 +188,29 @@ def save(ds: Dataset, out_dir: str | os.PathLike, manifest: dict[str, Any] | Non
 
 def _manifest_json(mf: Path) -> dict[str, Any]:
     """The parsed ``manifest.json`` at ``mf`` (a regular file of bounded size holding a JSON object)."""
-    raw = read_regular_bytes(mf, "a store manifest", MAX_MANIFEST_BYTES)
+    return read_json(mf, "a store manifest", dict, MAX_MANIFEST_BYTES)
+
+
+def check_manifest_config(manifest: dict[str, Any], where: str | os.PathLike) -> None:
+    """DataError (one line naming ``where`` and the field) unless the manifest's generator config is one its
+    generator could have written. It is read back as settings (the certificate corpus regenerates from it; stats,
+    certify and the probes read its physics) but no content hash covers it, so it is checked like a command
+    line: types, finite, ranges (:func:`pokeworld.config.check_fields`) before anything uses it."""
+    if "config" not in manifest:
+        return
+    if manifest.get("generator") == "pokeworld.sim.generate":
+        generator_config(manifest, str(where))
+        return
+    config = manifest["config"]
+    physics = config.get("physics", {}) if isinstance(config, dict) else None
     try:
-        manifest = json.loads(raw)
-    except (ValueError, RecursionError) as e:  # JSONDecodeError and UnicodeDecodeError are ValueErrors
-        raise DataError(f"{mf} is not valid JSON ({e}); the dataset is corrupt") from None
-    if not isinstance(manifest, dict):
-        raise DataError(f"{mf} holds a JSON {type(manifest).__name__}, not an object; the dataset is corrupt")
-    return manifest
+        if not isinstance(physics, dict):
+            raise ConfigError(f"its config must be a JSON object and its physics one too, got {config!r:.60}")
+        apply_overrides(PhysicsConfig(), physics)
+    except ConfigError as e:
+        problem = str(e).replace("PhysicsConfig.", "config.physics.", 1)  # the field as the manifest spells it
+        raise DataError(f"{where}: {problem}; the store's manifest is damaged or not pokeworld's: regenerate the "
+                        "store") from None
 
 
 def read_manifest(path: str | os.PathLike) -> dict[str, Any]:
@@ -196,6 +219,9 @@ def read_manifest(path: str | os.PathLike) -> dict[str, Any]:
     path = Path(path)
     h5, mf = path / "data.h5", path / "manifest.json"
     if not path.is_dir():
+        if os.path.lexists(path):
+            raise DataError(f"{path} is a file, not a dataset folder (a folder holding data.h5 and manifest.json, as "
+                            "`pokeworld generate` writes); name the dataset folder")
         raise DataError(f"dataset directory {path} does not exist (generate it with `pokeworld generate`)")
     if not os.path.lexists(h5) or not os.path.lexists(mf):
         raise DataError(f"{path} is not a pokeworld dataset: expected data.h5 and manifest.json")
@@ -203,6 +229,7 @@ def read_manifest(path: str | os.PathLike) -> dict[str, Any]:
     manifest = _manifest_json(mf)
     if manifest.get("format_version") != FORMAT_VERSION:
         raise DataError(f"{path}: format version {manifest.get('format_version')} != supported {FORMAT_VERSION}")
+    check_manifest_config(manifest, mf)
     return manifest
 
 
@@ -379,25 +406,27 @@ def _owned_store(kind: str | None) -> OwnedDir:
                     verify=lambda out: _verify_store_folder(kind, out))
 
 
-def check_store_destination(out: str | os.PathLike, kind: str | None) -> None:
+def check_store_destination(out: str | os.PathLike, kind: str | None, owned: OwnedDir | None = None,
+                            what: str = "--out") -> None:
     """Raise ConfigError, before any work, unless a store of ``kind`` may be written at ``out``: it does not
     exist, or is an empty folder, or a folder holding only a store pokeworld verifies as its own of that kind
-    (:data:`STORE_FILES`, parseable manifest, same ``kind``). Links, files and any other folder are refused:
-    pokeworld never deletes what it did not create. Whether an own store is kept or replaced is
-    :func:`store_is_current`'s decision (``--overwrite``)."""
+    (:data:`STORE_FILES`, parseable manifest, same ``kind``; or what ``owned`` names, for a store with more files).
+    Links, files and any other folder are refused: pokeworld never deletes what it did not create. Whether an own
+    store is kept or replaced is :func:`store_is_current`'s decision (``--overwrite``). ``what`` names the path in
+    the refusal (the flag or role it came from)."""
     out = Path(out)
     if out.name in ("", ".", ".."):
-        raise ConfigError(f"--out {str(out)!r} does not name a folder; give the store folder's path")
+        raise ConfigError(f"{what} {str(out)!r} does not name a folder; give the store folder's path")
     try:
         mode = os.lstat(out).st_mode
     except (FileNotFoundError, NotADirectoryError):
         return  # nothing there to protect; whether it can be created is check_writable_dir's question
     if stat.S_ISLNK(mode):
-        raise ConfigError(f"--out {out} is a symbolic link; pokeworld does not write stores through links: give "
+        raise ConfigError(f"{what} {out} is a symbolic link; pokeworld does not write stores through links: give "
                           "the real path")
     if not stat.S_ISDIR(mode):
-        raise ConfigError(f"--out {out} is an existing file, not a folder; choose a folder path for the store")
-    check_owned_dir(out, _owned_store(kind))
+        raise ConfigError(f"{what} {out} is an existing file, not a folder; choose a folder path for the store")
+    check_owned_dir(out, owned or _owned_store(kind))
 
 
 @contextlib.contextmanager

@@ -3,13 +3,20 @@ following or hanging on what a user points it at.
 
 The guards, for every writer of an output folder:
 
-* :func:`atomic_path` never writes through or replaces a symbolic link, and replaces an existing folder only when
-  an :class:`OwnedDir` verifies it as one pokeworld wrote (removing its files one by one, never recursively);
+* every file pokeworld writes is recorded by name in its folder's ``.pokeworld-owned`` (:func:`record_owned`), and
+  an existing file is replaced or appended to only when recorded there (:func:`check_replaceable`): a user's
+  ``metrics.jsonl`` or ``plan.md`` in a folder given as ``--out`` is refused, never overwritten, whatever the command
+  and whatever ``--overwrite`` says;
+* :func:`atomic_path` writes inside a private temporary folder (``.<name>.tmp-<random>``, created exclusively with
+  mode 0700, so nobody else can plant a link in it), never writes through or replaces a symbolic link, and replaces
+  an existing folder only when an :class:`OwnedDir` verifies it as one pokeworld wrote (removing its files one by
+  one, never recursively);
 * :func:`open_nofollow` opens a file for writing (lock files, ``metrics.jsonl``) without following a link and
   only if it is a regular file with no other name;
 * :func:`check_writable_dir` fails in one line before a long computation whose output could not be written;
 * :func:`check_regular_file` / :func:`read_regular_bytes` refuse links, FIFOs, devices and oversized files
-  before reading, so a planted special file cannot hang a reader.
+  before reading, so a planted special file cannot hang a reader; :func:`read_json` is the one reader of every JSON
+  record pokeworld reads back (bounded, regular files only, the top-level type checked, one-line errors).
 """
 
 from __future__ import annotations
@@ -21,6 +28,7 @@ import hashlib
 import json
 import os
 import re
+import shutil
 import stat
 import tempfile
 import warnings
@@ -56,7 +64,8 @@ class OwnedDir:
 
     ``files``: patterns (``re.fullmatch``) of the regular files pokeworld writes in it (a store: ``data\\.h5``...);
     ``dirs``: (pattern, :class:`OwnedDir`) of the subfolders it writes there and what those hold. Their temporary
-    names (``.<name>.tmp-<pid>``, ``.<name>.old-<pid>``, left by an interrupted atomic write) count as ours too.
+    names (``.<name>.tmp-<random>``, left by an interrupted atomic write, and older ``.<name>.tmp-<pid>`` /
+    ``.<name>.old-<pid>``) and the folder's ownership record (``.pokeworld-owned``) count as ours too.
     Anything else inside, at any depth — another file or folder, a link, a FIFO — makes the folder foreign.
     ``verify``, if given, is a further check of an otherwise-owned folder (e.g. that its manifest parses and names
     the same kind of artifact); it raises :class:`~pokeworld.errors.ConfigError` to refuse.
@@ -69,11 +78,20 @@ class OwnedDir:
     @staticmethod
     def _matching(patterns, name: str) -> str | None:
         """The pattern ``name`` is (or is a temporary name of), else None."""
-        return next((p for p in patterns if re.fullmatch(rf"(?:\.(?:{p})\.(?:tmp|old)-\d+)|(?:{p})", name)), None)
+        return next((p for p in patterns if re.fullmatch(rf"(?:\.(?:{p})\.(?:tmp|old)-{_TMP_SUFFIX})|(?:{p})", name)),
+                    None)
 
     def owns_file(self, entry: os.DirEntry) -> bool:
-        """An entry pokeworld wrote as a file here: a regular file (not a link) named by ``files``."""
-        return entry.is_file(follow_symlinks=False) and self._matching(self.files, entry.name) is not None
+        """An entry pokeworld wrote as a file here: a regular file (not a link) named by ``files``, or the folder's
+        ownership record."""
+        return entry.is_file(follow_symlinks=False) and (
+            entry.name == OWNED_RECORD or self._matching(self.files, entry.name) is not None)
+
+    def owns_temporary(self, entry: os.DirEntry) -> bool:
+        """A private temporary folder an interrupted :func:`atomic_path` of one of our names left here."""
+        m = _TEMPORARY.fullmatch(entry.name)
+        return (m is not None and entry.is_dir(follow_symlinks=False)
+                and self._matching(self.files + tuple(p for p, _ in self.dirs), m.group(1)) is not None)
 
     def subfolder(self, entry: os.DirEntry) -> "OwnedDir | None":
         """What an own subfolder (a real folder, not a link, named by ``dirs``) holds; None for anything else."""
@@ -92,7 +110,7 @@ def foreign_entries(directory: str | os.PathLike, owned: OwnedDir) -> list[str]:
             inner = owned.subfolder(e)
             if inner is not None:
                 foreign += [f"{e.name}/{n}" for n in foreign_entries(e.path, inner)]
-            elif not owned.owns_file(e):
+            elif not (owned.owns_file(e) or owned.owns_temporary(e)):
                 foreign.append(e.name)
     return sorted(foreign)
 
@@ -122,6 +140,8 @@ def remove_owned_dir(directory: str | os.PathLike, owned: OwnedDir) -> None:
                 remove_owned_dir(e.path, inner)
             elif owned.owns_file(e):
                 remove_own_file(e.path)
+            elif owned.owns_temporary(e):
+                _discard(Path(e.path))
     try:
         os.rmdir(directory)
     except OSError as e:
@@ -144,32 +164,112 @@ def remove_own_file(path: str | os.PathLike) -> None:
     os.unlink(path)
 
 
-def temporary_name(final: Path) -> Path:
-    """The temporary sibling :func:`atomic_path` writes ``final`` under: ``.<name>.tmp-<pid>``, a name no user file
-    has by accident and the one :class:`OwnedDir` and :func:`remove_stale_temporaries` recognise."""
-    return final.with_name(f".{final.name}.tmp-{os.getpid()}")
+_TMP_SUFFIX = r"(?:\d+|[a-z0-9_]{8})"
+# ".<name>.tmp-<random>": a private folder from tempfile.mkdtemp (8 random characters); "<pid>" names are older ones
+_TEMPORARY = re.compile(rf"\.(.+)\.tmp-{_TMP_SUFFIX}")
+
+OWNED_RECORD = ".pokeworld-owned"
+"""The file, in every folder pokeworld writes into, that names (one per line) the files it wrote there."""
+MAX_OWNED_RECORD_BYTES = 4 << 20
 
 
-_TEMPORARY = re.compile(r"\..+\.tmp-\d+")
+def owned_names(folder: str | os.PathLike) -> set[str]:
+    """The names ``folder``'s ownership record lists (empty when it has none)."""
+    path = Path(folder) / OWNED_RECORD
+    try:
+        raw = read_regular_bytes(path, "pokeworld's ownership record", MAX_OWNED_RECORD_BYTES)
+    except DataError:
+        if not os.path.lexists(path):
+            return set()
+        raise
+    return set(raw.decode("utf-8", errors="replace").splitlines())
+
+
+def record_owned(path: str | os.PathLike) -> None:
+    """Record that pokeworld wrote ``path`` (a line in its folder's :data:`OWNED_RECORD`), so that a later run may
+    replace it. Append-only, no link followed: concurrent writers at worst record a name twice."""
+    path = Path(path)
+    if path.name in owned_names(path.parent):
+        return
+    with _open_nofollow_raw(path.parent / OWNED_RECORD, "a") as fh:
+        fh.write(path.name + "\n")
+
+
+def check_replaceable(path: str | os.PathLike) -> None:
+    """Raise ConfigError unless ``path`` is absent, a folder (checked by its own :class:`OwnedDir`), or a file
+    pokeworld recorded writing (:func:`record_owned`): no command ever replaces or appends to a user's file."""
+    path = Path(path)
+    try:
+        st = os.lstat(path)
+    except FileNotFoundError:
+        return
+    if stat.S_ISDIR(st.st_mode):
+        return
+    if stat.S_ISLNK(st.st_mode):
+        raise ConfigError(f"{_link_line(path)}; pokeworld does not write through or replace links: remove the link")
+    if not stat.S_ISREG(st.st_mode):
+        raise ConfigError(f"{path} is a {_file_kind(st.st_mode)}, not a regular file; pokeworld writes only regular "
+                          "files there: remove it")
+    if path.name == OWNED_RECORD or path.name in owned_names(path.parent):
+        return
+    raise ConfigError(f"{path} exists and pokeworld did not write it (it is not listed in {path.parent / OWNED_RECORD}"
+                      "); pokeworld never replaces a file it did not write, not even with --overwrite: move the file "
+                      "away or choose another output folder")
+
+
+def adopt_legacy(folder: str | os.PathLike, names) -> list[str]:
+    """Record ``names`` (the regular files among them that are there) as pokeworld's in ``folder`` when it has no
+    ownership record at all: for a folder its format's owner has verified as one pokeworld wrote before records
+    existed (a run folder by its config.json, a map folder by its map_config.json). A folder that cannot be
+    written is left as it is (its files are then read, never replaced). Returns the names recorded."""
+    folder = Path(folder)
+    if os.path.lexists(folder / OWNED_RECORD):
+        return []
+    found = [n for n in names if os.path.isfile(folder / n) and not os.path.islink(folder / n)]
+    try:
+        for name in found:
+            record_owned(folder / name)
+    except OSError:
+        return []
+    return found
+
+
+def check_outputs(folder: str | os.PathLike, *names: str) -> Path:
+    """The output-folder contract, checked before a command computes anything: ``folder`` can be created and
+    written (:func:`check_writable_dir`), and each of the ``names`` it will write there is new, or a file pokeworld
+    wrote and may replace (:func:`check_replaceable`), and not a link. Returns the folder."""
+    folder = Path(folder)
+    check_writable_dir(folder)
+    for name in names:
+        _refuse_link(folder / name)
+        check_replaceable(folder / name)
+    return folder
+
+
+def temporary_folder(final: Path) -> Path:
+    """A new private folder beside ``final`` to write it in: ``.<name>.tmp-<random>``, created exclusively with mode
+    0700 (:func:`tempfile.mkdtemp`), so its name cannot be predicted and nobody else can plant a link inside it; the
+    name :class:`OwnedDir` and :func:`remove_stale_temporaries` recognise."""
+    return Path(tempfile.mkdtemp(prefix=f".{final.name}.tmp-", dir=final.parent))
 
 
 def remove_stale_temporaries(folder: str | os.PathLike) -> int:
-    """Delete the regular files an interrupted atomic write left directly in ``folder`` (``.<name>.tmp-<pid>``,
-    :func:`temporary_name`); a link or folder under such a name is left alone. Only for a folder whose writers have
-    all stopped (the caller holds its lock). Returns how many were removed."""
+    """Delete what interrupted atomic writes left directly in ``folder``: private temporary folders
+    (``.<name>.tmp-<random>``, walked without following links) and older temporary files (``.<name>.tmp-<pid>``); a
+    link under such a name is left alone. Only for a folder whose writers have all stopped (the caller holds its
+    lock). Returns how many were removed."""
     removed = 0
     with os.scandir(folder) as it:
         for e in it:
-            if _TEMPORARY.fullmatch(e.name) and e.is_file(follow_symlinks=False):
-                remove_own_file(e.path)
+            if _TEMPORARY.fullmatch(e.name) and (e.is_file(follow_symlinks=False) or e.is_dir(follow_symlinks=False)):
+                _discard(Path(e.path))
                 removed += 1
     return removed
 
 
 def _discard(tmp: Path) -> None:
-    """Remove our own temporary name ``.<final>.tmp-<pid>`` (:func:`temporary_name`; only :func:`atomic_path` makes
-    such names, and any other name is refused): a link there is unlinked, never followed; a folder is emptied entry
-    by entry (:func:`_remove_temporary_tree`)."""
+    """Remove a temporary of ours (a name :data:`_TEMPORARY` matches; any other name is refused): a link there is
+    unlinked, never followed; a folder is emptied entry by entry (:func:`_remove_temporary_tree`)."""
     if not _TEMPORARY.fullmatch(tmp.name):
         raise ValueError(f"{tmp} is not a pokeworld temporary name; refusing to delete it")
     if tmp.is_symlink() or tmp.is_file():
@@ -179,7 +279,7 @@ def _discard(tmp: Path) -> None:
 
 
 def _remove_temporary_tree(folder: Path) -> None:
-    """Delete a temporary folder :func:`atomic_path` handed out, walking it without following any link: regular files
+    """Delete a temporary folder :func:`atomic_path` made, walking it without following any link: regular files
     and links are unlinked (a link's target is never touched), real subfolders recursed into; anything else (a FIFO, a
     socket, a device) is left, and the folder with it, with a warning naming it."""
     with os.scandir(folder) as it:
@@ -203,9 +303,11 @@ def _refuse_link(final: Path) -> None:
 
 
 def _install(tmp: Path, final: Path, replace: OwnedDir | None) -> None:
-    """Move the finished ``tmp`` to ``final``: a plain rename, except over an existing folder, which must be empty
-    or verified by ``replace``; that one is renamed aside, the new one renamed in, and the old one's files removed."""
+    """Move the finished ``tmp`` (inside its private folder) to ``final``: a plain rename, except over an existing
+    folder, which must be empty or verified by ``replace``; that one is moved into the private folder, the new one
+    renamed in, and the old one's files removed."""
     _refuse_link(final)
+    check_replaceable(final)
     try:
         st = os.lstat(final)
     except FileNotFoundError:
@@ -215,7 +317,7 @@ def _install(tmp: Path, final: Path, replace: OwnedDir | None) -> None:
     if not stat.S_ISDIR(st.st_mode):
         if tmp_is_dir:
             raise ConfigError(f"{final} is an existing {_file_kind(st.st_mode)}, not a folder; choose a folder path")
-        os.replace(tmp, final)  # a file replacing a file: the ordinary atomic write
+        os.replace(tmp, final)  # a file replacing a file we wrote: the ordinary atomic write
         return
     if not tmp_is_dir:
         raise ConfigError(f"{final} is a folder; cannot write a file under that name")
@@ -229,7 +331,7 @@ def _install(tmp: Path, final: Path, replace: OwnedDir | None) -> None:
                               "it wrote it: choose another output path") from None
         return
     check_owned_dir(final, replace)
-    old = final.with_name(f".{final.name}.old-{os.getpid()}")
+    old = tmp.parent / ".replaced"
     os.rename(final, old)
     try:
         os.replace(tmp, final)
@@ -239,27 +341,47 @@ def _install(tmp: Path, final: Path, replace: OwnedDir | None) -> None:
     remove_owned_dir(old, replace)
 
 
+def _space_error(e: OSError, final: Path) -> ConfigError:
+    """One line for a full disk or a file-size limit met while writing ``final``."""
+    try:
+        free = f"{shutil.disk_usage(final.parent).free} bytes free there"
+    except OSError:
+        free = "free space unknown"
+    what = "no space left on device" if e.errno == errno.ENOSPC else "file size limit reached"
+    return ConfigError(f"{what} while writing {final} ({free}); free some space or choose another output folder, "
+                       "then run the command again (nothing partial was kept)")
+
+
 @contextlib.contextmanager
 def atomic_path(final: str | os.PathLike, replace: OwnedDir | None = None) -> Iterator[Path]:
-    """Yield a temporary sibling path; rename it to ``final`` only if the block succeeds.
+    """Yield a path to write ``final`` under (file or folder); rename it to ``final`` only if the block succeeds.
 
-    Works for files and directories, so a crash never leaves a half-written artifact under the final name.
-    Safe by default: ``final`` must not be a symbolic link (refused before and after the block), and an existing
-    folder is replaced only if it is empty or ``replace`` verifies it as pokeworld's own (:class:`OwnedDir`);
-    even then only the files it names are deleted, never a tree (:func:`remove_owned_dir`).
+    The path lies inside a private temporary folder (:func:`temporary_folder`), so a crash never leaves a
+    half-written artifact under the final name and no planted link can redirect the write. Safe by default:
+    ``final`` must not be a symbolic link, an existing file must be one pokeworld recorded writing
+    (:func:`check_replaceable`, checked before the block and again before the rename), and an existing folder is
+    replaced only if it is empty or ``replace`` verifies it as pokeworld's own (:class:`OwnedDir`); even then only
+    the files it names are deleted, never a tree (:func:`remove_owned_dir`). A full disk reads as one line.
     """
     final = Path(final)
     _refuse_link(final)
+    check_replaceable(final)
     final.parent.mkdir(parents=True, exist_ok=True)
-    tmp = temporary_name(final)
-    _discard(tmp)  # left by a crashed process that had our pid
+    private = temporary_folder(final)
     try:
-        yield tmp
+        yield private / final.name
         crash_point(f"rename:{final.name}")
-        _install(tmp, final, replace)
-    except BaseException:
-        _discard(tmp)
+        _install(private / final.name, final, replace)
+        record_owned(final)
+    except BaseException as e:
+        _discard(private)  # only our own half-written output is in it
+        if isinstance(e, OSError) and e.errno in (errno.ENOSPC, errno.EFBIG, errno.EDQUOT):
+            raise _space_error(e, final) from None
         raise
+    try:
+        os.rmdir(private)
+    except OSError:  # a file that appeared in a replaced folder meanwhile: never deleted, left with a warning
+        warnings.warn(f"left {private} in place: it holds files pokeworld did not write", stacklevel=2)
 
 
 def check_writable_dir(directory: str | os.PathLike) -> None:
@@ -298,14 +420,8 @@ def _refuse_unwritable_name(path: Path, st: os.stat_result) -> None:
                           "too: remove it (or replace it by a copy)")
 
 
-def open_nofollow(path: str | os.PathLike, mode: str = "a") -> IO[str]:
-    """Open ``path`` for writing (text ``mode`` "a", "a+" or "w") without following a symbolic link.
-
-    Refuses (ConfigError naming the path) a link, anything but a regular file (a FIFO would block, a device be
-    written), and a file with other hard links, so a planted link never makes pokeworld truncate or append to
-    another file. The check is made on the opened descriptor too (``O_NOFOLLOW``, ``fstat``), so swapping the
-    name between check and open does not get past it. "w" truncates only after those checks.
-    """
+def _open_nofollow_raw(path: str | os.PathLike, mode: str = "a") -> IO[str]:
+    """:func:`open_nofollow` without the ownership check (for the ownership record itself)."""
     if mode not in _WRITE_FLAGS:
         raise ValueError(f"open_nofollow mode must be one of {sorted(_WRITE_FLAGS)}, got {mode!r}")
     path = Path(path)
@@ -329,6 +445,30 @@ def open_nofollow(path: str | os.PathLike, mode: str = "a") -> IO[str]:
     except BaseException:
         os.close(fd)
         raise
+
+
+def open_nofollow(path: str | os.PathLike, mode: str = "a") -> IO[str]:
+    """Open ``path`` for writing (text ``mode`` "a", "a+" or "w") without following a symbolic link, and only if it
+    is new or a file pokeworld recorded writing (:func:`check_replaceable`); a new file is recorded as ours.
+
+    Refuses (ConfigError naming the path) a user's file, a link, anything but a regular file (a FIFO would block, a
+    device be written), and a file with other hard links, so a planted link never makes pokeworld truncate or
+    append to another file. The check is made on the opened descriptor too (``O_NOFOLLOW``, ``fstat``), so swapping
+    the name between check and open does not get past it. "w" truncates only after those checks.
+    """
+    path = Path(path)
+    try:  # a link, a special file or another name of the same file is named as such, before whose file it is
+        _refuse_unwritable_name(path, os.lstat(path))
+    except FileNotFoundError:
+        pass
+    check_replaceable(path)
+    fh = _open_nofollow_raw(path, mode)
+    try:
+        record_owned(path)
+    except BaseException:
+        fh.close()
+        raise
+    return fh
 
 
 def check_regular_file(path: str | os.PathLike, what: str, max_bytes: int | None = None) -> os.stat_result:
@@ -378,15 +518,67 @@ def append_jsonl(path: str | os.PathLike, obj: Any) -> None:
         fh.write(json.dumps(obj, sort_keys=True, default=_json_default) + "\n")
 
 
-def read_jsonl(path: str | os.PathLike) -> list[dict]:
+MAX_JSON_BYTES = 4 << 20
+"""The default bound on a JSON record pokeworld reads back: its manifests, configs and measurements are kilobytes,
+and parsing costs up to ~25 times a file's size in memory, so a larger file is refused before it is read."""
+
+_JSON_TYPES = {dict: "object", list: "array", str: "string", int: "number", float: "number", bool: "true/false"}
+
+
+def _json_type(obj: Any) -> str:
+    return "null" if obj is None else _JSON_TYPES.get(type(obj), type(obj).__name__)
+
+
+def parse_json(raw: bytes, path: str | os.PathLike, what: str, remedy: str = "", error: type = DataError) -> Any:
+    """``raw`` (bytes already read within a bound, e.g. one line of a log) parsed as JSON; ``error`` naming ``path``,
+    ``what`` it should be and the ``remedy`` when it is not."""
+    try:
+        return json.loads(raw.decode("utf-8"))
+    except (ValueError, RecursionError) as e:  # JSONDecodeError, bad UTF-8, a 5000-digit int; nesting too deep
+        first = str(e).splitlines()[0] if str(e) else type(e).__name__
+        raise error(f"{path} is not valid JSON ({first}), so not {what} pokeworld wrote; "
+                    f"{remedy or 'restore it or write it again with the command that made it'}") from None
+
+
+def read_json(path: str | os.PathLike, what: str, expect: type | tuple[type, ...] | None = dict,
+              max_bytes: int = MAX_JSON_BYTES, remedy: str = "", error: type = DataError) -> Any:
+    """The one reader of a JSON record pokeworld reads back (manifests, configs, earlier outputs): a regular file of
+    at most ``max_bytes`` (no link, FIFO or device; :func:`read_regular_bytes`), valid JSON, its top level of type
+    ``expect`` (None: any); otherwise one line (``error``, DataError by default) naming the file, ``what`` it should
+    be and the ``remedy``."""
     path = Path(path)
-    if not path.exists():
+    try:
+        raw = read_regular_bytes(path, what, max_bytes)
+    except DataError as e:
+        raise error(str(e)) from None
+    obj = parse_json(raw, path, what, remedy, error)
+    if expect is not None and not isinstance(obj, expect):
+        want = " or ".join(sorted({_JSON_TYPES.get(t, t.__name__) for t in
+                                   (expect if isinstance(expect, tuple) else (expect,))}))
+        raise error(f"{path} is not {what} pokeworld wrote (it holds a JSON {_json_type(obj)}, not a JSON {want}); "
+                    f"{remedy or 'restore it or write it again with the command that made it'}")
+    return obj
+
+
+def read_json_if_present(path: str | os.PathLike, what: str, expect: type | tuple[type, ...] | None = dict,
+                         max_bytes: int = MAX_JSON_BYTES, remedy: str = "", error: type = DataError) -> Any:
+    """:func:`read_json`, or None when nothing (not even a link) is at ``path``."""
+    return read_json(path, what, expect, max_bytes, remedy, error) if os.path.lexists(path) else None
+
+
+def read_jsonl(path: str | os.PathLike, what: str = "a JSON-lines record", max_bytes: int = 64 << 20) -> list[dict]:
+    """The JSON objects, one a line, of a bounded regular file (:func:`read_json`'s checks); [] when absent."""
+    path = Path(path)
+    if not os.path.lexists(path):
         return []
     out = []
-    for line in path.read_text().splitlines():
-        line = line.strip()
-        if line:
-            out.append(json.loads(line))
+    for i, line in enumerate(read_regular_bytes(path, what, max_bytes).splitlines()):
+        if line.strip():
+            row = parse_json(line, path, f"{what} (line {i + 1})")
+            if not isinstance(row, dict):
+                raise DataError(f"{path} line {i + 1} is not {what} pokeworld wrote (it holds a JSON "
+                                f"{_json_type(row)}, not a JSON object); restore it or write it again")
+            out.append(row)
     return out
 
 

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .config import from_preset, to_dict
+from .config import SEED, Limit, check_fields, from_preset, positive, to_dict
 from .data import load, read_manifest
 from .devices import pick_device
 from .errors import ConfigError
@@ -34,7 +34,7 @@ from .evaluate.counterfactual import counterfactual_fit
 from .evaluate.measure import EpisodeLatents, full_precision, position_decoder
 from .evaluate.ranking import agreement
 from .evaluate.state import encode_observations, model_device
-from .io import atomic_path, check_writable_dir, save_figure, write_json
+from .io import atomic_path, check_outputs, save_figure, write_json
 from .paper_values import PLANNING
 from .preflight import require_finished_runs
 from .run_store import trained_store
@@ -117,7 +117,13 @@ class PlanConfig:
     off), and only each CEM iteration's (episodes, population) costs come to the host; on the CPU the numpy decoder
     path is unchanged. Not part of a map's planning key."""
 
+    LIMITS = {"episodes": Limit(1, 10**5), "steps": Limit(1, 10**4), "replan": Limit(1, PROGRAM),
+              "population": Limit(1, 10**5), "elites": Limit(1, 10**5), "iterations": Limit(1, 1000),
+              "context": Limit(1, 4096), "goal_radius": positive(MAX_GOAL_DISTANCE),
+              "goal_distance": positive(MAX_GOAL_DISTANCE), "rank_topk": Limit(1, 10**5), "seed": SEED}
+
     def __post_init__(self) -> None:
+        check_fields(self)
         pick_device(self.device)  # a clear error now rather than inside torch later
         if self.elites > self.population or self.elites < 1:
             raise ConfigError("need 1 <= elites <= population")
@@ -570,25 +576,48 @@ def showcase_episode(episodes: dict, left: str, right: str) -> int:
     return int(np.argmax(gain))
 
 
+def controller_words(label: str) -> str:
+    """What a controller of the plan figure plans with, in words."""
+    return {"simulator": "the simulator's own scores", "random": "random programs"}.get(
+        label, f"{label}'s frozen latent")
+
+
 def figure(planned: dict, out: Path, goal_radius: float, left: str | None = None,
            right: str | None = None) -> list[Path]:
-    """The paper's plan figure: one held-out episode under two representations, plus both distance curves.
+    """The paper's plan figure: one held-out episode under two representations, plus both distance curves; with
+    one planned representation (``pokeworld plan --runs RUN``), that run's episode panel and its distance curve
+    beside the random controller's.
 
-    ``left`` / ``right`` default to the first and last planned representation (e.g. V and VFX).
+    ``left`` / ``right`` default to the first and last planned representation (e.g. V and VFX); a single one (or
+    ``left == right``) draws one panel.
     """
+    import textwrap
+
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
 
     eps = planned["episodes"]
     labels = ([k for k in eps if k not in ("random", "simulator")] or [k for k in eps if k != "random"]
               or ["random"])
     left, right = left or labels[0], right or labels[-1]
-    i = showcase_episode(eps, left, right)
+    shown = [left] if left == right else [left, right]
+    if len(shown) == 2:
+        i = showcase_episode(eps, left, right)
+        rule = f"the episode where {right} ends nearest the goal relative to {left}"
+    elif "random" in eps and left != "random":
+        i = showcase_episode(eps, "random", left)
+        rule = (f"the episode where {'the simulator' if left == 'simulator' else left} ends nearest the goal "
+                "relative to random programs")
+    else:
+        i = int(np.argmin(eps[left]["distance"][:, -1]))
+        rule = f"the episode where {left} ends nearest the goal"
     goal = planned["setup"]["goal"][i]
-    fig, axes = plt.subplots(1, 3, figsize=(12, 4))
-    for ax, label in zip(axes[:2], (left, right)):
+    n = len(shown) + 1
+    fig, axes = plt.subplots(1, n, figsize=(4.2 * n, 4.9))
+    for ax, label in zip(axes[:-1], shown):
         res = eps[label]
         op, fp = res["object_path"][i], res["finger_path"][i]
         ax.add_patch(plt.Circle(goal, goal_radius, color="tab:green", alpha=0.25, lw=0))
@@ -596,29 +625,43 @@ def figure(planned: dict, out: Path, goal_radius: float, left: str | None = None
         ax.plot(fp[:, 0], fp[:, 1], ":", color="goldenrod", lw=1.5)
         ax.scatter(*op[0], s=120, facecolors="none", edgecolors="tab:blue", lw=1.5)
         reached = res["distance"][i].min() < goal_radius
-        ax.set_title(f"{label} {'✓' if reached else '×'} (final distance {res['distance'][i, -1]:.2f})", fontsize=10)
+        name = textwrap.fill(label, 34)
+        ax.set_title(f"{name}\n{'✓ reached the goal' if reached else '× goal not reached'}; final distance "
+                     f"{res['distance'][i, -1]:.2f}", fontsize=9)
         ax.set_xlim(0, 1)
         ax.set_ylim(0, 1)
         ax.set_aspect("equal")
-        ax.set_xticks([])
-        ax.set_yticks([])
-    for label, style in ((left, "--"), (right, "-")):
-        axes[2].plot(eps[label]["distance"][i], style, label=label)
-    axes[2].axhline(goal_radius, color="tab:green", lw=1, alpha=0.6, label="goal region")
-    axes[2].set_xlabel("control step")
-    axes[2].set_ylabel("object-goal distance")
-    axes[2].legend(fontsize=8)
-    from matplotlib.lines import Line2D
-
-    # the episode panels' markers, named once for both panels
+        ax.set_xticks([0, 0.5, 1])
+        ax.set_yticks([0, 0.5, 1])
+        ax.tick_params(labelsize=7)
+        ax.set_xlabel("arena x", fontsize=8)
+        ax.set_ylabel("arena y", fontsize=8)
+    dist = axes[-1]
+    styles = ("--", "-") if len(shown) == 2 else ("-",)
+    for label, style in zip(shown, styles):
+        dist.plot(eps[label]["distance"][i], style, label=label)
+    if "random" in eps and "random" not in shown:
+        dist.plot(eps["random"]["distance"][i], ":", color="grey", label="random programs (same start, goal)")
+    dist.axhline(goal_radius, color="tab:green", lw=1, alpha=0.6, label="goal radius")
+    dist.set_xlabel("control step")
+    dist.set_ylabel("object-goal distance (arena units)")
+    dist.set_title("Object-goal distance over the episode", fontsize=9)
+    dist.legend(fontsize=7)
+    # the episode panels' markers, named once for every panel
     keys = [plt.Circle((0, 0), 1, color="tab:green", alpha=0.25, lw=0, label="goal region"),
             Line2D([], [], marker="o", ls="", mfc="none", mec="tab:blue", mew=1.5, ms=9, label="object start"),
             Line2D([], [], marker="o", ls="", color="tab:blue", ms=4, label="object path (darker = later)"),
             Line2D([], [], ls=":", color="goldenrod", lw=1.5, label="finger path")]
-    fig.legend(handles=keys, loc="lower center", ncol=4, fontsize=8, frameon=False,
-               title="✓ / × in a panel's title: the object reached / never reached the goal region", title_fontsize=8)
-    fig.suptitle(f"Held-out episode {i}: same planner and budget, two frozen latents", fontsize=10)
-    fig.tight_layout(rect=(0, 0.12, 1, 1))
+    fig.legend(handles=keys, loc="lower center", ncol=4 if len(shown) == 2 else 2, fontsize=8, frameon=False,
+               title="✓ / × in a panel's title: the object reached / never reached the goal region",
+               title_fontsize=8)
+    if len(shown) == 2:
+        head = f"Held-out episode {i}: same planner, budget, start and goal, two frozen latents ({left} vs {right})"
+    else:
+        head = f"Held-out episode {i}: CEM planning with {controller_words(left)}"
+    chars = int(11 * 4.2 * n)  # characters per line of a 10-pt title across the figure
+    fig.suptitle(textwrap.fill(head, chars) + "\n" + textwrap.fill(f"({rule})", chars), fontsize=10)
+    fig.tight_layout(rect=(0, 0.14 if len(shown) == 2 else 0.17, 1, 1))
 
     return save_figure(fig, out, "plan_episode")
 
@@ -673,14 +716,17 @@ def table_lines(summary: dict) -> list[str]:
     return lines
 
 
+PLAN_OUTPUTS = ("plan.json", "plan.md", "distances.npz", "plan_episode.png", "plan_episode.pdf")
+"""The files ``pokeworld plan`` writes in its output folder."""
+
+
 def run(cfg: PlanConfig) -> Path:
     if not cfg.runs and not cfg.simulator_controller:
         raise ConfigError("give at least one trained run directory with --runs (or plan with --simulator-controller)")
     # every run is checked before any is planned with: a bad last one must not fail after the others' work
     require_finished_runs(cfg.runs, "plan", "every --runs value must be a run folder: OUT is a positional argument "
                           "placed before --runs (pokeworld plan OUT --runs RUN1 RUN2), or use --out OUT", cfg.data)
-    out = Path(cfg.out)
-    check_writable_dir(out)
+    out = check_outputs(cfg.out, *PLAN_OUTPUTS)  # a user's plan.md in --out is refused before any planning
     planned = plan_runs(cfg, {Path(r).name: [r] for r in cfg.runs})
     summary = planned["summary"]
     write_json(out / "plan.json", {"config": to_dict(cfg), "results": summary,

@@ -31,7 +31,8 @@ def require_finished_runs(runs: Sequence[str], command: str, usage: str, data: s
     its recorded content (:func:`pokeworld.run_store.trained_store`)."""
     for r in runs:
         if not Path(r).is_dir() or read_run_config(r) is None:
-            raise ConfigError(f"{r} is not a training run (no config.json in it); {usage}")
+            what = "does not exist" if not os.path.lexists(r) else "is not a training run (no config.json in it)"
+            raise ConfigError(f"{r} {what}; {usage}")
     for r in runs:
         finished_run(r)
     if not data:

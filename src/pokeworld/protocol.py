@@ -37,7 +37,7 @@ What it runs, all episode-split (probes fit on probe-fit episodes, held-out R² 
 
 from __future__ import annotations
 
-import json
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -60,7 +60,9 @@ from .evaluate.measure import (
     padded_actions,
     probe_windows,
 )
-from .io import atomic_path, hash_arrays, write_json
+from .io import atomic_path, hash_arrays, read_json, read_json_if_present, write_json
+
+CERTIFICATES = "a certificate record (certificates.json)"
 
 StateFn = Callable[..., Any]
 """``(frames, proprio, touch, actions) -> (B, L, D)``; an ``nn.Module`` qualifies."""
@@ -300,23 +302,23 @@ def resolve_certificates(ds: Dataset, cfg: ProtocolConfig, out: Path, data_path:
         if not isinstance(certificates, dict):
             source = str(certificates)
             path = Path(certificates)
-            if not path.exists():
+            if not os.path.lexists(path):
                 raise DataError(f"no certificates at {path}; run `pokeworld certify` or leave certificates unset")
-            certificates = json.loads(path.read_text())
+            certificates = read_json(path, CERTIFICATES)
         recorded = certificates.get("dataset", {}).get("content_sha256")
         if recorded is not None and recorded != digest:
             raise DataError(f"certificates from {source} were computed on other data (content hash "
                             f"{recorded:.12} != {digest:.12}); recompute them for this store")
         return entry(certificates, source)
-    if data_path is not None and (data_path / "certificates.json").exists():
-        stored = json.loads((data_path / "certificates.json").read_text())
+    stored = None if data_path is None else read_json_if_present(data_path / "certificates.json", CERTIFICATES)
+    if stored is not None:
         if matches(stored):
             return entry(stored, str(data_path / "certificates.json"))
         print(f"[protocol] {data_path / 'certificates.json'} was computed on other data; computing anew")
     ccfg = _certify_config(cfg, data_path)
     cached = out / "certificates.json"
-    if cached.exists():
-        prev = json.loads(cached.read_text())
+    prev = read_json_if_present(cached, CERTIFICATES)
+    if prev is not None:
         if matches(prev) and prev.get("config") == to_dict(ccfg):
             return entry(prev, str(cached))
     computed = C.certify(ds, ccfg)
@@ -548,11 +550,11 @@ def figure(result: dict, path: Path) -> Path:
                  + (f"; ↓: bar cut at {FIGURE_R2_FLOOR}, its R² printed" if clipped else "") + ")", fontsize=9)
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
-    fig.savefig(tmp, dpi=150)
-    tmp.replace(path)
-    plt.close(fig)
+    try:
+        with atomic_path(path) as tmp:  # a private temporary: no fixed name for a planted link to redirect
+            fig.savefig(tmp, dpi=150, format=path.suffix[1:] or "png")
+    finally:
+        plt.close(fig)
     return path
 
 

@@ -24,7 +24,7 @@ from typing import Any
 from .data import read_manifest
 from .errors import ConfigError, DataError
 from .io import write_json
-from .rundir import read_run_config
+from .rundir import not_a_run, read_run_config
 
 RECORDED = ("data_path", "data_sha256")
 """The fields :func:`write_run_config` adds to a run's config.json beside the training config."""
@@ -84,7 +84,7 @@ def trained_store(run_dir: str | os.PathLike, command: str) -> str:
     """
     cfg = read_run_config(run_dir)
     if cfg is None:
-        raise ConfigError(f"{run_dir} is not a training run (no config.json)")
+        raise ConfigError(not_a_run(run_dir))
     data = cfg.get("data")
     if not isinstance(data, str) or not data:
         raise DataError(f"{run_dir}/config.json names no training store ('data'); the run folder is damaged")
@@ -102,7 +102,8 @@ def trained_store(run_dir: str | os.PathLike, command: str) -> str:
     other = {p: d for p, d in found.items() if d is not None}
     where = f"{cfg.get('data_path', data)} (content sha256 {recorded[:12]})"
     if other:
-        seen = "; ".join(f"{Path(p).resolve()} holds {str(d)[:12]}" for p, d in other.items())
+        # one path under several names (relative, absolute, recorded) is said once
+        seen = "; ".join(f"{p} holds {str(d)[:12]}" for p, d in {Path(p).resolve(): d for p, d in other.items()}.items())
         raise DataError(f"{run_dir} was trained on {where}, but {seen}: {command} would read another corpus under "
                         "this run's name; restore the store it was trained on (or pass --data to name another "
                         "corpus deliberately)")

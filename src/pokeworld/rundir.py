@@ -24,6 +24,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import shutil
 import stat
 from pathlib import Path
 from typing import Any, Iterator
@@ -32,8 +33,17 @@ import torch
 
 from . import checkpoint
 from .checkpoint import CheckpointError, file_kind, first_line
-from .errors import ConfigError, DataError
-from .io import append_jsonl, atomic_path, check_writable_dir, read_regular_bytes
+from .errors import ConfigError, DataError, PokeworldError
+from .io import (
+    OWNED_RECORD,
+    adopt_legacy,
+    append_jsonl,
+    atomic_path,
+    check_outputs,
+    parse_json,
+    read_json,
+    read_regular_bytes,
+)
 from .models.xjepa import VALUES_BEFORE_THE_FIELD, XJEPA, check_model_kwargs
 
 #: The names training writes in a run directory (``tb`` a folder, the rest regular files).
@@ -47,12 +57,19 @@ RESUME_ENTRIES: dict[str, type] = {"model": dict, "optimizer": dict, "scheduler"
                                    "sampler": torch.Tensor, "step": int, "model_kwargs": dict}
 
 
+def not_a_run(run_dir: str | os.PathLike) -> str:
+    """Why ``run_dir`` is not a training run, and what to name instead."""
+    what = "does not exist" if not os.path.lexists(run_dir) else "is not a training run (no config.json)"
+    return (f"{run_dir} {what}: name a run folder that `pokeworld train` wrote (its --out; the default is "
+            "runs/xjepa)")
+
+
 def check_run_files(run_dir: str | os.PathLike) -> None:
     """ConfigError (naming the file) when ``run_dir`` is not a folder or one of its :data:`RUN_FILES` is a link or
     a special file: writing would follow the link and overwrite its target, reading a FIFO would hang."""
     run_dir = Path(run_dir)
     if run_dir.exists() and not run_dir.is_dir():
-        raise ConfigError(f"{run_dir} is an existing file, not a run folder; choose another --out / run folder")
+        raise ConfigError(f"{run_dir} is a file, not a run folder: name a folder instead")
     for name in RUN_FILES:
         path = run_dir / name
         try:
@@ -68,19 +85,28 @@ def check_run_files(run_dir: str | os.PathLike) -> None:
                               f"{want} there: remove it")
 
 
+def adopt_legacy_run(run_dir: str | os.PathLike) -> None:
+    """A run folder written before ownership records (``.pokeworld-owned``) existed, recognised by its config.json
+    (a JSON object naming a variant and a step count), gets its record, so that it resumes and is measured as
+    before; a folder without such a config.json (a user's files) gets none and stays refused."""
+    run_dir = Path(run_dir)
+    if os.path.lexists(run_dir / OWNED_RECORD) or not (run_dir / "config.json").is_file():
+        return
+    try:
+        cfg = read_run_config(run_dir)
+    except PokeworldError:
+        return
+    if isinstance(cfg, dict) and isinstance(cfg.get("variant"), str) and isinstance(cfg.get("steps"), int):
+        measured = sorted(p.name for p in run_dir.glob("measure*.json"))
+        adopt_legacy(run_dir, [n for n in RUN_FILES if n != "tb"] + measured)
+
+
 def check_run_dir_writable(out: str | os.PathLike) -> None:
     """Before training into ``out``: :func:`check_run_files`, then prove the folder can be created and written
     (ConfigError in one line, before any data is loaded or any step is trained)."""
     check_run_files(out)
-    check_writable_dir(out)
-
-
-def _parse_json(raw: bytes, path: Path) -> Any:
-    try:
-        return json.loads(raw.decode("utf-8"))
-    except (ValueError, RecursionError) as e:  # JSONDecodeError, bad UTF-8, a 5000-digit int; nesting too deep
-        raise DataError(f"{path} is not valid JSON ({first_line(e)}); the run folder is damaged: restore the file "
-                        "or train the run again into a new folder") from None
+    adopt_legacy_run(out)
+    check_outputs(out, *(n for n in RUN_FILES if n != "tb"))  # a user's metrics.jsonl is refused, not appended to
 
 
 def read_run_config(run_dir: str | os.PathLike) -> dict[str, Any] | None:
@@ -89,11 +115,8 @@ def read_run_config(run_dir: str | os.PathLike) -> dict[str, Any] | None:
     check_run_files(run_dir)
     if not path.exists():
         return None
-    cfg = _parse_json(read_regular_bytes(path, "a run's config.json", MAX_CONFIG_BYTES), path)
-    if not isinstance(cfg, dict):
-        raise DataError(f"{path} holds a JSON {type(cfg).__name__}, not an object of config fields; the run folder is "
-                        "damaged: restore the file or train the run again into a new folder")
-    return cfg
+    return read_json(path, "a run's config.json", dict, MAX_CONFIG_BYTES,
+                     remedy="restore the file or train the run again into a new folder")
 
 
 class MetricsLog:
@@ -127,6 +150,15 @@ def _write_text(path: Path, text: str) -> None:
         tmp.write_text(text)
 
 
+def keep_checkpoint(out: Path, step: int) -> Path:
+    """Copy ``out/ckpt.pt`` (just written at ``step``) to ``out/kept/ckpt-<step>.pt``, a point of the run's learning
+    curve (``TrainConfig.keep_every``; read by ``scripts/budget_curve.py``)."""
+    dest = Path(out) / "kept" / f"ckpt-{step}.pt"
+    with atomic_path(dest) as tmp:
+        shutil.copyfile(Path(out) / "ckpt.pt", tmp)
+    return dest
+
+
 def write_final(out: Path, state: dict, model_kwargs: dict, cfg_dict: dict, step: int, note: str = "") -> None:
     """Write a finished run's ``final.pt`` (weights, model kwargs, config, step) and its ``DONE`` marker."""
     checkpoint.save({"model": state, "model_kwargs": model_kwargs, "config": cfg_dict, "step": step}, out / "final.pt")
@@ -148,7 +180,7 @@ def finished_run_config(run_dir: str | os.PathLike) -> dict[str, Any]:
     run_dir = Path(run_dir)
     cfg = read_run_config(run_dir)
     if cfg is None:
-        raise ConfigError(f"{run_dir} is not a training run (no config.json)")
+        raise ConfigError(not_a_run(run_dir))
     if not (run_dir / "DONE").exists():
         raise ConfigError(f"{run_dir} has not finished training; re-run `pokeworld train` to resume it")
     if not isinstance(cfg.get("data"), str) or not cfg["data"]:
@@ -172,12 +204,12 @@ def read_metrics(run_dir: str | os.PathLike) -> list[dict[str, Any]]:
         if not line.strip():
             continue
         try:
-            row = json.loads(line.decode("utf-8"))
-        except (ValueError, RecursionError) as e:
+            row = parse_json(line, f"{path} line {number}", "a run's metrics.jsonl",
+                             "delete that line (or the file) and re-run")
+        except DataError:
             if number == len(lines):  # the file ends inside this line: a torn final write
                 break
-            raise DataError(f"{path} line {number} is not valid JSON ({first_line(e)}); the file is damaged: "
-                            "delete that line (or the file) and re-run") from None
+            raise
         step = row.get("step") if isinstance(row, dict) else None
         if isinstance(step, bool) or not isinstance(step, int) or step < 0:
             raise DataError(f"{path} line {number} is not a metrics row (a JSON object with a non-negative integer "
@@ -284,7 +316,7 @@ def load_model(run_dir: str | os.PathLike, map_location: str | torch.device = "c
     return model_from_checkpoint(ck, path).to(map_location).eval()
 
 
-__all__ = ["RUN_FILES", "MAX_MODEL_ELEMENTS", "RESUME_ENTRIES", "MetricsLog", "check_run_files",
+__all__ = ["RUN_FILES", "adopt_legacy_run", "MAX_MODEL_ELEMENTS", "RESUME_ENTRIES", "MetricsLog", "check_run_files",
            "check_run_dir_writable", "read_run_config", "write_final", "restart_metrics", "finished_run_config",
            "load_model", "model_from_checkpoint", "check_state_fits", "load_resume_checkpoint", "restoring",
            "read_metrics", "last_logged_step"]

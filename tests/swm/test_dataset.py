@@ -113,7 +113,7 @@ def replace(name, value):
     ("ragged_column", replace("touch", np.zeros((5, 7), np.float32)), "different numbers of rows"),
     ("mass_varies", replace("mass", np.linspace(1, 2, 36).astype(np.float32)), "not constant"),
     ("nan_proprio", replace("proprio", np.full((36, 4), np.nan, np.float32)), "non-finite"),
-    ("bad_record", lambda f: f.attrs.__setitem__("pokeworld", "{not json"), "cannot read"),
+    ("bad_record", lambda f: f.attrs.__setitem__("pokeworld", "{not json"), "is not a pokeworld-swm-hdf5 record"),
     ("external_link", lambda f: f.__setitem__("sneaky", h5py.ExternalLink("/etc/passwd", "/x")), "link"),
 ])
 def test_malformed_swm_files_are_data_errors(exported, tmp_path, case, edit, message):

@@ -19,7 +19,6 @@ forecasts touch worse or better.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -30,7 +29,7 @@ from ..data import load
 from ..evaluate import measure
 from ..evaluate.probes import probe_latents, probe_windows
 from ..evaluate.state import padded_actions, window_states
-from ..io import write_json
+from ..io import read_json, write_json
 from ..run_store import RECORDED
 from ..rundir import finished_run_config, load_model
 from ..train.config import TrainConfig
@@ -111,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
                "untrained": probe_pools(measure.untrained_like(run).eval(), ds, cfg)}
         measured = Path(run) / "measure.json"
         if measured.exists():  # the mean pool must reproduce the run's own measurement
-            stored = json.loads(measured.read_text())["probes"]["ridge"]["contact"]
+            stored = read_json(measured, "a run's measure.json")["probes"]["ridge"]["contact"]
             row["measure_json_mean"] = {q: stored.get(q) for q in TARGETS}
         row["heldout_loss_terms"] = heldout_terms(run, ds)
         out["runs"][run.name] = row

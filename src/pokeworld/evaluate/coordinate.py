@@ -16,14 +16,24 @@ glide-window γ readout, the velocity readout and the functional glide test, bef
 
 from __future__ import annotations
 
-import json
+import os
 from pathlib import Path
 
 import numpy as np
 
 from ..config import to_dict
-from ..data import Dataset, is_complete, load, save
+from ..data import (
+    MAX_MANIFEST_BYTES,
+    STORE_FILES,
+    Dataset,
+    check_store_destination,
+    is_complete,
+    load,
+    read_manifest,
+    save,
+)
 from ..errors import ConfigError, DataError
+from ..io import OwnedDir, check_writable_dir, read_json, remove_own_file
 from ..models.flow import FlowConfig, log_speed, object_flow, save_flow, train_flow
 from ..regressors import r2_scores
 from ..windows import glide_frames
@@ -32,8 +42,41 @@ CHANNELS = ("finger_x", "finger_y", "finger_vx", "finger_vy", "flow_vx", "flow_v
 """Proprio channels of the flow corpus: the source's four, then the sensor's three."""
 
 
-def _key(src: Dataset, cfg: FlowConfig) -> dict:
-    return {"source_sha256": src.manifest.get("content_sha256"), "flow": to_dict(cfg)}
+def _verify_flow_corpus(out: Path) -> None:
+    """What :func:`~pokeworld.data.save` verifies of a store folder before replacing it: data only beside a
+    manifest that parses."""
+    if not os.path.lexists(out / "manifest.json"):
+        if os.path.lexists(out / "data.h5"):
+            raise ConfigError(f"{out} holds data.h5 without manifest.json, so pokeworld cannot tell that it wrote it; "
+                              "move or delete it yourself, or choose another folder")
+        return
+    try:
+        read_json(out / "manifest.json", "a store manifest", dict, MAX_MANIFEST_BYTES)
+    except DataError as e:
+        raise ConfigError(f"{out} cannot be verified as a pokeworld store ({e}); pokeworld replaces only stores it "
+                          "can verify: move or delete it yourself, or choose another folder") from None
+
+
+FLOW_CORPUS = OwnedDir(
+    files=(*STORE_FILES, r"flow_sensor\.pt"),
+    # certify's certificate corpora, as a store folder holds them (pokeworld.certificate_corpus.FOLDER)
+    dirs=(("certificate_corpus", OwnedDir(files=(r"\.n\d+\.lock",), dirs=((r"n\d+", OwnedDir(files=STORE_FILES)),))),),
+    verify=_verify_flow_corpus)
+"""What a flow corpus folder holds: a store (its files, certificate corpora, a manifest that parses) and the
+frozen sensor beside it."""
+
+
+def _key(source_manifest: dict, cfg: FlowConfig) -> dict:
+    return {"source_sha256": source_manifest.get("content_sha256"), "flow": to_dict(cfg)}
+
+
+def check_flow_destination(out: Path) -> None:
+    """Raise ConfigError, before the source is read or the sensor trained, unless the flow corpus may be written at
+    ``out``: absent, an empty folder or one holding only a flow corpus's files (:data:`FLOW_CORPUS`), in a
+    writable folder. Links, files and any other folder are refused, as :func:`~pokeworld.data.save` would refuse
+    them after the whole computation."""
+    check_store_destination(out, None, owned=FLOW_CORPUS, what="flow corpus path")
+    check_writable_dir(out.parent)
 
 
 def sensor_quality(ds: Dataset, velocity: np.ndarray, episodes: np.ndarray) -> dict:
@@ -64,7 +107,7 @@ def flow_dataset(src: Dataset, cfg: FlowConfig, log_every: int = 0) -> tuple[Dat
     proprio = np.concatenate([src.proprio, vel, log_speed(vel)[..., None]], -1).astype(np.float32)
     manifest = {k: v for k, v in src.manifest.items() if k not in ("content_sha256", "stats")}
     manifest.update(corpus="flow", proprio_channels=list(CHANNELS),
-                    flow={**_key(src, cfg), "sensor": sensor_quality(src, vel, src.episodes("probe_test"))})
+                    flow={**_key(src.manifest, cfg), "sensor": sensor_quality(src, vel, src.episodes("probe_test"))})
     ds = Dataset(frames=src.frames, proprio=proprio, touch=src.touch, actions=src.actions, labels=src.labels,
                  params=src.params, split=src.split, manifest=manifest)
     return ds, net
@@ -74,14 +117,17 @@ def build_flow_corpus(source: str | Path, out: str | Path, cfg: FlowConfig, over
     """Write the ``flow`` corpus derived from the store at ``source`` to ``out`` (and the frozen sensor to
     ``out/flow_sensor.pt``); skipped when ``out`` already holds it for the same source and sensor config."""
     out = Path(out)
-    src = load(source)
-    if is_complete(out) and not overwrite:
-        prev = json.loads((out / "manifest.json").read_text())
-        if {k: prev.get("flow", {}).get(k) for k in ("source_sha256", "flow")} == _key(src, cfg):
+    check_flow_destination(out)
+    if is_complete(out) and not overwrite:  # decided from the two manifests, before the source is loaded
+        prev = read_manifest(out).get("flow")
+        prev = prev if isinstance(prev, dict) else {}
+        if {k: prev.get(k) for k in ("source_sha256", "flow")} == _key(read_manifest(source), cfg):
             print(f"[flow] {out} already holds this flow corpus; skipping")
             return out
         raise ConfigError(f"{out} holds a different store; pass overwrite or choose another directory")
+    src = load(source)
     ds, net = flow_dataset(src, cfg, log_every=max(1, cfg.steps // 5))
+    remove_own_file(out / "flow_sensor.pt")  # checked as ours above; save replaces only a folder holding a store
     save(ds, out)
     save_flow(net, out / "flow_sensor.pt", ds.manifest["flow"])
     s = ds.manifest["flow"]["sensor"]
@@ -91,4 +137,4 @@ def build_flow_corpus(source: str | Path, out: str | Path, cfg: FlowConfig, over
     return out
 
 
-__all__ = ["CHANNELS", "build_flow_corpus", "flow_dataset", "sensor_quality"]
+__all__ = ["CHANNELS", "FLOW_CORPUS", "build_flow_corpus", "check_flow_destination", "flow_dataset", "sensor_quality"]

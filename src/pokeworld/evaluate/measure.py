@@ -39,23 +39,22 @@ module is the simulator's orchestrator and re-exports their public names.
 from __future__ import annotations
 
 import contextlib
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from ..config import from_preset, to_dict
+from ..config import SEED, Limit, check_fields, from_preset, to_dict
 from ..data import Dataset, load, read_manifest
 from ..devices import pick_device
-from ..errors import ConfigError
+from ..errors import ConfigError, PokeworldError
 from ..faults import crash_point
-from ..io import check_writable_dir, read_regular_bytes, write_json
+from ..io import check_outputs, check_writable_dir, read_json, write_json
 from ..models.xjepa import XJEPA
 from ..preflight import finished_run
 from ..run_store import trained_store
-from ..rundir import load_model
+from ..rundir import adopt_legacy_run, load_model, read_run_config
 from .prediction import (  # noqa: F401
     CONTEXT,
     HORIZON,
@@ -128,7 +127,9 @@ class MeasureConfig:
     context: int = CONTEXT
     """Context observations before the 16-step predictions and the glide test (paper: 8)."""
     overwrite: bool = False
-    """Recompute even if measure.json is up to date."""
+    """Recompute even if measure.json is up to date. A measurement with settings other than the stored one's (another
+    --preset, or any field changed) is written to measure.json and the earlier one kept as measure.previous.json
+    (one line says so), with or without --overwrite."""
     device: str = "auto"
     """Where the model runs while its states are read: 'auto' (cuda when available, else cpu), 'cpu', 'cuda' or
     'cuda:N'. On CUDA the states are read with TF32 off (:func:`full_precision`), so GPU and CPU states differ by float
@@ -141,7 +142,11 @@ class MeasureConfig:
     a CPU: torch on the CPU, equal to the numpy path to float rounding, tests/test_device_probes.py). Not part of
     the measurement's key."""
 
+    LIMITS = {"window": Limit(2, 4096), "stride": Limit(1, 4096), "max_windows": Limit(1, 10**8),
+              "batch_episodes": Limit(1, 10**5), "seed": SEED, "context": Limit(1, 4096)}
+
     def __post_init__(self) -> None:
+        check_fields(self)
         bad = (set(self.kinds) | set(self.action_conditioned_kinds)) - set(KINDS)
         if bad:
             raise ConfigError(f"unknown window kinds {sorted(bad)}; choose from {list(KINDS)}")
@@ -160,6 +165,11 @@ class MeasureConfig:
 
 
 PRESETS = {"tiny": {"max_windows": 400, "mlp": False}, "cpu": {}, "paper": {"max_windows": 100000}}
+#: The training preset each measurement preset measures (``pokeworld probe`` without --preset measures a run with its
+#: own: a tiny model measured at cpu sizes takes minutes for no better number); the demo's model is the cpu model.
+MEASURE_PRESET_OF = {"tiny": "tiny", "cpu": "cpu", "demo": "cpu", "paper": "paper"}
+#: The fields a run's config.json records that tell the training presets apart (the model's sizes).
+PRESET_FIELDS = ("image_size", "channels", "latent_dim", "width", "depth", "heads", "vec_dim")
 MAX_MEASUREMENT_BYTES = 64 << 20
 """Largest measure.json read back (a measurement with every readout is tens of kilobytes)."""
 
@@ -194,6 +204,34 @@ def probe_belief(model, ds: Dataset, cfg: MeasureConfig, latents) -> dict:
 
 def make_config(preset: str = "cpu", **overrides) -> MeasureConfig:
     return from_preset(MeasureConfig, PRESETS, preset, **overrides)
+
+
+def training_preset(run_cfg: dict) -> str | None:
+    """The training preset a run's config.json (a dict) was made with, from its model sizes (:data:`PRESET_FIELDS`):
+    config.json records fields, not the preset's name. The preset matching most of them; None when even that one
+    matches no more than half (a model whose sizes were set by hand)."""
+    from ..train.config import PRESETS as TRAIN_PRESETS, field_defaults
+
+    def as_json(v):
+        return list(v) if isinstance(v, tuple) else v
+
+    defaults = field_defaults()
+    matches = {name: sum(as_json({**defaults, **over}[f]) == run_cfg.get(f) for f in PRESET_FIELDS)
+               for name, over in TRAIN_PRESETS.items()}
+    best = max(matches, key=matches.get)
+    return best if 2 * matches[best] > len(PRESET_FIELDS) else None
+
+
+def run_preset(cfg: MeasureConfig) -> str:
+    """The measurement preset of ``cfg.run_dir``'s own training preset (:data:`MEASURE_PRESET_OF`): what
+    ``pokeworld probe`` measures with when --preset is not given; ``cpu`` (the usual default) when the run has no
+    readable config.json (:func:`run` then says why) or sizes of no preset."""
+    try:
+        run_cfg = read_run_config(cfg.run_dir)
+    except PokeworldError:
+        run_cfg = None
+    trained = training_preset(run_cfg) if run_cfg else None
+    return MEASURE_PRESET_OF.get(trained or "cpu", "cpu")
 
 
 # --------------------------------------------------------------------------- entry
@@ -259,12 +297,8 @@ def covers(stored: dict | None, wanted: dict) -> bool:
 def read_measurement(path: Path) -> dict:
     """A measure.json as :func:`run` wrote it (a JSON object whose ``key``, when present, is one); a ConfigError
     otherwise, since the file is then not one pokeworld wrote and replacing it would destroy someone's edit."""
-    raw = read_regular_bytes(path, "a run's measure.json", MAX_MEASUREMENT_BYTES)  # no link, FIFO or huge file
-    try:
-        prev = json.loads(raw.decode("utf-8"))
-    except (ValueError, RecursionError) as e:  # JSONDecodeError and bad UTF-8 are ValueErrors
-        raise ConfigError(f"{path} is not a measurement pokeworld wrote ({e}); move it aside, or pass --overwrite "
-                          "to replace it") from None
+    prev = read_json(path, "a measurement", None, MAX_MEASUREMENT_BYTES, error=ConfigError,
+                     remedy="move it aside, or pass --overwrite to replace it")
     key = prev.get("key", {}) if isinstance(prev, dict) else None
     if not isinstance(key, dict) or not isinstance(key.get("config", {}), dict):
         raise ConfigError(f"{path} is not a measurement pokeworld wrote (not a JSON object with a 'key' object); "
@@ -285,17 +319,21 @@ def run(cfg: MeasureConfig) -> Path:
     data = cfg.data or trained_store(run_dir, "probe")
     out = measure_path(run_dir, cfg.data)
     check_writable_dir(run_dir)  # measure.json is written there
+    adopt_legacy_run(run_dir)  # a run folder from before ownership records: its measure.json stays replaceable
     cfg_key = to_dict(cfg)
     if cfg.context == CONTEXT:  # added later: left out at its default so earlier measurements stay up to date
         del cfg_key["context"]
     del cfg_key["device"], cfg_key["probe_device"]  # where states and probes were computed, not what was measured
     key = {"config": cfg_key, "data_sha256": read_manifest(data).get("content_sha256"),
            "final_mtime": (run_dir / "DONE").stat().st_mtime_ns}
-    if out.exists() and not cfg.overwrite:
-        prev = read_measurement(out)
-        if covers(prev.get("key"), key):
-            print(f"[measure] {out} is up to date; skipping")
-            return out
+    prev = earlier_measurement(out, cfg.overwrite)
+    if prev is not None and not cfg.overwrite and covers(prev.get("key"), key):
+        print(f"[measure] {out} is up to date; skipping")
+        return out
+    changed = settings_changed(prev, key)
+    kept = previous_path(out)
+    if changed:
+        check_outputs(run_dir, kept.name)  # refused now, not after the measurement
     ds = load(data)
     torch.set_num_threads(max(1, torch.get_num_threads()))
     dev = pick_device(cfg.device)
@@ -304,9 +342,44 @@ def run(cfg: MeasureConfig) -> Path:
         res = measure(model, ds, cfg, untrained_copy(model) if cfg.untrained else None)
     res.update(key=key, run=run_cfg, data=data)
     crash_point("measure")
+    if changed:
+        write_json(kept, prev)
+        print(f"[measure] settings differ from those of the earlier {out} ({changed}); it is kept as {kept}")
     write_json(out, res)
     print(f"[measure] {run_dir.name}: " + summary_line(res))
     return out
+
+
+def earlier_measurement(out: Path, overwrite: bool) -> dict | None:
+    """The measurement already at ``out`` (None: none). One pokeworld did not write is refused
+    (:func:`read_measurement`), unless --overwrite asks to replace it."""
+    if not out.exists():
+        return None
+    try:
+        return read_measurement(out)
+    except ConfigError:
+        if overwrite:
+            return None
+        raise
+
+
+def previous_path(out: Path) -> Path:
+    """Where an earlier measurement made with other settings is kept: ``measure.previous.json`` beside
+    ``measure.json`` (``measure-<corpus>.previous.json`` beside ``measure-<corpus>.json``)."""
+    return out.with_name(out.name.removesuffix(".json") + ".previous.json")
+
+
+def settings_changed(prev: dict | None, key: dict) -> str:
+    """The settings (fields of the measurement's config) in which ``prev`` differs from a request's ``key``, as
+    ``field old → new`` (empty: the same settings, or no earlier measurement). A new corpus content or a retrained
+    model is not a change of settings: the earlier numbers are then out of date, not an alternative."""
+    old = (prev or {}).get("key", {}).get("config")
+    if not isinstance(old, dict):
+        return ""
+    new = key["config"]
+    diff = [f"{k} {old.get(k, '(unset)')} → {new.get(k, '(unset)')}" for k in sorted(set(old) | set(new))
+            if old.get(k) != new.get(k)]
+    return ", ".join(diff[:4]) + (f" and {len(diff) - 4} more" if len(diff) > 4 else "")
 
 
 @contextlib.contextmanager
@@ -336,7 +409,8 @@ def summary_line(res: dict) -> str:
     return " ".join(parts)
 
 
-__all__ = ["MeasureConfig", "PRESETS", "READOUT", "make_config", "measure", "run", "summary_line", "untrained_copy",
+__all__ = ["MeasureConfig", "PRESETS", "READOUT", "make_config", "measure", "run", "run_preset", "training_preset",
+           "previous_path", "summary_line", "untrained_copy",
            "untrained_like", "CONTEXT", "HORIZON", "KINDS", "PARAM_TARGETS", "STATE_TARGETS", "EpisodeLatents",
            "encode_episodes", "fit_predict", "fit_probes", "glide_comparison", "glide_reference", "glide_test",
            "neutral_last", "padded_actions", "prediction_quality", "probe_latents", "probe_model", "probe_targets",

@@ -14,7 +14,6 @@ import torch
 from ..data import Dataset
 from ..errors import ConfigError
 
-
 PROBE_DEVICES = ("auto", "host", "model")
 """Where probes of a model's states run (``MeasureConfig.probe_device``, :func:`probes_on_device`)."""
 

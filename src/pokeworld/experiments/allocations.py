@@ -1,16 +1,20 @@
 """The paper-budget map from short GPU allocations: where an allocation ran, and the merge of any number of them.
 
 A GPU comes in short allocations (a fresh machine for minutes at a time), so the paper-budget factorial is trained
-in pieces: ``bash scripts/gpu_allocation.sh OUT`` spends one allocation on the CUDA tests, a short benchmark and as
-many complete ``paper``-preset runs as fit, and brings back small files only: ``device.json`` (:func:`device_record`:
-which GPU, driver, torch, the date) and the map's pack (each run's config, metrics and measurement, the corpus
-manifest, progress.json and device.json again; no checkpoints, no data). ``scripts/merge_allocations.py`` assembles
-any number of them into one record (:func:`merge_allocations`):
+in pieces: ``bash scripts/gpu_allocation.sh OUT`` spends one allocation on as many ``paper``-preset runs as fit
+(:mod:`.allocation_run`) and brings back ``device.json`` (:func:`device_record`: which GPU, driver, torch, the date,
+the commit passed in as ALLOC_COMMIT), the records (each run's config, metrics and measurement, the corpus manifest,
+progress.json and device.json again) and the finished runs' weights and the unfinished run's checkpoint
+(:mod:`.allocation_pack`). ``scripts/merge_allocations.py`` assembles any number of them into one record
+(:func:`merge_allocations`), and ``--plan`` prints the next allocation's queue (:func:`plan`):
 
 * every allocation must have trained on the same corpus (the seeded paper corpus: its manifest's content hash) with
   the same map-wide settings (:data:`AGREE`); otherwise the merge is refused with one line;
 * an allocation contributes its finished runs only (progress.json): a run its time budget cut short is named, not
   counted;
+* each returned weight file and checkpoint is checked (its sha256, a weights-only load, its tensors against the
+  model its kwargs declare) and restored in float32 beside the run's records (:func:`restore_returned`), so probes
+  can be computed from it on the CPU; a finished run whose weights did not come back says so;
 * each run record is the map's own (:func:`.report.collect`) plus where it was trained (``run["allocation"]``:
   device, date, torch, steps and s/step);
 * a run present in two allocations is kept once, the later allocation's (device.json dates), and the largest
@@ -22,7 +26,6 @@ any number of them into one record (:func:`merge_allocations`):
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import platform
@@ -32,16 +35,19 @@ import subprocess
 import sys
 import tarfile
 import tempfile
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 
-from .. import __version__, paper_values as P
+from .. import __version__, checkpoint, paper_values as P
 from ..config import from_dict
 from ..errors import ConfigError, PokeworldError
 from ..evaluate.tables import fmt, git_commit, probe
-from ..io import atomic_path, check_regular_file, read_regular_bytes, write_json
+from ..io import atomic_path, check_regular_file, read_json as io_read_json, read_jsonl, read_regular_bytes, write_json
+from ..rundir import model_from_checkpoint
 from . import merge, report, stages
+from .allocation_pack import COMPACT_MIN_ELEMENTS, INDEX, RECORDS, load_member, read_stream
+from .allocation_queue import PRIORITY, order_queue, parse_token, token
 from .config import VARIANT_ORDER, MapConfig
 from .factorial import FACTORIAL
 from .runs import spec_measure_path
@@ -67,8 +73,14 @@ def device_record() -> dict:
 
     name, driver = gpu_name()
     return {"device": name, "driver": driver, "torch": torch.__version__, "cuda": torch.version.cuda,
-            "date": datetime.now(timezone.utc).isoformat(timespec="seconds"), "git": git_commit(),
+            "date": datetime.now(timezone.utc).isoformat(timespec="seconds"), "git": commit(),
             "cpu_count": os.cpu_count(), "python": platform.python_version(), "pokeworld": __version__}
+
+
+def commit() -> str:
+    """The commit an allocation runs: ALLOC_COMMIT as the script was given it (a device machine's copy of the
+    repository has no .git), else this checkout's."""
+    return os.environ.get("ALLOC_COMMIT") or git_commit()
 
 
 def gpu_name() -> tuple[str, str | None]:
@@ -113,19 +125,15 @@ class Allocation:
     map_config: dict
     corpus_sha256: str
     progress: dict
+    weights: dict[str, str] = field(default_factory=dict)
+    """Finished run -> 'returned' (its final weights restored as runs/NAME/final.pt), else why not."""
+    checkpoints: dict[str, int] = field(default_factory=dict)
+    """Unfinished run -> the step of its returned checkpoint (restored as runs/NAME/ckpt.pt)."""
 
 
 def read_json(path: Path, what: str) -> dict:
-    """A JSON object from a regular file; one ConfigError line naming the file otherwise."""
-    try:
-        data = json.loads(read_regular_bytes(path, what, MAX_JSON_BYTES).decode("utf-8"))
-    except PokeworldError as e:
-        raise ConfigError(str(e)) from None
-    except (OSError, ValueError, RecursionError) as e:
-        raise ConfigError(f"{path} is not {what} ({e})") from None
-    if not isinstance(data, dict):
-        raise ConfigError(f"{path} is not {what} (a JSON {type(data).__name__}, not an object)")
-    return data
+    """A JSON object from a regular file (:func:`pokeworld.io.read_json`); one ConfigError line otherwise."""
+    return io_read_json(path, what, dict, MAX_JSON_BYTES, error=ConfigError)
 
 
 def unpack(pack: Path, scratch: Path) -> Path:
@@ -151,15 +159,17 @@ def unpack(pack: Path, scratch: Path) -> Path:
 
 
 def open_allocation(path: str | os.PathLike, scratch: Path) -> Allocation:
-    """The allocation at ``path``: a folder as a device machine returns it (device.json beside one map pack), a
-    pack (.tar.gz), or a map folder; packs are unpacked under ``scratch``."""
+    """The allocation at ``path``: a folder as a device machine returns it (device.json beside the records pack and
+    the parts of the weights, or beside one map pack), a pack (.tar.gz), or a map folder; packs are unpacked under
+    ``scratch``, and returned weights and checkpoints restored there (:func:`restore_returned`)."""
     path = Path(path)
-    outer_device = None
+    outer_device, returned = None, None
     if path.is_dir() and not (path / "map_config.json").exists():
-        packs = sorted(p for p in path.iterdir() if p.name.endswith((".tar.gz", ".tgz")))
+        packs = [path / RECORDS] if (path / RECORDS).exists() else sorted(
+            p for p in path.iterdir() if p.name.endswith((".tar.gz", ".tgz")))
         if len(packs) != 1:
             raise ConfigError(f"{path}: an allocation folder holds one map pack (*.tar.gz); found {len(packs)}")
-        root, outer_device = unpack(packs[0], scratch), path / DEVICE_FILE
+        root, outer_device, returned = unpack(packs[0], scratch), path / DEVICE_FILE, path
     elif path.is_dir():
         root = path
     elif path.name.endswith((".tar.gz", ".tgz")):
@@ -175,30 +185,62 @@ def open_allocation(path: str | os.PathLike, scratch: Path) -> Allocation:
     manifest = read_json(root / "data" / "standard" / "manifest.json", "a corpus manifest")
     if not isinstance(manifest.get("content_sha256"), str):
         raise ConfigError(f"{path}: its corpus manifest records no content hash")
-    return Allocation(str(path), root, read_json(device_path, "a device record"),
-                      read_json(root / "map_config.json", "a map config"), manifest["content_sha256"],
-                      read_json(root / "progress.json", "a map's progress record"))
+    a = Allocation(str(path), root, read_json(device_path, "a device record"),
+                   read_json(root / "map_config.json", "a map config"), manifest["content_sha256"],
+                   read_json(root / "progress.json", "a map's progress record"))
+    if returned is not None:
+        restore_returned(a, returned, scratch)
+    return a
+
+
+def restore_returned(a: Allocation, folder: Path, scratch: Path) -> None:
+    """The weights and checkpoints in ``folder``'s parts (:func:`.allocation_pack.read_stream`: each member's bytes
+    checked against the sha256 its name carries), each loaded weights-only, checked against the model its kwargs
+    declare and restored in float32 into ``a``'s run folders (final.pt, ckpt.pt); ``a.weights`` then says for each
+    finished run whether its weights came back, ``a.checkpoints`` which unfinished runs can resume. A member that
+    matches its checksum but does not load is refused (ConfigError): the device wrote something else than it says."""
+    index = read_json(a.root / INDEX, "an allocation's index of returned weights") if (a.root / INDEX).exists() else {}
+    finished = set(a.progress.get("finished", []))
+    for m in read_stream(folder):
+        run = a.root / "runs" / m.run
+        if not (run / "config.json").exists() or (m.kind == "final") != (m.run in finished):
+            continue  # records of another state of the map than the parts (a kill between the two writes)
+        ck = load_member(m, scratch)
+        try:
+            model_from_checkpoint(ck, Path(f"{folder}: the returned {m.kind} of {m.run}"))
+        except PokeworldError as e:
+            raise ConfigError(str(e)) from None
+        checkpoint.save(ck, run / f"{m.kind}.pt")
+        if m.kind == "final":
+            a.weights[m.run] = "returned"
+        else:
+            a.checkpoints[m.run] = int(ck.get("step", 0))
+    for name in sorted(finished - set(a.weights)):
+        a.weights[name] = index.get("left_out", {}).get(name, "not returned")
 
 
 def training_facts(a: Allocation, name: str) -> dict:
     """Where and how run ``name`` of ``a`` was trained: device, date, torch, the steps it was configured for and
-    reached, the median s/step over its logged rows (the first row holds any compilation), its compile setting."""
+    reached, the median s/step over its logged rows (the first row holds any compilation), its compile setting,
+    whether its weights came back and, for a run resumed from an earlier allocation's checkpoint, from where."""
     run = a.root / "runs" / name
     cfg = read_json(run / "config.json", "a run config")
     rows = []
     metrics = run / "metrics.jsonl"
     if metrics.exists():
         try:
-            text = read_regular_bytes(metrics, "a metrics log", MAX_JSON_BYTES).decode("utf-8")
-            rows = [json.loads(line) for line in text.splitlines() if line.strip()]
-        except (PokeworldError, ValueError) as e:
+            rows = read_jsonl(metrics, "a metrics log", MAX_JSON_BYTES)
+        except PokeworldError as e:
             raise ConfigError(f"{metrics} is not a metrics log pokeworld wrote ({e})") from None
     rates = [r["steps_per_s"] for r in rows if isinstance(r.get("steps_per_s"), (int, float)) and r["steps_per_s"] > 0]
     return {"source": a.source, "device": a.device.get("device"), "date": a.device.get("date"),
             "torch": a.device.get("torch"), "steps": cfg.get("steps"),
             "steps_trained": max((r.get("step", 0) for r in rows), default=0),
             "sec_per_step": statistics.median(1 / r for r in rates) if rates else None,
-            "compile": cfg.get("compile"), "compile_mode": cfg.get("compile_mode")}
+            "compile": cfg.get("compile"), "compile_mode": cfg.get("compile_mode"),
+            "weights": a.weights.get(name, "not returned"),
+            **({"resumed": read_json(run / "resumed.json", "a resumed run's record")}
+               if (run / "resumed.json").exists() else {})}
 
 
 def allocation_record(a: Allocation, certificates: dict) -> dict:
@@ -300,7 +342,9 @@ def allocation_summary(a: Allocation) -> dict:
     """What the record says of one allocation: its device and what it finished or left unfinished."""
     return {"source": a.source, **{k: a.device.get(k) for k in ("device", "driver", "date", "torch", "cuda", "git")},
             "finished": list(a.progress.get("finished", [])), "partial": dict(a.progress.get("partial", {})),
-            "pending": list(a.progress.get("pending", [])), "elapsed_min": a.progress.get("elapsed_min")}
+            "pending": list(a.progress.get("pending", [])), "elapsed_min": a.progress.get("elapsed_min"),
+            "weights_missing": {n: w for n, w in a.weights.items() if w != "returned"},
+            "checkpoints": dict(a.checkpoints)}
 
 
 # ---------------------------------------------------------------------- the report
@@ -314,6 +358,9 @@ def allocation_lines(merged: dict) -> list[str]:
         cut = [f"{n} (step {s})" for n, s in a["partial"].items()] + [f"{n} (not started)" for n in a["pending"]]
         lines.append(f"| {a['source']} | {a['device']} | {a['date']} | {a['torch']} | "
                      f"{', '.join(a['finished']) or '—'} | {', '.join(cut) or '—'} |")
+    for a in merged["provenance"]["allocations"]:
+        for name, why in a.get("weights_missing", {}).items():
+            lines.append(f"\nThe final weights of `{name}` did not come back from {a['source']}: {why}.")
     for d in merged["provenance"].get("duplicates", []):
         diff = d["largest_ridge_difference"]
         lines.append(f"\n`{d['run']}` was trained in two allocations: the later ({d['kept']}) is kept; the largest "
@@ -349,28 +396,80 @@ def markdown(merged: dict) -> str:
     return "\n".join(head + allocation_lines(merged) + run_lines(merged)) + body
 
 
-def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(description="Merge GPU allocations of the paper-budget map into one record.")
-    ap.add_argument("allocations", nargs="+", type=Path,
-                    help="allocation folders as returned (device.json beside the map's pack), packs or map folders")
-    ap.add_argument("--out", type=Path, required=True, help="the merged record (results.json format)")
-    ap.add_argument("--markdown", type=Path, help="also write its report here")
-    ap.add_argument("--certificates", type=Path, help="certify JSON of the same corpus, computed on the CPU side")
-    ap.add_argument("--figure", type=Path, help="the identifiability-map figure (.png, a .pdf beside it); "
-                                                "default: --out with .png")
-    ap.add_argument("--no-figure", action="store_true", help="write no figure")
-    ap.add_argument("--tol", type=float, default=1e-4, help="ridge difference below which a run trained twice "
-                                                            "counts as reproduced")
-    a = ap.parse_args(argv)
-    try:
-        with tempfile.TemporaryDirectory(prefix="pokeworld-allocations-") as scratch:
-            allocs = [open_allocation(p, Path(scratch)) for p in a.allocations]
-            cert = read_certificates(a.certificates, allocs[0].corpus_sha256) if a.certificates else None
-            words = sys.argv[1:] if argv is None else argv
-            merged = merge_allocations(allocs, cert, a.tol,
-                                       command=" ".join(["python scripts/merge_allocations.py", *map(str, words)]))
-    except PokeworldError as e:  # one line, nothing written
-        raise SystemExit(f"error: {e}") from None
+# ---------------------------------------------------------------------- the next allocation
+
+
+def run_key(a: Allocation, name: str) -> tuple[str, int]:
+    """(variant, seed) of run ``name`` of ``a``, from its config.json."""
+    cfg = read_json(a.root / "runs" / name / "config.json", "a run config")
+    return str(cfg.get("variant")), int(cfg.get("seed", 0))
+
+
+def plan(allocs: list[Allocation]) -> dict:
+    """The next allocation's queue from what ``allocs`` returned (:func:`.allocation_queue.order_queue`): runs any
+    of them finished are skipped, runs with a returned checkpoint come first (the furthest checkpoint of each, and
+    the folder holding it, which the next allocation is given as ALLOC_RESUME), then :data:`.allocation_queue.PRIORITY`.
+    ConfigError when the allocations do not share a corpus and map settings (:func:`check_agreement`)."""
+    check_agreement(allocs)
+    finished: set[tuple[str, int]] = set()
+    ckpts: dict[tuple[str, int], tuple[int, str]] = {}
+    for a in allocs:
+        finished |= {run_key(a, n) for n in a.progress.get("finished", [])}
+        for name, step in a.checkpoints.items():
+            key = run_key(a, name)
+            if step > ckpts.get(key, (-1, ""))[0]:
+                ckpts[key] = (step, a.source)
+    resumable = {k: v for k, v in ckpts.items() if k not in finished}
+    requested = [parse_token(t) for t in PRIORITY]
+    requested += [k for k in resumable if k not in requested]  # a checkpoint outside the priority list resumes too
+    queue = order_queue(requested, finished, set(resumable))
+    return {"queue": [token(k) for k in queue], "finished": sorted(token(k) for k in finished),
+            "resume": {token(k): {"step": step, "from": src} for k, (step, src) in resumable.items()},
+            "resume_from": sorted({src for _, src in resumable.values()}),
+            "commits": sorted({str(a.device.get("git", "?")) for a in allocs})}
+
+
+def plan_lines(p: dict, commit: str) -> list[str]:
+    """The plan in words, ending with the next allocation's command."""
+    resume = " ".join(f"{t} (step {r['step']}, {r['from']})" for t, r in p["resume"].items())
+    env = f"ALLOC_COMMIT={commit}" + (f" ALLOC_RESUME=\"{' '.join(p['resume_from'])}\"" if p["resume_from"] else "")
+    return [f"[plan] earlier allocations ran commits {', '.join(p['commits'])}; finished: "
+            f"{' '.join(p['finished']) or 'none'}; checkpoints to resume: {resume or 'none'}",
+            f"[plan] next allocation, in this order: {' '.join(p['queue']) or 'nothing left'}",
+            f"{env} bash scripts/gpu_allocation.sh OUT {' '.join(p['queue'])}"]
+
+
+def export_runs(allocs: list[Allocation], merged: dict, dest: Path) -> list[str]:
+    """Every run of ``merged`` whose weights came back from the allocation it was kept from, as a run folder under
+    ``dest`` (config.json, metrics.jsonl, the device's measure.json, final.pt in float32 and DONE), so that the CPU
+    side can probe it (``pokeworld probe --run-dir DEST/NAME --data CORPUS``, on the same seeded corpus);
+    returns their names."""
+    by_source = {a.source: a for a in allocs}
+    names = []
+    for name, run in sorted(merged["runs"].items()):
+        a = by_source.get(run.get("allocation", {}).get("source"))
+        if a is None or a.weights.get(name) != "returned":
+            continue
+        src, out = a.root / "runs" / name, dest / name
+        for f in ("config.json", "metrics.jsonl", "final.pt", "measure.json"):
+            if (src / f).exists():
+                with atomic_path(out / f) as tmp:
+                    tmp.write_bytes(read_regular_bytes(src / f, f"a returned run's {f}", MAX_PACK_BYTES << 2))
+        with atomic_path(out / "DONE") as tmp:
+            tmp.write_text(f"finished (weights returned from {a.source}: float32 tensors of at least "
+                           f"{COMPACT_MIN_ELEMENTS} elements rounded to bfloat16)\n")
+        names.append(name)
+    return names
+
+
+# ---------------------------------------------------------------------- the command line
+
+
+def write_merged(a: argparse.Namespace, allocs: list[Allocation], words: list[str]) -> dict:
+    """Merge ``allocs`` and write the record, its report and its figure as ``a`` asks."""
+    cert = read_certificates(a.certificates, allocs[0].corpus_sha256) if a.certificates else None
+    merged = merge_allocations(allocs, cert, a.tol,
+                               command=" ".join(["python scripts/merge_allocations.py", *map(str, words)]))
     write_json(a.out, merged)
     if a.markdown:
         with atomic_path(a.markdown) as tmp:
@@ -378,12 +477,52 @@ def main(argv: list[str] | None = None) -> int:
     if not a.no_figure:
         fig = a.figure or a.out.with_suffix(".png")
         report.figure(merged, fig.parent, stem=fig.stem)
+    if a.runs_out:
+        names = export_runs(allocs, merged, a.runs_out)
+        print(f"[merge_allocations] {len(names)} runs with their weights -> {a.runs_out}")
+    return merged
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description="Merge GPU allocations of the paper-budget map into one record, or "
+                                             "plan the next allocation (--plan).")
+    ap.add_argument("allocations", nargs="+", type=Path,
+                    help="allocation folders as returned (device.json beside the records and weights), packs or "
+                         "map folders")
+    ap.add_argument("--plan", action="store_true", help="print the next allocation's queue and command instead")
+    ap.add_argument("--commit", default="", help="with --plan: the commit the next allocation runs (default: "
+                                                 "ALLOC_COMMIT, else this checkout's)")
+    ap.add_argument("--out", type=Path, help="the merged record (results.json format)")
+    ap.add_argument("--markdown", type=Path, help="also write its report here")
+    ap.add_argument("--certificates", type=Path, help="certify JSON of the same corpus, computed on the CPU side")
+    ap.add_argument("--figure", type=Path, help="the identifiability-map figure (.png, a .pdf beside it); "
+                                                "default: --out with .png")
+    ap.add_argument("--no-figure", action="store_true", help="write no figure")
+    ap.add_argument("--runs-out", type=Path, help="also write each finished run with its returned weights here, as a "
+                                                  "run folder the CPU side can probe")
+    ap.add_argument("--tol", type=float, default=1e-4, help="ridge difference below which a run trained twice "
+                                                            "counts as reproduced")
+    a = ap.parse_args(argv)
+    if not a.plan and a.out is None:
+        ap.error("--out is required (or --plan)")
+    try:
+        with tempfile.TemporaryDirectory(prefix="pokeworld-allocations-") as scratch:
+            allocs = [open_allocation(p, Path(scratch)) for p in a.allocations]
+            if a.plan:
+                print("\n".join(plan_lines(plan(allocs), a.commit or commit())))
+                return 0
+            merged = write_merged(a, allocs, sys.argv[1:] if argv is None else argv)
+    except PokeworldError as e:  # one line, nothing written
+        raise SystemExit(f"error: {e}") from None
+    missing = {n for al in allocs for n, w in al.weights.items() if w != "returned"}
     print(f"[merge_allocations] {len(merged['runs'])} runs from {len(allocs)} allocations "
-          f"({len(merged['provenance']['duplicates'])} trained twice) -> {a.out}")
+          f"({len(merged['provenance']['duplicates'])} trained twice) -> {a.out}"
+          + (f"; final weights not returned for {sorted(missing)}" if missing else ""))
     return 0
 
 
-__all__ = ["DEVICE_FILE", "AGREE", "Allocation", "device_record", "gpu_name", "write_device", "read_json", "unpack",
-           "open_allocation", "training_facts", "allocation_record", "check_agreement", "read_certificates",
+__all__ = ["DEVICE_FILE", "AGREE", "Allocation", "device_record", "commit", "gpu_name", "write_device", "read_json",
+           "unpack", "open_allocation", "restore_returned", "training_facts", "run_key", "plan", "plan_lines",
+           "export_runs", "write_merged", "allocation_record", "check_agreement", "read_certificates",
            "ridge_difference", "merge_allocations", "allocation_summary", "allocation_lines", "run_lines", "markdown",
            "main"]

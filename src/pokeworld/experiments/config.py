@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from ..config import FRACTION, SEED, Limit, check_fractions
 from ..errors import ConfigError
 from ..evaluate.probes import KINDS
 from ..losses import SIGREG_POOLS
@@ -23,6 +24,8 @@ class MapConfig(LaunchOptions):
 
     out: str = "out/map"
     """Output directory: data/, runs/, results.json, tables and figures land here."""
+    quiet: bool = False
+    """No heartbeat lines (every 30 s, what is running and how far the runs are); the stage lines stay."""
     preset: str = "cpu"
     """Preset used for every stage (generate, certify, train, measure): tiny (seconds, tests), cpu (2 CPU
     cores, ≈ 20 min per 4,000-step model, two side by side) or paper (GPU, ≈ 14 min per 20k-step model on
@@ -138,8 +141,15 @@ class MapConfig(LaunchOptions):
     metrics.jsonl and measure*.json, each corpus's certificates.json and manifest.json, map_config.json,
     progress.json, results.json/.md and the figure; never checkpoints, TensorBoard events or data."""
 
+    LIMITS = {"seeds": SEED, "lambdas": Limit(0, 1e6), "sigreg_weight": Limit(0, 1e6),
+              "sigreg_reference_rows": Limit(0, 2**31), "train_steps": Limit(0, 10**9),
+              "train_batch_size": Limit(0, 65536), "num_episodes": Limit(0, 10**7), "data_seed": SEED,
+              "split_fractions": FRACTION, "certify_max_windows": Limit(0, 10**8), "certify_epochs": Limit(0, 10**5),
+              "certify_fit_episodes": Limit(-1, 10**6), "measure_max_windows": Limit(0, 10**8),
+              "time_budget_min": Limit(0, 1e7), "time_reserve_min": Limit(0, 1e7), "stack_max_members": Limit(0, 10**4)}
+
     def __post_init__(self) -> None:
-        super().__post_init__()
+        super().__post_init__()  # checks every field's type and range (LaunchOptions.__post_init__)
 
         badv = (set(self.variants) | set(self.lazy_variants) | set(self.planning_variants)) - set(VARIANTS)
         if badv:
@@ -151,6 +161,8 @@ class MapConfig(LaunchOptions):
         if self.split_fractions and (len(self.split_fractions) != 3 or min(self.split_fractions) <= 0):
             raise ConfigError(f"split_fractions must be three positive shares (train, probe-fit, probe-test), "
                               f"got {self.split_fractions}")
+        if self.split_fractions:
+            check_fractions("MapConfig.split_fractions", self.split_fractions)
         if set(self.measure_kinds) - set(KINDS):
             raise ConfigError(f"unknown measure_kinds {sorted(set(self.measure_kinds) - set(KINDS))}; choose from {list(KINDS)}")
         if self.preset not in ("tiny", "cpu", "paper"):

@@ -9,7 +9,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
+from ..config import Limit, check_fields
 from ..errors import ConfigError
+from ..progress import heartbeat, runs_progress
 
 
 @dataclass
@@ -27,7 +29,10 @@ class LaunchOptions:
     slurm_gpus: int = 1
     """GPUs per SLURM job."""
 
+    LIMITS = {"workers": Limit(0, 4096), "slurm_timeout_min": Limit(1, 10**6), "slurm_gpus": Limit(0, 1024)}
+
     def __post_init__(self) -> None:
+        check_fields(self)  # every field of the subclass too (MapConfig, RealConfig), with its own LIMITS
         if self.launcher not in ("local", "slurm", "submitit-local"):
             raise ConfigError(f"launcher must be local, slurm or submitit-local, got {self.launcher!r}")
 
@@ -40,6 +45,25 @@ def launch(c: LaunchOptions, jobs: list[dict], fn: Callable[[dict], dict], name:
     """
     if not jobs:
         return []
+    # the workers train out of sight: their metrics, read here every 30 s, say how far each run is
+    with heartbeat("map", training_status(jobs)):
+        return _execute(c, jobs, fn, name)
+
+
+def training_status(jobs: list[dict]):
+    """A callable giving the training progress of the jobs' runs (:func:`pokeworld.progress.runs_progress`)."""
+    from ..train import make_config
+
+    runs = {}
+    for j in jobs:
+        tr = j.get("train", {})
+        if "out" in tr:
+            steps = tr.get("steps") or make_config(j.get("train_preset", "cpu")).steps
+            runs[j.get("name", Path(tr["out"]).name)] = (Path(tr["out"]), int(steps))
+    return lambda: runs_progress(runs) if runs else f"{len(jobs)} jobs running"
+
+
+def _execute(c: LaunchOptions, jobs: list[dict], fn: Callable[[dict], dict], name: str) -> list[dict]:
     if c.launcher == "local":
         workers = c.workers or default_workers(len(jobs))
         if workers == 1:

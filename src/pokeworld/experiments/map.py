@@ -6,7 +6,9 @@ unfinished ones. Runs execute in a local process pool or through submitit (:mod:
 trains the runs that can share a step as stacked ensembles and ``certify_alongside`` computes the certificates
 meanwhile. Time-sliced running (``time_budget_min``): every invocation trains until its budget is nearly spent,
 checkpoints, writes ``progress.json`` and exits normally; the same command resumes. ``pack`` tars the small
-result files for the trip back from a lent machine.
+result files for the trip back from a lent machine. A caller may steer the runs one at a time (:class:`RunHooks`):
+a GPU allocation (:mod:`.allocation_run`) orders them, starts one only when it fits the time left and packs each
+for the trip back as soon as it is measured.
 """
 
 from __future__ import annotations
@@ -14,9 +16,10 @@ from __future__ import annotations
 import concurrent.futures as cf
 from pathlib import Path
 
-from .. import clock
+from .. import clock, progress
 from ..config import to_dict
-from ..io import check_writable_dir, dir_lock, remove_stale_temporaries, write_json
+from ..errors import PokeworldError
+from ..io import adopt_legacy, check_writable_dir, dir_lock, read_json_if_present, remove_stale_temporaries, write_json
 from ..train.loop import past
 from . import report, stages
 from .config import MapConfig
@@ -77,26 +80,69 @@ def read_previous_results(path: Path) -> dict | None:
         return None
     return read_record(path, "move it aside (or give this map another --out), then run the same command again")
 
-def run(c: MapConfig) -> Path:
+class RunHooks:
+    """What a caller adds to a map that trains its runs one after another, in this process (``pokeworld map``
+    passes none and launches its runs as configured). The defaults run every job in the map's order."""
+
+    def order(self, jobs: list[dict]) -> list[dict]:
+        """The jobs to run, in the order to run them; a job left out stays pending."""
+        return jobs
+
+    def execute(self, job: dict) -> dict:
+        """Train and measure one job (:func:`.stages.execute`); a hook may decline it (status 'pending')."""
+        return stages.execute(job)
+
+    def measured(self, job: dict, result: dict, prog: dict) -> None:
+        """After each job, with the progress.json just written (the job's run finished, partial or pending)."""
+
+
+def run_one_by_one(c: MapConfig, jobs: list[dict], specs: list, started: float, hooks: RunHooks) -> None:
+    """The jobs in ``hooks``' order, one at a time, progress.json written after each so that a hook can pack it."""
+    for job in hooks.order(jobs):
+        result = hooks.execute(job)
+        hooks.measured(job, result, stages.write_progress(c, specs, started))
+
+
+MAP_FILES = ("results.json", "results.md", "map_config.json", "progress.json", "device.json",
+             "identifiability_map.png", "identifiability_map.pdf")
+"""The files a map writes at the top of its folder."""
+
+
+def adopt_legacy_map(out: Path) -> None:
+    """A map folder written before ownership records existed (recognised by its map_config.json, a JSON object)
+    gets its record, so that re-running the map replaces its own results as it always did."""
+    try:
+        ok = isinstance(read_json_if_present(out / "map_config.json", "a map's map_config.json"), dict)
+    except PokeworldError:
+        ok = False
+    if ok:
+        adopt_legacy(out, MAP_FILES)
+
+
+def run(c: MapConfig, hooks: RunHooks | None = None) -> Path:
     """Run every stage of the map and write results.json, results.md and the figure into ``c.out``.
 
     With ``time_budget_min`` the invocation may stop early (progress.json says where); with ``pack``
-    the small results are tarred at the end either way. The whole invocation holds ``out/.map.lock``: a second
-    map on the same ``out`` is refused with a message naming this one (a killed map's lock is released with its
+    the small results are tarred at the end either way; with ``hooks`` the runs train one at a time in this
+    process, as the hooks order and admit them (:class:`RunHooks`). The whole invocation holds ``out/.map.lock``: a
+    second map on the same ``out`` is refused with a message naming this one (a killed map's lock is released with its
     process), and the experiments of an earlier invocation are carried into results.json (:func:`carry_over`).
     """
     check_names(c)
+    progress.quiet(c.quiet)
     out = Path(c.out)
     check_writable_dir(out)
+    print(stages.plan_line(c), flush=True)
     with dir_lock(out, ".map.lock", MAP_LOCK_REFUSAL) as stale:
         if stale:
             print(f"[map] the previous holder of {out} ({stale}) is gone; taking over its lock and resuming")
         # temporary copies a killed map left of its top-level files (results, report, figures): only the lock's
         # holder writes these, so none of them is in use
         remove_stale_temporaries(out)
-        return _run_locked(c)
+        adopt_legacy_map(out)
+        return _run_locked(c, hooks)
 
-def _run_locked(c: MapConfig) -> Path:
+def _run_locked(c: MapConfig, hooks: RunHooks | None = None) -> Path:
     """The body of :func:`run`, under the out directory's lock."""
     started = clock.wall_clock()
     # training must stop early enough to leave the reserve for measuring, reporting and packing
@@ -141,9 +187,12 @@ def _run_locked(c: MapConfig) -> Path:
         print(f"[map] {len(specs)} runs, launcher={c.launcher}, workers={workers}"
               + (f", training until {c.time_budget_min - c.time_reserve_min:g} min" if deadline else ""))
         jobs = stages.jobs(c, specs, threads, deadline)
-        if c.stack:
-            stages.train_stacked_jobs(c, jobs)
-        launch(c, jobs, stages.execute)
+        if hooks is not None:
+            run_one_by_one(c, jobs, specs, started, hooks)
+        else:
+            if c.stack:
+                stages.train_stacked_jobs(c, jobs)
+            launch(c, jobs, stages.execute)
     if background is not None:
         with background:
             print("[map] waiting for the background certificates")
@@ -173,4 +222,4 @@ def _run_locked(c: MapConfig) -> Path:
     return out
 
 
-__all__ = ["run", "carry_over", "read_previous_results", "MAP_LOCK_REFUSAL"]
+__all__ = ["run", "RunHooks", "run_one_by_one", "carry_over", "read_previous_results", "MAP_LOCK_REFUSAL"]

@@ -3,13 +3,12 @@ random controller; the planner itself is :mod:`pokeworld.plan`."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from .. import plan
 from ..config import to_dict
-from ..io import write_json
+from ..io import read_json_if_present, write_json
 from ..plan import table_lines
 from .runs import RunSpec, corpus_dir, run_dir, spec, with_map_training
 
@@ -48,8 +47,8 @@ def ensure_planning(c: MapConfig) -> dict:
                                                   for d in dirs] for v, dirs in runs.items()}}
     out = planning_dir(c)
     path = out / "planning.json"
-    if path.exists():
-        prev = json.loads(path.read_text())
+    prev = read_json_if_present(path, "the map's planning record")
+    if prev is not None:
         if prev.get("key") == key:
             print(f"[map] {path} is up to date; skipping planning")
             return prev["result"]

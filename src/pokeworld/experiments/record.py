@@ -9,13 +9,12 @@ in the report at the very end of a map, after all its training.
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import Any
 
 from ..errors import ConfigError
-from ..io import read_regular_bytes
+from ..io import read_json
 
 TOP_LEVEL = ("experiments", "runs", "certificates", "map_config", "provenance")
 """Keys every record holds, each a JSON object."""
@@ -96,11 +95,7 @@ def record_problem(record: Any, finite: bool = True) -> str | None:
 def read_record(path: str | Path, remedy: str, finite: bool = True) -> dict:
     """The results record at ``path``; a ConfigError naming the file, its first problem and ``remedy`` (what to
     do) when it is not valid JSON or not shaped like one pokeworld writes (``finite`` as in :func:`run_problem`)."""
-    raw = read_regular_bytes(path, "a results record", MAX_RECORD_BYTES)  # no link, FIFO or huge file
-    try:
-        record = json.loads(raw.decode("utf-8"))
-    except (ValueError, RecursionError) as e:  # JSONDecodeError and bad UTF-8 are ValueErrors
-        raise ConfigError(f"{path} is not a results record pokeworld wrote (not valid JSON: {e}); {remedy}") from None
+    record = read_json(path, "a results record", None, MAX_RECORD_BYTES, remedy, ConfigError)
     problem = record_problem(record, finite)
     if problem:
         raise ConfigError(f"{path} is not a results record pokeworld wrote ({problem}); {remedy}")

@@ -4,7 +4,6 @@ and the identifiability-map figure."""
 
 from __future__ import annotations
 
-import json
 import platform
 import sys
 from pathlib import Path
@@ -27,7 +26,7 @@ from ..evaluate.tables import (
     run_gate_failed,
     variant_runs,
 )
-from ..io import atomic_path, save_figure
+from ..io import atomic_path, read_json_if_present, save_figure
 from .registry import REPORT_ORDER
 from .runs import spec_measure_path
 from .stages import spec_experiments
@@ -39,7 +38,7 @@ def collect(c, specs, certificates: dict) -> dict:
     runs = {}
     for s in specs:
         path = spec_measure_path(c, s)
-        m = json.loads(path.read_text()) if path.exists() else {}
+        m = read_json_if_present(path, "a run's measure.json") or {}
         runs[s.name] = {"experiment": s.experiment, "corpus": s.corpus, "measure_corpus": s.measure_corpus,
                         "train": s.train, "probes": m.get("probes", {}), "prediction": m.get("prediction", {}),
                         "untrained": m.get("untrained", {}),
@@ -134,6 +133,20 @@ def merged_lines(prov: dict) -> list[str]:
                           m.get("runs_replaced_differing", {}).items()), ""]
     return out
 
+VARIANT_KEY = {  # the README's table: X-JEPA inputs -> forecasting targets
+    "V": "vision in, vision target",
+    "VF": "+ proprio, touch in",
+    "VX_p": "vision in, proprio target",
+    "VX_t": "vision in, touch target",
+    "VX": "vision in, proprio and touch targets",
+    "VFX": "proprio, touch in and as targets",
+}
+"""The variant names, explained in the figure's key."""
+
+OBSERVED = ("object_pos", "object_vel")
+"""Quantities the certificate estimators observe directly in their input: certified by construction (1.00)."""
+
+
 def map_matrix(results: dict) -> tuple[np.ndarray, list[str], list[str], np.ndarray]:
     """(quantities x [certificate, variants...]) R^2 matrix with a gate-failed mask."""
     variants = [v for v in results["map_config"]["variants"] if variant_runs(results, "factorial", v)]
@@ -144,7 +157,7 @@ def map_matrix(results: dict) -> tuple[np.ndarray, list[str], list[str], np.ndar
     for i, q in enumerate(QUANTITIES):
         if q in cert:
             M[i, 0] = cert[q]["r2"]
-        elif q in ("object_pos", "object_vel"):
+        elif q in OBSERVED:
             M[i, 0] = 1.0  # object state is observed directly by the certificate estimators
         for j, v in enumerate(variants, 1):
             val = mean_over(variant_runs(results, "factorial", v), lambda r: probe(r, q))
@@ -152,31 +165,139 @@ def map_matrix(results: dict) -> tuple[np.ndarray, list[str], list[str], np.ndar
         failed[i, :] = gate_failed(results, q)
     return M, [LABELS[q] for q in QUANTITIES], cols, failed
 
+
+def paper_matrix(cols: list[str]) -> np.ndarray:
+    """The paper's values for :func:`map_matrix`'s cells (NaN where the paper reports none): the certificate
+    column is its GRU oracle (App. A), the variants its Table "targets" (log k, log m; mean of two seeds), and
+    VFX's γ, position and velocity its Table "controls" VFX row."""
+    from .controls import CONTROLS
+    from .factorial import FACTORIAL
+
+    P_ = np.full((len(QUANTITIES), len(cols)), np.nan)
+    for i, q in enumerate(QUANTITIES):
+        for j, col in enumerate(cols):
+            if col == "certificate":
+                val = P.CERTIFICATES["gru"].get(q)
+            else:
+                val = FACTORIAL.get(col, {}).get(q)
+                if val is None and col == "VFX":
+                    val = CONTROLS["VFX"].get(q)
+            if val is not None:
+                P_[i, j] = val
+    return P_
+
+
+def _r2(x: float) -> str:
+    s = f"{x:.2f}"
+    return "0.00" if s == "-0.00" else s
+
+
+def map_title(results: dict) -> str:
+    """The figure's title: what is shown and which presets produced it (the demo's training preset included)."""
+    prov, mc = results.get("provenance", {}), results.get("map_config", {})
+    preset, train_preset = prov.get("preset") or mc.get("preset", "?"), mc.get("train_preset") or ""
+    command = str(prov.get("command", "")).split()
+    words = [f"preset {preset}"]
+    if command[:1] == ["pokeworld"] and len(command) > 1:  # the command that made it: pokeworld map / demo
+        words = [f"pokeworld {command[1]}", f"{'map ' * (command[1] == 'demo')}preset {preset}"]
+    if train_preset and train_preset != preset:
+        words.append(f"training preset {train_preset}")
+    if mc.get("train_steps"):
+        words.append(f"{mc['train_steps']:,} training steps")
+    return ("Identifiability map: what a frozen latent holds (held-out R², contact windows)\n"
+            + "; ".join(words))
+
+
+def variant_seeds(results: dict, variant: str) -> list:
+    """The seeds of a factorial variant's runs, sorted."""
+    return sorted({r["train"].get("seed") for r in variant_runs(results, "factorial", variant)}, key=str)
+
+
+def map_key(results: dict, cols: list[str], failed_rows: list[str]) -> list[str]:
+    """The figure's footnote, one entry per item, so the figure reads without the docs."""
+    seeds = {v: variant_seeds(results, v) for v in cols if v != "certificate"}
+    every = sorted({s for ss in seeds.values() for s in ss}, key=str)
+    counts = {len(ss) for ss in seeds.values()}
+    if len(counts) > 1:
+        seed_words = "mean over the variant's seeds, counted under its name"
+    elif len({tuple(ss) for ss in seeds.values()}) == 1:  # the same seeds for every variant
+        seed_words = f"seed {every[0]}" if len(every) == 1 else f"mean over seeds {', '.join(map(str, every))}"
+    else:
+        n = counts.pop() if counts else 0
+        seed_words = "one seed per variant" if n == 1 else f"mean over {n} seeds per variant"
+    est = {q: v.get("estimator") for q, v in results["certificates"].get("standard", {}).get("certificate", {})
+           .get("contact", {}).items()}
+    items = [(f"Variant cells: a ridge probe of the frozen predictor state ({seed_words}); "
+              "italic \"paper\": the paper's value (Table \"targets\"; VFX's γ, position and velocity from Table "
+              "\"controls\"); — : not measured."),
+             ("Certificate: the best estimator fit on the raw observation streams"
+              + (f" ({', '.join(sorted(set(filter(None, est.values()))))})" if any(est.values()) else "")
+              + "; paper: its GRU oracle. Object position and velocity read 1.00 by construction: they are observed "
+              "directly in the estimators' input (certified, not fit).")]
+    if failed_rows:
+        items.append(f"gate ✗ ({', '.join(failed_rows)}): no estimator reached the certificate threshold "
+                     f"(log k ≥ {GATES['log_k']}, log m and γ ≥ {GATES['log_m']}); no claim is made for that row.")
+    variants = [c for c in cols if c != "certificate"]
+    items.append("Variants (X-JEPA inputs → forecasting targets): "
+                 + "; ".join(f"{v} = {VARIANT_KEY[v]}" for v in variants if v in VARIANT_KEY) + ".")
+    return items
+
+
 def figure(results: dict, out: Path, stem: str = "identifiability_map") -> list[Path]:
-    """The identifiability map: certificate and factorial variants × quantities, as ``out/stem.png`` and ``.pdf``."""
+    """The identifiability map: certificate and factorial variants × quantities, as ``out/stem.png`` and ``.pdf``.
+
+    Each cell holds our value (its colour) and, beneath it in italics, the paper's (its Text artists carry the
+    label "paper"); a footnote explains the certificate column, the gate and the variant names."""
+    import textwrap
+
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     M, rows, cols, failed = map_matrix(results)
-    fig, ax = plt.subplots(figsize=(1.2 * len(cols) + 2, 0.7 * len(rows) + 1.6))
-    im = ax.imshow(np.clip(M, 0, 1), cmap="viridis", vmin=0, vmax=1, aspect="auto")
+    paper = paper_matrix(cols)
+    qs = list(QUANTITIES)
+    cert = results["certificates"].get("standard", {}).get("certificate", {}).get("contact", {})
+    failed_rows = [rows[i] for i in range(len(rows)) if failed[i].any()]
+    row_labels = [r + ("\ngate ✗" if failed[i].any() else "") for i, r in enumerate(rows)]
+    n_seeds = {v: len(variant_seeds(results, v)) for v in cols[1:]}
+    col_labels = [c if c == "certificate" or len(set(n_seeds.values())) == 1
+                  else f"{c}\n{n_seeds[c]} seed{'s' * (n_seeds[c] != 1)}" for c in cols]
+    width = max(1.15 * len(cols) + 3.0, 8.0)
+    chars = int(width * 16)  # footnote characters per line at 7.5 pt
+    key = [textwrap.fill(item, chars, subsequent_indent="   ") for item in map_key(results, cols, failed_rows)]
+    key_lines = sum(k.count("\n") + 1 for k in key)
+    map_h, key_h = 0.75 * len(rows) + 2.2, 0.14 * key_lines + 0.15
+    fig, ax = plt.subplots(figsize=(width, map_h + key_h))
+    im = ax.imshow(np.clip(np.nan_to_num(M, nan=0.0), 0, 1), cmap="viridis", vmin=0, vmax=1, aspect="auto")
     for i in range(M.shape[0]):
         for j in range(M.shape[1]):
-            if np.isnan(M[i, j]):
-                txt = "—"
+            dark = np.isnan(M[i, j]) or M[i, j] < 0.5
+            color = "white" if dark else "black"
+            observed = j == 0 and qs[i] not in cert and qs[i] in OBSERVED
+            main = "—" if np.isnan(M[i, j]) else _r2(M[i, j])
+            ax.text(j, i - 0.12, main, ha="center", va="center", fontsize=10, color=color)
+            if observed:
+                sub, label = "observed", "observed"
+            elif j == 0 and qs[i] in cert and cert[qs[i]].get("estimator"):
+                sub = cert[qs[i]]["estimator"] + ("" if np.isnan(paper[i, j]) else f" · paper {_r2(paper[i, j])}")
+                label = "paper" if not np.isnan(paper[i, j]) else "estimator"
+            elif not np.isnan(paper[i, j]):
+                sub, label = f"paper {_r2(paper[i, j])}", "paper"
             else:
-                txt = f"{M[i, j]:.2f}" + ("\ngate ✗" if failed[i, j] else "")
-            ax.text(j, i, txt, ha="center", va="center", fontsize=9,
-                    color="white" if (np.isnan(M[i, j]) or M[i, j] < 0.5) else "black")
+                continue
+            ax.text(j, i + 0.22, sub, ha="center", va="center", fontsize=7.5, style="italic", color=color,
+                    label=label)
     ax.axvline(0.5, color="white", lw=3)
-    ax.set_xticks(range(len(cols)), cols)
-    ax.set_yticks(range(len(rows)), rows)
-    prov = results["provenance"]
-    ax.set_title(f"Identifiability map (ridge R², contact windows; preset {prov['preset']})", fontsize=10)
-    fig.colorbar(im, ax=ax, fraction=0.04, label="held-out R²")
-    fig.tight_layout()
+    ax.set_xticks(range(len(cols)), col_labels)
+    ax.set_yticks(range(len(rows)), row_labels)
+    ax.set_xlabel("certificate (raw observations)  |  X-JEPA variant (frozen predictor state)", fontsize=9)
+    ax.set_ylabel("probed quantity", fontsize=9)
+    ax.set_title(map_title(results), fontsize=10)
+    fig.colorbar(im, ax=ax, fraction=0.04, label="held-out R² (ridge, contact windows; clipped to 0–1)")
+    fig.text(0.01, 0.01, "\n".join(key), ha="left", va="bottom", fontsize=7.5, linespacing=1.3)
+    fig.tight_layout(rect=(0, key_h / (map_h + key_h), 1, 1))
     return save_figure(fig, out, stem)
 
 def write_all(c, results: dict) -> None:
@@ -191,4 +312,4 @@ def write_all(c, results: dict) -> None:
 
 
 __all__ = ["collect", "certificate_table", "gate_cell", "readout_table", "markdown", "merged_lines", "map_matrix",
-           "figure", "write_all"]
+           "paper_matrix", "map_title", "map_key", "variant_seeds", "VARIANT_KEY", "figure", "write_all"]

@@ -3,17 +3,19 @@ progress and the pack of small results that travels back from a lent machine."""
 
 from __future__ import annotations
 
-import json
 import os
 import tarfile
 from pathlib import Path
 from typing import Any
 
 from .. import certify, clock, train
+from ..data import read_manifest
+from ..errors import PokeworldError
 from ..evaluate import measure
 from ..evaluate.coordinate import build_flow_corpus
-from ..io import atomic_path, write_json
+from ..io import atomic_path, read_json, write_json
 from ..models import flow
+from ..progress import HEARTBEAT_S
 from ..rundir import last_logged_step
 from ..sim import generate
 from ..sim.generate import LEGACY_PHYSICS
@@ -21,8 +23,11 @@ from ..train import stacked as train_stacked
 from ..train.loop import past, status_every
 from .attributes import CORPUS_TARGETS
 from .config import MapConfig
+from .launch import default_workers
 from .registry import EXPERIMENTS
 from .runs import RunSpec, corpus_dir, run_dir, spec_measure_path, with_map_training
+
+CERTIFICATES = "a certificate record (certificates.json)"
 
 
 def experiment_specs(c: MapConfig, exp: str) -> list[RunSpec]:
@@ -54,7 +59,14 @@ def ensure_corpus(c: MapConfig, corpus: str) -> Path:
         overrides["split_fractions"] = tuple(c.split_fractions)
     if c.contact_damping != LEGACY_PHYSICS["contact_damping"]:  # the default law leaves the configs as they were
         overrides["physics"] = {"contact_damping": c.contact_damping}
-    return generate.run(generate.make_config(c.preset, **overrides))
+    try:
+        return generate.run(generate.make_config(c.preset, **overrides))
+    except PokeworldError as e:
+        if "--overwrite" not in str(e):
+            raise
+        # generate's remedy names its own --overwrite, which map and demo do not have
+        raise type(e)(f"{corpus_dir(c, corpus)} holds a corpus this map cannot use ({str(e).split(';')[0]}); give "
+                      "this map another --out, or move that corpus folder away to have it generated again") from None
 
 GATED = ("log_m", "gamma", "log_k")
 
@@ -90,17 +102,17 @@ def ensure_certificates(c: MapConfig, corpus: str) -> dict:
         # the state-based estimators do not read the appended channels: only the log-speed certificate is new
         path = certify.run(certify.make_config(c.preset, data=str(corpus_dir(c, corpus)), targets=("gamma",),
                                                estimators=("linear_logspeed",), kinds=c.certify_kinds))
-        manifest = json.loads((corpus_dir(c, corpus) / "manifest.json").read_text())
-        return {**with_standard_gate(ensure_certificates(c, "standard"), json.loads(Path(path).read_text())),
+        manifest = read_manifest(corpus_dir(c, corpus))
+        return {**with_standard_gate(ensure_certificates(c, "standard"), read_json(path, CERTIFICATES)),
                 "flow_sensor": manifest.get("flow", {}).get("sensor", {})}
     if corpus in CORPUS_TARGETS:
         path = certify.run(certify.make_config(c.preset, data=str(corpus_dir(c, corpus)),
                                                targets=CORPUS_TARGETS[corpus],
                                                estimators=c.certify_estimators, kinds=c.certify_kinds, **cost))
-        return with_standard_gate(ensure_certificates(c, "standard"), json.loads(Path(path).read_text()))
+        return with_standard_gate(ensure_certificates(c, "standard"), read_json(path, CERTIFICATES))
     path = certify.run(certify.make_config(c.preset, data=str(corpus_dir(c, corpus)), targets=GATED,
                                            estimators=c.certify_estimators, kinds=c.certify_kinds, **cost))
-    return json.loads(Path(path).read_text())
+    return read_json(path, CERTIFICATES)
 
 def certify_corpora(c: MapConfig, corpora: list[str], threads: int = 0) -> dict[str, dict]:
     """:func:`ensure_certificates` of each corpus in order, on ``threads`` CPU threads (0: torch's default); top-level
@@ -193,15 +205,18 @@ def write_progress(c: MapConfig, specs: list[RunSpec], started: float) -> dict:
     write_json(Path(c.out) / "progress.json", prog)
     return prog
 
-#: Files ``pack`` takes, as globs relative to the map directory (all small: JSON, markdown, figures); device.json is
-#: where a GPU allocation's map ran (``scripts/gpu_allocation.sh`` writes it there before the map starts).
-PACK_GLOBS = ("map_config.json", "progress.json", "device.json", "results.json", "results.md",
+#: Files ``pack`` takes, as globs relative to the map directory (all small: JSON, markdown, figures). A GPU
+#: allocation (:mod:`.allocation_run`) adds three: device.json (where its map ran), returned.json (the index of the
+#: weights and checkpoints it brings back beside the pack) and a resumed run's resumed.json (from which allocation's
+#: checkpoint, at which step).
+PACK_GLOBS = ("map_config.json", "progress.json", "device.json", "returned.json", "results.json", "results.md",
               "identifiability_map.png", "identifiability_map.pdf", "planning/planning.json",
               "planning/plan_episode.png", "data/*/certificates.json", "data/*/manifest.json",
-              "runs/*/config.json", "runs/*/metrics.jsonl", "runs/*/measure*.json")
+              "runs/*/config.json", "runs/*/metrics.jsonl", "runs/*/measure*.json", "runs/*/resumed.json")
 
-def pack_results(c: MapConfig, dest: str | os.PathLike) -> Path:
-    """Tar+gzip the small result files of ``c.out`` (:data:`PACK_GLOBS`) into ``dest``; returns it."""
+def pack_results(c: MapConfig, dest: str | os.PathLike, quiet: bool = False) -> Path:
+    """Tar+gzip the small result files of ``c.out`` (:data:`PACK_GLOBS`) into ``dest``; returns it. ``quiet``: no
+    line printed (an allocation re-packs after every run and while one trains, and says so itself)."""
     out, dest = Path(c.out), Path(dest)
     dest.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(dest) as tmp, tarfile.open(tmp, "w:gz") as tar:  # no half-written pack under its name
@@ -210,11 +225,25 @@ def pack_results(c: MapConfig, dest: str | os.PathLike) -> Path:
                 tar.add(path, arcname=str(path.relative_to(out)))
     size = dest.stat().st_size
     # the device machine returns files of at most 16 MiB each
-    print(f"[map] packed results into {dest} ({size / 2 ** 20:.2f} MiB)"
-          + (" — over 16 MiB, too large to come back from the device" if size > 16 * 2 ** 20 else ""))
+    if not quiet or size > 16 * 2 ** 20:
+        print(f"[map] packed results into {dest} ({size / 2 ** 20:.2f} MiB)"
+              + (" — over 16 MiB, too large to come back from the device" if size > 16 * 2 ** 20 else ""))
     return dest
 
 
 __all__ = ["experiment_specs", "all_specs", "spec_experiments", "ensure_corpus", "GATED", "with_standard_gate",
            "ensure_certificates", "certify_corpora", "execute", "job_train_config", "train_stacked_jobs", "jobs",
            "write_progress", "PACK_GLOBS", "pack_results"]
+
+
+def plan_line(c: MapConfig) -> str:
+    """What this map will do, said before it starts: corpora, certificates, runs and their steps, workers."""
+    specs = all_specs(c)
+    corpora = sorted({s.corpus for s in specs} | {s.measure_corpus for s in specs} | {"standard"})
+    steps = c.train_steps or train.make_config(c.train_preset or c.preset).steps
+    workers = c.workers or default_workers(len(specs))
+    certs = (f"certificates ({', '.join(c.certify_estimators)}) for {len(corpora)} corpora" if c.certify
+             else "no certificates")
+    return (f"[map] plan: {len(corpora)} corpora ({', '.join(corpora)}; generated or reused) -> {certs} -> "
+            f"{len(specs)} runs x {steps} steps on {workers} worker(s) -> probes -> report; progress every "
+            f"{int(HEARTBEAT_S)} s (--quiet silences it)")

@@ -23,7 +23,6 @@ differ.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -37,7 +36,7 @@ from ..evaluate.measure import untrained_copy
 from ..evaluate.prediction import position_decoder, prediction_quality
 from ..evaluate.probes import fit_predict
 from ..evaluate.state import EpisodeLatents, padded_actions, window_states
-from ..io import write_json
+from ..io import read_json_if_present, write_json
 from ..run_store import trained_store
 from ..rundir import finished_run_config, load_model
 from ..windows import make_windows
@@ -292,7 +291,7 @@ def run(cfg: RealEvalConfig) -> Path:
     out = result_path(run_dir, cfg.data)
     key = {"config": to_dict(cfg), "data_sha256": read_manifest(data).get("content_sha256"),
            "final_mtime": (run_dir / "DONE").stat().st_mtime_ns}
-    if out.exists() and not cfg.overwrite and json.loads(out.read_text()).get("key") == key:
+    if not cfg.overwrite and (read_json_if_present(out, "a real-data evaluation record") or {}).get("key") == key:
         print(f"[real] {out} is up to date; skipping")
         return out
     ds = load(data)

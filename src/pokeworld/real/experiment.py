@@ -21,7 +21,6 @@ re-running skips finished runs and resumes unfinished ones. Results land in ``ou
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -42,7 +41,7 @@ from ..data import (
 )
 from ..errors import ConfigError, DataError
 from ..experiments.launch import LaunchOptions, cores, default_workers, launch
-from ..io import write_json
+from ..io import read_json_if_present, write_json
 from ..models.xjepa import VARIANTS
 from . import evaluate, report
 from .rh20t import stratified_indices
@@ -331,8 +330,8 @@ def collect(c: RealConfig, runs: list[RealRun], stores: dict[str, str]) -> dict:
         evals = {}
         for key in r.evals:
             path = evaluate.result_path(run_dir, stores[key])
-            if path.exists():
-                d = json.loads(path.read_text())
+            d = read_json_if_present(path, "a real-data evaluation record")
+            if d is not None:
                 evals[key] = {k: d[k] for k in ("trained", "untrained") if k in d}
         res["runs"][r.name] = {"experiment": r.experiment, "store": r.store, "variant": r.variant,
                                "scale": r.scale, "steps_factor": r.steps_factor, "evals": evals}

@@ -8,7 +8,10 @@ untrusted file itself. One long-lived child (``python -m pokeworld.real.npy_chil
 after it dies) loads each file with :func:`~pokeworld.real.safe_pickle.load_npy` and sends the result back as JSON
 (:func:`encode`), which the parent turns back into python containers and plain-dtype numpy arrays
 (:func:`decode`) without any pickle. A child killed by a signal, or silent for longer than the timeout (it is then
-killed), makes :func:`load_npy_isolated` raise :class:`UnpicklerDied`, an :class:`UnsafePickleError`.
+killed), makes :func:`load_npy_isolated` raise :class:`UnpicklerDied`, an :class:`UnsafePickleError`. A timeout
+verdict is remembered by the file's content (sha256) for the rest of the process, so the same bytes under any name
+are refused at once instead of costing the timeout again; across runs, the RH20T conversion caches the scene's
+skip like any other ``unsafe_pickle`` verdict.
 
 The reply is bounded: the child refuses to encode more than ``REPLY_BYTES_PER_FILE_BYTE`` times the file's size
 (shared references in a pickle, e.g. a list holding itself twice per level, would otherwise expand exponentially
@@ -19,6 +22,7 @@ from __future__ import annotations
 
 import atexit
 import base64
+import hashlib
 import json
 import math
 import os
@@ -33,7 +37,7 @@ from typing import Any, BinaryIO
 
 import numpy as np
 
-from .regular_files import NotRegularFileError
+from .regular_files import NotRegularFileError, open_regular
 from .safe_pickle import UnsafePickleError
 
 PICKLE_TIMEOUT_S = 120.0
@@ -69,10 +73,27 @@ class _Budget:
             raise NpyReadError("the unpickled object is too large to send back (shared references expanding?)")
 
 
-def encode(obj: Any, budget: _Budget) -> Any:
+def encode(obj: Any, budget: _Budget, seen: dict[int, tuple[Any, Any, int]] | None = None) -> Any:
     """A JSON-able tree for ``obj``: lists stay lists, scalars stay scalars, every other value is a one-key object
     (``d`` dict as key/value pairs, ``t`` tuple, ``s`` set, ``f`` frozenset, ``b`` bytes, ``c`` complex, ``a``
-    plain numpy array, ``o`` object array, ``n`` numpy scalar)."""
+    plain numpy array, ``o`` object array, ``n`` numpy scalar).
+
+    ``seen`` (id -> (object, its tree, what it cost)) encodes each object once: a shared reference reuses the tree
+    and is charged its cost again without walking it, so the budget refuses a pickle whose tree doubles per level
+    after one walk per level instead of after walking the whole budget."""
+    seen = {} if seen is None else seen
+    hit = seen.get(id(obj))
+    if hit is not None:
+        budget.spend(hit[2])
+        return hit[1]
+    before = budget.left
+    tree = _encode_node(obj, budget, seen)
+    if isinstance(tree, (list, dict)):  # containers and blobs; the object is held, so its id is not reused
+        seen[id(obj)] = (obj, tree, before - budget.left)
+    return tree
+
+
+def _encode_node(obj: Any, budget: _Budget, seen: dict) -> Any:
     budget.spend(8)
     if isinstance(obj, np.generic):  # before the python types: np.float64 is a float, np.str_ a str
         if obj.dtype == object:
@@ -85,19 +106,19 @@ def encode(obj: Any, budget: _Budget) -> Any:
         budget.spend(len(obj))
         return obj
     if isinstance(obj, list):
-        return [encode(x, budget) for x in obj]
+        return [encode(x, budget, seen) for x in obj]
     if isinstance(obj, dict):
-        return {"d": [[encode(k, budget), encode(v, budget)] for k, v in obj.items()]}
+        return {"d": [[encode(k, budget, seen), encode(v, budget, seen)] for k, v in obj.items()]}
     for tag, kind in (("t", tuple), ("f", frozenset), ("s", set)):
         if isinstance(obj, kind):
-            return {tag: [encode(x, budget) for x in obj]}
+            return {tag: [encode(x, budget, seen) for x in obj]}
     if isinstance(obj, (bytes, bytearray)):
         budget.spend(len(obj) * 4 // 3)
         return {"b": base64.b64encode(bytes(obj)).decode("ascii")}
     if isinstance(obj, complex):
         return {"c": [obj.real, obj.imag]}
     if isinstance(obj, np.ndarray) and obj.dtype == object:
-        return {"o": [list(obj.shape), [encode(x, budget) for x in obj.reshape(-1)]]}
+        return {"o": [list(obj.shape), [encode(x, budget, seen) for x in obj.reshape(-1)]]}
     if isinstance(obj, np.ndarray):
         budget.spend(obj.nbytes * 4 // 3)
         raw = base64.b64encode(np.ascontiguousarray(obj).tobytes()).decode("ascii")
@@ -189,12 +210,40 @@ def _child_main() -> None:
 # ----------------------------------------------------------------------------------------------- parent
 
 
+def content_digest(path: str | os.PathLike) -> str:
+    """sha256 of a regular file's bytes (read in the parent without unpickling anything)."""
+    digest = hashlib.sha256()
+    with open_regular(path) as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
 class NpyChild:
     """The parent's handle on one child; :meth:`load` is serialised by a lock."""
 
     def __init__(self) -> None:
         self.proc: subprocess.Popen | None = None
         self.lock = threading.Lock()
+        self.timed_out: dict[str, float] = {}
+        """sha256 of a file's content -> the longest timeout [s] it ran past: a load with no longer a timeout is
+        refused at once (a file that takes 100 times what a real one needs is hostile, not slow)."""
+
+    def _cached_timeout(self, path: str, timeout_s: float) -> Exception | None:
+        """The cached timeout verdict for ``path``'s content, or None (no file timed out yet: nothing hashed)."""
+        if not self.timed_out:
+            return None
+        if self.timed_out.get(content_digest(path), -1.0) < timeout_s:
+            return None
+        return UnpicklerTimeout(f"unpickling {path} did not finish within {timeout_s:g} s (a file with the same "
+                                "content ran past it earlier in this run; refused without retrying)")
+
+    def _remember_timeout(self, path: str, timeout_s: float) -> None:
+        try:
+            digest = content_digest(path)
+        except OSError:  # gone or swapped for a special file since: nothing to remember it by
+            return
+        self.timed_out[digest] = max(timeout_s, self.timed_out.get(digest, 0.0))
 
     def _start(self) -> subprocess.Popen:
         src = str(Path(__file__).resolve().parents[2])  # the directory holding the pokeworld package
@@ -227,6 +276,7 @@ class NpyChild:
             rc = proc.wait()
         proc.stdout.close()
         if timed_out:
+            self._remember_timeout(path, timeout_s)
             return UnpicklerTimeout(f"unpickling {path} did not finish within {timeout_s:g} s; the child was killed")
         if rc >= 0:  # not the file's doing: the child could not start or run (a broken installation)
             return RuntimeError(f"the .npy loading child ({sys.executable} -m pokeworld.real.npy_child) exited with "
@@ -254,6 +304,9 @@ class NpyChild:
         timeout_s = PICKLE_TIMEOUT_S if timeout_s is None else timeout_s
         budget = REPLY_BYTES_PER_FILE_BYTE * os.stat(path).st_size + (1 << 20)
         with self.lock:
+            cached = self._cached_timeout(path, timeout_s)
+            if cached is not None:
+                raise cached
             if self.proc is None or self.proc.poll() is not None:
                 self.proc = self._start()
             deadline = time.monotonic() + timeout_s
@@ -304,7 +357,7 @@ def close_child() -> None:
 
 
 __all__ = ["PICKLE_TIMEOUT_S", "UnpicklerDied", "UnpicklerTimeout", "NpyReadError", "NpyChild", "encode", "decode",
-           "load_npy_isolated", "load_npy_item_isolated", "close_child"]
+           "content_digest", "load_npy_isolated", "load_npy_item_isolated", "close_child"]
 
 if __name__ == "__main__":
     _child_main()

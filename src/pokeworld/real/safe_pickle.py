@@ -35,7 +35,10 @@ What is admitted and why (the opcodes for dict, list, tuple, str, bytes, int, fl
 
 from __future__ import annotations
 
+import functools
+import itertools
 import math
+import os
 import pickle
 import re
 from pathlib import Path
@@ -66,6 +69,89 @@ MAX_ITEMSIZE = 1 << 20
 """Largest admitted dtype item size [bytes]: ``U999999`` is 4 MB per element, and a scalar or array of it is
 allocated before its data is checked."""
 
+HASHED_NODES_PER_BYTE = 4
+"""Budget for hashing dict keys and set elements, in tuple-tree nodes per byte of the file (plus
+:data:`HASHED_NODES_BASE`). Python hashes a tuple by walking it as a tree, and the pickle memo lets a tuple hold the
+previous one twice per level: 8 bytes of pickle a level, 2**levels nodes to hash. A legitimate key costs a node or
+a few per reference, each at least two bytes of pickle."""
+HASHED_NODES_BASE = 1 << 20
+MAX_KEY_DEPTH = 100
+"""Deepest tuple nesting admitted in a dict key or set element: Python hashes (and compares) nested tuples by C
+recursion with no depth guard, so a key a million tuples deep crashes the interpreter."""
+
+
+class _Text(str):
+    """A literal piece of :func:`brief`'s output (a bracket or separator), not a value to render."""
+
+
+_BRACKETS = {tuple: ("(", ")"), list: ("[", "]"), dict: ("{", "}"), set: ("{", "}"), frozenset: ("frozenset({", "})")}
+
+
+def _pieces(container: Any, limit: int) -> list[Any]:
+    """The first ``limit`` items of a container, with separators, in output order (a dict's as key: value)."""
+    pieces: list[Any] = []
+    items = container.items() if type(container) is dict else ((x,) for x in container)
+    for i, item in enumerate(itertools.islice(items, limit)):
+        pieces += ([_Text(", ")] if i else []) + [item[0]] + ([_Text(": "), item[1]] if len(item) == 2 else [])
+    return pieces
+
+
+def brief(obj: Any, limit: int = 60) -> str:
+    """At most about ``limit`` characters describing an untrusted value, for error messages.
+
+    ``repr`` walks a tuple as a tree, so the repr of a few hundred bytes of shared-reference tuples is exponential
+    in time and memory; this walk renders each node as it reaches it and stops at ``limit`` characters, so it
+    visits at most ``limit`` nodes whatever the object graph (each node renders as at least one character).
+    """
+    out: list[str] = []
+    size = 0
+    todo: list[Any] = [obj]
+    while todo and size < limit:
+        item = todo.pop()
+        if isinstance(item, _Text):
+            text = str(item)
+        elif type(item) in _BRACKETS:
+            opening, closing = _BRACKETS[type(item)]
+            closing = ",)" if type(item) is tuple and len(item) == 1 else closing
+            todo += [_Text(closing), *reversed(_pieces(item, limit))]
+            text = opening
+        elif isinstance(item, (str, bytes, bytearray)):
+            text = repr(item[:limit])
+        elif type(item) is int:
+            text = str(item) if item.bit_length() < 200 else f"<int of {item.bit_length()} bits>"
+        elif item is None or type(item) in (bool, float, complex):
+            text = repr(item)
+        elif isinstance(item, np.dtype) and _plain_dtype(item):
+            text = f"dtype({item.str!r})"
+        else:  # arrays, forged dtypes, functions: their own repr may walk or read what the file planted
+            text = f"<{type(item).__name__}>"
+        out.append(text)
+        size += len(text)
+    rendered = "".join(out)
+    return rendered[:limit] + "..." if todo or len(rendered) > limit else rendered
+
+
+def hashed_nodes(obj: Any, known: dict[int, tuple[Any, int, int]]) -> tuple[int, int]:
+    """(nodes, depth) of the walk hashing ``obj`` makes (a tuple's hash walks it as a tree, recursing in C), computed
+    once per tuple object: ``known`` maps id -> (tuple, nodes, depth) and holds each tuple, so an id is never reused
+    while it is in there. Linear in the number of distinct tuples, however often the memo references them."""
+    if type(obj) is not tuple:
+        return 1, 1  # str / bytes / numbers hash flat; a frozenset's hash is computed once and cached by Python
+    todo = [obj]
+    while todo:
+        t = todo[-1]
+        if id(t) in known:
+            todo.pop()
+            continue
+        pending = [x for x in t if type(x) is tuple and id(x) not in known]
+        if pending:
+            todo += pending
+            continue
+        todo.pop()
+        inner = [known[id(x)][1:] if type(x) is tuple else (1, 1) for x in t]
+        known[id(t)] = (t, 1 + sum(n for n, _ in inner), 1 + max((d for _, d in inner), default=0))
+    return known[id(obj)][1:]
+
 
 class _NdarrayType:
     """Stands for ``numpy.ndarray`` in an unpickled stream: only valid as :func:`_reconstruct`'s subtype."""
@@ -79,17 +165,17 @@ _NDARRAY = _NdarrayType()
 
 def _reconstruct(subtype: Any, shape: Any, dtype: Any) -> np.ndarray:
     if subtype is not _NDARRAY:
-        raise UnsafePickleError(f"_reconstruct called with subtype {subtype!r}; only numpy.ndarray is admitted")
+        raise UnsafePickleError(f"_reconstruct called with subtype {brief(subtype)}; only numpy.ndarray is admitted")
     # numpy's array_reduce always writes (ndarray, (0,), b'b'): an empty placeholder its BUILD then fills
     if shape != (0,) or dtype not in (b"b", "b"):
         raise UnsafePickleError(f"_reconstruct admitted only as numpy pickles it, with shape (0,) and dtype b'b', "
-                                f"got {shape!r:.60}, {dtype!r:.60}")
+                                f"got {brief(shape)}, {brief(dtype)}")
     return _multiarray._reconstruct(np.ndarray, (0,), b"b")
 
 
 def _dtype(spec: Any, align: Any = False, copy: Any = True) -> np.dtype:
     if not isinstance(spec, str) or not ADMITTED_DTYPE_RE.match(spec):
-        raise UnsafePickleError(f"numpy dtype {spec!r:.60} is not admitted (only bool, int, float, complex, str, "
+        raise UnsafePickleError(f"numpy dtype {brief(spec)} is not admitted (only bool, int, float, complex, str, "
                                 "bytes and object dtypes)")
     dt = np.dtype(spec, align=bool(align), copy=True)  # always a fresh object: its BUILD must not touch numpy's own
     if dt.itemsize > MAX_ITEMSIZE:
@@ -111,7 +197,7 @@ def _plain_dtype(dt: Any) -> bool:
 def _scalar(dtype: Any, data: Any = None) -> Any:
     if not _plain_dtype(dtype) or dtype.hasobject:
         raise UnsafePickleError(f"numpy scalar reconstruction admitted only for plain non-object dtypes, got "
-                                f"{dtype!r:.60}")
+                                f"{brief(dtype)}")
     if not isinstance(data, bytes) or len(data) != dtype.itemsize:
         raise UnsafePickleError(f"numpy scalar of {dtype} needs exactly {dtype.itemsize} bytes of data, got "
                                 f"{type(data).__name__}")
@@ -121,7 +207,7 @@ def _scalar(dtype: Any, data: Any = None) -> Any:
 def _codecs_encode(obj: Any, encoding: Any = "utf-8", errors: Any = "strict") -> bytes:
     if not isinstance(obj, str) or encoding not in ("latin1", "latin-1") or errors != "strict":
         raise UnsafePickleError(f"_codecs.encode is admitted only as protocol 2's bytes encoding (a str, 'latin1'), "
-                                f"got {type(obj).__name__}, {encoding!r}")
+                                f"got {type(obj).__name__}, {brief(encoding)}")
     return obj.encode("latin1")
 
 
@@ -148,8 +234,8 @@ def _check_dtype_state(inst: np.dtype, state: Any) -> None:
     """A dtype's BUILD may only restate numpy's own state for it, or that of its other byte order."""
     variants = [inst] + ([inst.newbyteorder("<"), inst.newbyteorder(">")] if inst.byteorder != "|" else [])
     if not isinstance(state, tuple) or all(state != v.__reduce__()[2] for v in variants):
-        raise UnsafePickleError(f"BUILD state {state!r:.80} would change numpy dtype {inst} (only numpy's own state "
-                                "for a plain dtype is admitted)")
+        raise UnsafePickleError(f"BUILD state {brief(state, 80)} would change numpy dtype {inst} (only numpy's own "
+                                "state for a plain dtype is admitted)")
 
 
 def _check_array_state(inst: np.ndarray, state: Any, plain_dtypes: dict[int, np.dtype]) -> None:
@@ -160,10 +246,10 @@ def _check_array_state(inst: np.ndarray, state: Any, plain_dtypes: dict[int, np.
     if inst.shape != (0,) or inst.dtype != np.int8:
         raise UnsafePickleError("BUILD on a numpy array that is not a fresh _reconstruct placeholder")
     if not isinstance(shape, tuple) or not all(type(n) is int and n >= 0 for n in shape):
-        raise UnsafePickleError(f"numpy array shape {shape!r:.60} is not a tuple of non-negative ints")
+        raise UnsafePickleError(f"numpy array shape {brief(shape)} is not a tuple of non-negative ints")
     if id(dt) not in plain_dtypes:
         if not _plain_dtype(dt):
-            raise UnsafePickleError(f"numpy array dtype {dt!r:.60} is not a plain dtype with numpy's own flags")
+            raise UnsafePickleError(f"numpy array dtype {brief(dt)} is not a plain dtype with numpy's own flags")
         plain_dtypes[id(dt)] = dt
     size = math.prod(shape)
     if dt.hasobject:
@@ -185,18 +271,78 @@ class RestrictedUnpickler(pickle._Unpickler):
 
     def find_class(self, module: str, name: str) -> Any:
         try:
-            return ADMITTED_GLOBALS[(module, name)]
+            found = ADMITTED_GLOBALS[(module, name)]
         except (KeyError, TypeError):
             raise UnsafePickleError(f"pickle references {module}.{name}, which is not admitted") from None
+        if found is set or found is frozenset:  # they hash their elements: charged like a dict's keys
+            return functools.partial(self._hashed_collection, found)
+        return found
 
     def persistent_load(self, pid: Any) -> Any:
-        raise UnsafePickleError(f"pickle uses a persistent id ({pid!r:.60}), which is not admitted")
+        raise UnsafePickleError(f"pickle uses a persistent id ({brief(pid)}), which is not admitted")
 
-    def __init__(self, *args: Any, **kwargs: Any) -> None:
+    def __init__(self, *args: Any, hash_budget: int = HASHED_NODES_BASE, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         self.plain_dtypes: dict[int, np.dtype] = {}
         """id -> dtype already checked by :func:`_plain_dtype` (a pickle reuses one dtype object for many arrays;
         the dtype is held, so its id is not reused, and a later BUILD on it is itself checked)."""
+        self.hash_budget = hash_budget
+        """Tuple-tree nodes left to hash as dict keys and set elements (:data:`HASHED_NODES_PER_BYTE`)."""
+        self.hashed: dict[int, tuple[Any, int, int]] = {}
+        """:func:`hashed_nodes`' memo: each tuple is measured once, however many keys share it."""
+
+    def _charge_hashing(self, keys: Any) -> None:
+        """Refuse, before Python hashes them, keys whose tree walks would exceed what is left of the budget."""
+        for key in keys:
+            nodes, depth = hashed_nodes(key, self.hashed)
+            if depth > MAX_KEY_DEPTH:
+                raise UnsafePickleError(f"a dict key / set element nests tuples {depth} deep (more than "
+                                        f"{MAX_KEY_DEPTH}); hashing it would overflow the C stack")
+            self.hash_budget -= nodes
+            if self.hash_budget < 0:
+                raise UnsafePickleError(f"dict keys / set elements such as {brief(key)} expand (through shared "
+                                        "references) to more tuple nodes than the file could hold; hashing them "
+                                        "would take exponential time")
+
+    def _hashed_collection(self, kind: type, items: Any = ()) -> Any:
+        items = list(items)  # whatever the file made it (a list, a tuple, an object array...), each element hashed
+        self._charge_hashing(items)
+        return kind(items)
+
+    def _dict_target(self) -> dict:
+        target = self.stack[-1]
+        if type(target) is not dict:  # numpy's and python's pickles set items only on dicts
+            raise UnsafePickleError(f"SETITEM(S) on {type(target).__name__} is not admitted (only on a dict)")
+        return target
+
+    def load_dict(self) -> None:
+        items = self.pop_mark()
+        self._charge_hashing(items[0::2])
+        self.append({items[i]: items[i + 1] for i in range(0, len(items), 2)})
+
+    def load_setitem(self) -> None:
+        value, key = self.stack.pop(), self.stack.pop()
+        self._charge_hashing((key,))
+        self._dict_target()[key] = value
+
+    def load_setitems(self) -> None:
+        items = self.pop_mark()
+        target = self._dict_target()
+        self._charge_hashing(items[0::2])
+        for i in range(0, len(items), 2):
+            target[items[i]] = items[i + 1]
+
+    def load_additems(self) -> None:
+        items = self.pop_mark()
+        if type(self.stack[-1]) is not set:
+            raise UnsafePickleError(f"ADDITEMS on {type(self.stack[-1]).__name__} is not admitted (only on a set)")
+        self._charge_hashing(items)
+        self.stack[-1].update(items)
+
+    def load_frozenset(self) -> None:
+        items = self.pop_mark()
+        self._charge_hashing(items)
+        self.append(frozenset(items))
 
     def load_build(self) -> None:
         state = self.stack.pop()
@@ -209,7 +355,9 @@ class RestrictedUnpickler(pickle._Unpickler):
             raise UnsafePickleError(f"BUILD (__setstate__) on {type(inst).__name__} is not admitted")
         inst.__setstate__(state)
 
-    dispatch = {**pickle._Unpickler.dispatch, pickle.BUILD[0]: load_build}
+    dispatch = {**pickle._Unpickler.dispatch, pickle.BUILD[0]: load_build, pickle.DICT[0]: load_dict,
+                pickle.SETITEM[0]: load_setitem, pickle.SETITEMS[0]: load_setitems, pickle.ADDITEMS[0]: load_additems,
+                pickle.FROZENSET[0]: load_frozenset}
 
 
 def _read_header(fp: BinaryIO) -> tuple[tuple[int, ...], bool, np.dtype]:
@@ -237,7 +385,8 @@ def load_npy(path: str | Path) -> np.ndarray:
             fp.seek(0)
             return np.load(fp, allow_pickle=False)
         # numpy.lib.format.write_array pickles the whole object array (the outer wrapper included)
-        arr = RestrictedUnpickler(fp, fix_imports=True, encoding="ASCII").load()
+        budget = HASHED_NODES_PER_BYTE * os.fstat(fp.fileno()).st_size + HASHED_NODES_BASE
+        arr = RestrictedUnpickler(fp, fix_imports=True, encoding="ASCII", hash_budget=budget).load()
     if not isinstance(arr, np.ndarray) or arr.dtype != dtype or arr.shape != tuple(shape):
         raise ValueError(f"{path}: pickle holds {type(arr).__name__} "
                          f"{getattr(arr, 'dtype', '')}{getattr(arr, 'shape', '')}, header says {dtype}{shape}")
@@ -252,4 +401,5 @@ def load_npy_item(path: str | Path) -> Any:
 
 
 __all__ = ["UnsafePickleError", "RestrictedUnpickler", "ADMITTED_GLOBALS", "ADMITTED_DTYPE_RE", "MAX_ITEMSIZE",
-           "load_npy", "load_npy_item"]
+           "HASHED_NODES_PER_BYTE", "HASHED_NODES_BASE", "MAX_KEY_DEPTH", "brief", "hashed_nodes", "load_npy",
+           "load_npy_item"]

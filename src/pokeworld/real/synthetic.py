@@ -46,8 +46,8 @@ from tqdm.auto import tqdm
 from .. import __version__
 from ..config import from_preset, to_dict
 from ..data import load
-from ..errors import ConfigError
-from ..io import OwnedDir, atomic_path, check_owned_dir, remove_owned_dir, write_json
+from ..errors import ConfigError, DataError
+from ..io import OwnedDir, atomic_path, check_owned_dir, read_json, read_json_if_present, remove_owned_dir, write_json
 from ..sim.core import PARAM_NAMES, ParamRanges, PhysicsConfig, PokeWorldSim
 from ..sim.physics import render_kernel
 from ..sim.policy import MixedPolicy, PolicyConfig
@@ -369,14 +369,16 @@ def base_to_camera(cal: dict, serial: str, cfg_num: int) -> np.ndarray:
 
 
 def write_calib(cfg_dir: Path, cal: dict) -> None:
-    c = cfg_dir / "calib" / str(CALIB_MS)
-    c.mkdir(parents=True, exist_ok=True)
-    save_dict(c / "extrinsics.npy", cal["extrinsics"])
-    save_dict(c / "intrinsics.npy", {s: np.eye(3, 4) for s in cal["extrinsics"]})
-    np.save(c / "tcp.npy", cal["tcp"])
-    e = cfg_dir / "calib" / str(EMPTY_CALIB_MS)  # intrinsics only: the camera-frame F/T fallback cannot work
-    e.mkdir(parents=True, exist_ok=True)
-    save_dict(e / "intrinsics.npy", {s: np.eye(3, 4) for s in cal["extrinsics"]})
+    """The ``calib/`` folder, written in a private temporary and renamed in (an earlier one of ours replaced)."""
+    with atomic_path(cfg_dir / "calib", replace=SYNTHETIC_CALIB) as calib:
+        c = calib / str(CALIB_MS)
+        c.mkdir(parents=True)
+        save_dict(c / "extrinsics.npy", cal["extrinsics"])
+        save_dict(c / "intrinsics.npy", {s: np.eye(3, 4) for s in cal["extrinsics"]})
+        np.save(c / "tcp.npy", cal["tcp"])
+        e = calib / str(EMPTY_CALIB_MS)  # intrinsics only: the camera-frame F/T fallback cannot work
+        e.mkdir()
+        save_dict(e / "intrinsics.npy", {s: np.eye(3, 4) for s in cal["extrinsics"]})
 
 
 # --------------------------------------------------------------------------------- one scene
@@ -605,8 +607,9 @@ SYNTHETIC_SCENE = OwnedDir(
           (r"cam_\w+", OwnedDir(files=(r"timestamps\.npy", r"color\.mp4"),
                                 dirs=((r"color", OwnedDir(files=(r"\d+\.jpg",))),)))))
 """What :func:`write_scene` writes in a scene folder: metadata, the transformed streams and one folder a camera."""
-SYNTHETIC_CFG_DIR = OwnedDir(files=(), dirs=((r"calib", OwnedDir(files=(), dirs=((r"\d+", OwnedDir(
-    files=(r"(extrinsics|intrinsics|tcp)\.npy",))),))), (r"task_\w+", SYNTHETIC_SCENE)))
+SYNTHETIC_CALIB = OwnedDir(files=(), dirs=((r"\d+", OwnedDir(files=(r"(extrinsics|intrinsics|tcp)\.npy",))),))
+"""A synthetic corpus's ``calib`` folder: one folder a calibration time, its matrices."""
+SYNTHETIC_CFG_DIR = OwnedDir(files=(), dirs=((r"calib", SYNTHETIC_CALIB), (r"task_\w+", SYNTHETIC_SCENE)))
 """A synthetic corpus's ``RH20T_cfg<N>`` folder: its calibration folders and its scene folders."""
 SYNTHETIC_TRUTH = OwnedDir(files=(r"manifest\.json", r"task_\w+\.npz"))
 """A synthetic corpus's ``truth`` folder: the manifest and one ground-truth file a scene."""
@@ -616,16 +619,13 @@ def write_scene(cfg_dir: Path, truth_dir: Path, plan: ScenePlan, cfg: SynthConfi
     """Simulate and write one scene folder and its truth file; returns the scene's manifest row."""
     sc = _draw_scene(plan, cfg)
     files, samples, dropped = _record_streams(sc, plan, cfg, cal)
-    d = cfg_dir / sc.name
-    if d.exists() or d.is_symlink():  # an earlier write of this scene: replace only what it holds of ours
-        if d.is_symlink() or not d.is_dir():
-            raise ConfigError(f"{d} is not a scene folder pokeworld wrote; move it away or choose another root")
-        check_owned_dir(d, SYNTHETIC_SCENE)
-        remove_owned_dir(d, SYNTHETIC_SCENE)
-    (d / "transformed").mkdir(parents=True)
-    video = _write_cameras(d, sc, plan, cfg)
-    _write_streams(d, plan, files)
-    meta = _write_metadata(d, sc, plan)
+    # written in a private temporary folder and renamed in: an earlier write of this scene is replaced only if it
+    # holds nothing but what we write (SYNTHETIC_SCENE), and no link planted in the scene folder is followed
+    with atomic_path(cfg_dir / sc.name, replace=SYNTHETIC_SCENE) as d:
+        (d / "transformed").mkdir(parents=True)
+        video = _write_cameras(d, sc, plan, cfg)
+        _write_streams(d, plan, files)
+        meta = _write_metadata(d, sc, plan)
     truth = _scene_truth(sc, cfg, samples)
     with atomic_path(truth_dir / f"{sc.name}.npz") as tmp, open(tmp, "wb") as fh:
         np.savez(fh, **truth)
@@ -643,28 +643,53 @@ def write_scene(cfg_dir: Path, truth_dir: Path, plan: ScenePlan, cfg: SynthConfi
 # ------------------------------------------------------------------------------------- run
 
 
+def _holds_this_corpus(root: Path, cfg: SynthConfig) -> bool:
+    """Whether ``root`` already holds the corpus ``cfg`` asks for (so there is nothing to write)."""
+    if cfg.overwrite:
+        return False
+    try:
+        old = read_json_if_present(root / "truth" / "manifest.json", "a synthetic corpus's truth manifest")
+    except DataError:
+        return False
+    return old is not None and old.get("config") == content_config(cfg)
+
+
+SYNTHETIC_ROOT = OwnedDir(files=(), dirs=((r"RH20T_cfg\d+", SYNTHETIC_CFG_DIR), (r"truth", SYNTHETIC_TRUTH)))
+"""A synthetic corpus's root: its ``RH20T_cfg<N>`` folders and ``truth``, nothing else."""
+
+
+def _check_root(root: Path, cfg: SynthConfig) -> None:
+    """Refuse, before anything is simulated, a root this run may not write into: a real RH20T folder (or anything
+    but an empty folder or a synthetic corpus of ours, recognised by its truth manifest), and without
+    ``--overwrite`` any corpus of ours with other settings. Scene names collide with real ones, so writing into a
+    real folder would overwrite real scenes' files."""
+    if root.is_symlink() or (root.exists() and not root.is_dir()):
+        raise ConfigError(f"{root} is not a folder; choose a new folder as --root")
+    if not root.exists() or not any(root.iterdir()):
+        return
+    try:
+        man = read_json_if_present(root / "truth" / "manifest.json", "a synthetic corpus's truth manifest")
+    except DataError:
+        man = None
+    if not (isinstance(man, dict) and man.get("generator") == "pokeworld.real.synthetic"):
+        raise ConfigError(f"{root} is not empty and holds no synthetic corpus of pokeworld's (no valid "
+                          "truth/manifest.json): it may be a real RH20T folder, whose scenes share these names; choose "
+                          "a new folder as --root (--overwrite replaces only a synthetic corpus pokeworld wrote)")
+    check_owned_dir(root, SYNTHETIC_ROOT)
+    if not cfg.overwrite:
+        raise ConfigError(f"{root} holds a different synthetic corpus (other settings); pass --overwrite to replace it (only "
+                          "its own files are removed) or choose another --root")
+
+
 def run(cfg: SynthConfig) -> Path:
     """Write the corpus and ``ROOT/truth/``; a root that already holds this config is kept (unless overwrite)."""
     root = Path(cfg.root)
-    man_path = root / "truth" / "manifest.json"
-    if man_path.exists() and not cfg.overwrite:
-        try:
-            old = json.loads(man_path.read_text())
-            if old.get("config") == content_config(cfg):
-                print(f"[rh20t-synth] {root} already holds this corpus; skipping")
-                return root
-        except json.JSONDecodeError:
-            pass
-        if any(root.iterdir()):
-            raise ConfigError(f"{root} holds a different synthetic corpus; pass --overwrite or another root")
-    if cfg.overwrite and root.exists():  # a synthetic corpus of ours only: a real RH20T folder is refused, not deleted
-        owned = ((root / f"RH20T_cfg{cfg.cfg}", SYNTHETIC_CFG_DIR), (root / "truth", SYNTHETIC_TRUTH))
-        for sub, spec in owned:
-            if sub.exists() or sub.is_symlink():
-                if sub.is_symlink() or not sub.is_dir():
-                    raise ConfigError(f"{sub} is not a folder pokeworld wrote; move it away or choose another root")
-                check_owned_dir(sub, spec)
-        for sub, spec in owned:
+    if _holds_this_corpus(root, cfg):
+        print(f"[rh20t-synth] {root} already holds this corpus; skipping")
+        return root
+    _check_root(root, cfg)
+    if cfg.overwrite:  # a synthetic corpus of ours only (checked above): a real RH20T folder is refused, not deleted
+        for sub, spec in ((root / f"RH20T_cfg{cfg.cfg}", SYNTHETIC_CFG_DIR), (root / "truth", SYNTHETIC_TRUTH)):
             if sub.exists():
                 remove_owned_dir(sub, spec)
     cfg_dir, truth_dir = root / f"RH20T_cfg{cfg.cfg}", root / "truth"
@@ -708,7 +733,7 @@ def run(cfg: SynthConfig) -> Path:
         "expected_ft_source_counts": _count(r["ft_source"] for r in rows if r["expected"] == "converted"),
         "seconds": round(time.perf_counter() - t_start, 2),
     }
-    write_json(man_path, manifest)
+    write_json(truth_dir / "manifest.json", manifest)
     print(f"[rh20t-synth] wrote {len(rows)} scenes ({manifest['expected_converted']} convertible, skips expected "
           f"{manifest['expected_skip_counts']}) to {cfg_dir} and truth to {truth_dir} in {manifest['seconds']} s")
     return root
@@ -749,8 +774,8 @@ def check_conversion(store: str | Path, root: str | Path) -> dict:
     the recorded samples after the drop rules: float precision when the converter is right) and sampling loss
     (against the noise-free simulator signal), plus whether the skip / F/T-source counts are the planted ones."""
     ds = load(store)
-    man = json.loads((Path(root) / "truth" / "manifest.json").read_text())
-    rep = json.loads((Path(store) / "conversion_report.json").read_text())
+    man = read_json(Path(root) / "truth" / "manifest.json", "a synthetic corpus's truth manifest", max_bytes=64 << 20)
+    rep = read_json(Path(store) / "conversion_report.json", "a conversion report", max_bytes=64 << 20)
     err = {"force_n": 0.0, "torque_nm": 0.0, "tcp_pos_m": 0.0}
     f_true, f_conv, c_true, c_conv, pos_err = [], [], [], [], []
     for e, _, tr, sl in store_chunks(ds, root):

@@ -1,7 +1,7 @@
 """PokeWorld: the 2D poking environment with hidden mass, drag and contact stiffness."""
 
-from .core import PARAM_NAMES, ParamRanges, PhysicsConfig, PokeWorldSim
 from . import contact
+from .core import PARAM_NAMES, ParamRanges, PhysicsConfig, PokeWorldSim
 from .envs import PokeWorldEnv, PokeWorldVectorEnv, register
 from .policy import MixedPolicy, PolicyConfig
 

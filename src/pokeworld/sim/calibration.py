@@ -5,13 +5,12 @@ The search of ``scripts/calibrate_env.py`` and the impact scan of ``scripts/scan
 
 from __future__ import annotations
 
-import json
 import time
-from pathlib import Path
 
 import numpy as np
 
 from .. import certify
+from ..io import read_json
 from .generate import make_config, simulate
 from .stats import PAPER_STATS, paper_range
 
@@ -112,7 +111,7 @@ def calibrate(samples: int, refine: int, episodes: int, seed: int, start: str = 
     for _ in range(samples):
         record(draw(rng), "random")
     if start:
-        prev = json.loads(Path(start).read_text())["best"]["point"]
+        prev = read_json(start, "a calibration record")["best"]["point"]
         prev["policy"].setdefault("glide_fraction", 0.0)
         record(prev, "start")
     best = min(rows[1:], key=lambda r: r["loss"])

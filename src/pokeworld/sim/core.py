@@ -8,6 +8,7 @@ from typing import Mapping
 
 import numpy as np
 
+from ..config import FRACTION, Limit, check_fields, positive
 from ..errors import ConfigError
 from . import physics
 
@@ -57,21 +58,20 @@ class PhysicsConfig:
     frame_averaged_touch: bool = False
     """Ablation: replace sub-step statistics by frame averages (peak -> |mean|, end -> mean, fraction -> flag)."""
 
+    # far above the paper's constants, far below what makes one control step cost minutes (substeps) or a frame
+    # a megabyte (image_size: a store's frames are E x T x image_size² bytes, built in memory)
+    LIMITS = {"dt": positive(1.0), "substeps": Limit(1, 1000), "force_max": positive(1e4), "finger_mass": positive(1e4),
+              "finger_damping": Limit(0, 1e4), "finger_radius": positive(1e3), "object_radius": positive(1e3),
+              "contact_zeta": FRACTION, "wall_omega": positive(1e5), "wall_zeta": Limit(0, 1e3),
+              "arena": positive(1e3), "image_size": Limit(8, 1024), "object_intensity": Limit(0, 255),
+              "finger_intensity": Limit(0, 255), "touch_noise": Limit(0, 1e3)}
+
     def __post_init__(self) -> None:
-        positive = ("dt", "force_max", "finger_mass", "finger_radius", "object_radius", "wall_omega", "arena")
-        for name in positive:
-            if not getattr(self, name) > 0:
-                raise ConfigError(f"PhysicsConfig.{name} must be > 0, got {getattr(self, name)}")
-        if self.substeps < 1:
-            raise ConfigError(f"PhysicsConfig.substeps must be >= 1, got {self.substeps}")
-        if not 0 <= self.contact_zeta < 1:
+        check_fields(self)
+        if not self.contact_zeta < 1:
             raise ConfigError(f"contact_zeta must be in [0, 1) (underdamped), got {self.contact_zeta}")
         if self.contact_damping not in physics.DAMPING_LAWS:
             raise ConfigError(f"contact_damping must be one of {physics.DAMPING_LAWS}, got {self.contact_damping!r}")
-        if self.finger_damping < 0 or self.touch_noise < 0:
-            raise ConfigError("finger_damping and touch_noise must be >= 0")
-        if self.image_size < 8:
-            raise ConfigError(f"image_size must be >= 8, got {self.image_size}")
         if 2 * (self.finger_radius + self.object_radius) >= self.arena:
             raise ConfigError("finger and object do not fit in the arena")
 
@@ -107,13 +107,15 @@ class ParamRanges:
     gain: tuple[float, float] = (1.0, 1.0)
     """Actuation gain g ~ U(lo, hi) multiplying the commanded force ((1, 1) disables it)."""
 
+    LIMITS = {"mass": positive(1e6), "gamma": positive(1e4), "stiffness": positive(1e8), "bias": Limit(0, 1e3),
+              "gain": positive(1e3)}
+
     def __post_init__(self) -> None:
+        check_fields(self)
         for name in ("mass", "gamma", "stiffness", "gain"):
             lo, hi = getattr(self, name)
-            if not (lo > 0 and hi >= lo):
+            if not hi >= lo:
                 raise ConfigError(f"ParamRanges.{name} must satisfy 0 < lo <= hi, got {(lo, hi)}")
-        if self.bias < 0:
-            raise ConfigError(f"ParamRanges.bias must be >= 0, got {self.bias}")
 
     def sample(self, rng: np.random.Generator, n: int) -> np.ndarray:
         p = np.empty((n, len(PARAM_NAMES)))

@@ -2,123 +2,28 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 from tqdm.auto import tqdm
 
 from .. import __version__
-from ..config import apply_overrides, from_dict, from_preset, to_dict
 from ..data import Dataset, assign_splits, check_store_destination, save, store_is_current, store_lock
-from ..errors import ConfigError
 from ..io import check_writable_dir
-from .core import PARAM_NAMES, ParamRanges, PhysicsConfig, PokeWorldSim
-from .policy import MixedPolicy, PolicyConfig
+from .core import PARAM_NAMES, PokeWorldSim
+from .generate_config import (  # the settings live there (the store reader checks manifests with them)
+    CORPORA,
+    LEGACY_PHYSICS,
+    PRESETS,
+    GenerateConfig,
+    content_config,
+    generator_config,
+    make_config,
+    resolved,
+    store_bytes,
+)
+from .policy import MixedPolicy
 from .stats import CONTEXT, HORIZON, corpus_stats
-
-
-@dataclass
-class GenerateConfig:
-    """Generate a PokeWorld corpus."""
-
-    out: str = "data/pokeworld"
-    """Output directory (written atomically; an existing complete store is kept unless --overwrite). A folder
-    holding anything but a pokeworld store is refused, never emptied; ``.<name>.lock`` beside it marks a writer."""
-    seed: int = 0
-    """Master seed: the same seed and config give byte-identical arrays."""
-    num_episodes: int = 2400
-    """Number of episodes."""
-    episode_steps: int = 64
-    """Control steps per episode (frames are one more)."""
-    split_fractions: tuple[float, float, float] = (0.6, 0.2, 0.2)
-    """Fractions of episodes in train / probe-fit / probe-test (disjoint)."""
-    corpus: str = "standard"
-    """Named corpus variant applied on top (see CORPORA): standard, contact_poor, frame_averaged, bias0.5, bias1.5,
-    bias2.5, gain, open_loop."""
-    batch_envs: int = 1024
-    """Episodes simulated simultaneously."""
-    overwrite: bool = False
-    """Regenerate even if a complete store exists at ``out``. Replaces only a folder pokeworld verifies as its own
-    store of this kind (only files pokeworld writes in a store: data.h5, manifest.json, certificates; the manifest
-    readable and of kind "pokeworld"); any other folder is refused, never deleted."""
-    physics: PhysicsConfig = field(default_factory=PhysicsConfig)
-    """Arena constants."""
-    ranges: ParamRanges = field(default_factory=ParamRanges)
-    """Hidden-parameter distributions."""
-    policy: PolicyConfig = field(default_factory=PolicyConfig)
-    """Behaviour-policy knobs."""
-
-    def __post_init__(self) -> None:
-        if self.num_episodes < 3:
-            raise ConfigError(f"num_episodes must be >= 3 (one per split), got {self.num_episodes}")
-        if self.episode_steps < 2:
-            raise ConfigError(f"episode_steps must be >= 2, got {self.episode_steps}")
-        if self.batch_envs < 1:
-            raise ConfigError(f"batch_envs must be >= 1, got {self.batch_envs}")
-        if self.corpus not in CORPORA:
-            raise ConfigError(f"unknown corpus {self.corpus!r}; choose one of {sorted(CORPORA)}")
-
-
-# Named corpora of the paper: each is a set of overrides of the standard generator.
-CORPORA: dict[str, dict] = {
-    "standard": {},
-    "contact_poor": {"policy": {"glide_fraction": 0.95}},
-    "frame_averaged": {"physics": {"frame_averaged_touch": True}},
-    "bias0.5": {"ranges": {"bias": 0.5}},
-    "bias1.5": {"ranges": {"bias": 1.5}},
-    "bias2.5": {"ranges": {"bias": 2.5}},
-    "gain": {"ranges": {"gain": (0.85, 1.15)}},
-    # the standard corpus with a fifth of its program slots running the planner's own two-knot programs open-loop
-    # (docs/design.md, "Planning: open-loop behaviour data and the rank test")
-    "open_loop": {"policy": {"open_loop_share": 0.2}},
-}
-
-PRESETS: dict[str, dict] = {
-    "tiny": {"num_episodes": 48, "batch_envs": 48},
-    "cpu": {"num_episodes": 2400},
-    "paper": {"num_episodes": 8000},
-}
-
-
-def make_config(preset: str = "cpu", **overrides) -> GenerateConfig:
-    return from_preset(GenerateConfig, PRESETS, preset, **overrides)
-
-
-def resolved(cfg: GenerateConfig) -> GenerateConfig:
-    """``cfg`` with its named corpus overrides applied."""
-    return apply_overrides(cfg, CORPORA[cfg.corpus])
-
-
-def content_config(cfg: GenerateConfig) -> dict:
-    """The resolved config minus fields that do not affect the arrays (output path, overwrite).
-
-    Without open-loop slots (``policy.open_loop_share`` 0) both open-loop fields are left out too: nothing is
-    drawn for them, so the arrays are those of the generator before the fields existed, and stores written then
-    must stay current rather than be refused as built from another config.
-    """
-    d = to_dict(resolved(cfg))
-    for k in ("out", "overwrite"):
-        d.pop(k)
-    if d["policy"]["open_loop_share"] == 0:
-        for k in ("open_loop_share", "open_loop_aim"):
-            del d["policy"][k]
-    if d["physics"]["contact_damping"] == LEGACY_PHYSICS["contact_damping"]:
-        del d["physics"]["contact_damping"]  # the law every store had before the field existed: they stay current
-    return d
-
-
-LEGACY_PHYSICS = {"contact_damping": "tangent"}
-"""Physics fields a store's manifest may lack, with the value every store written before the field existed had."""
-
-
-def generator_config(manifest: dict) -> GenerateConfig:
-    """The generator config a store of ``pokeworld generate`` was made with, from its manifest: a field the
-    manifest lacks takes the value stores had before the field existed (:data:`LEGACY_PHYSICS`, the open-loop
-    share 0), never today's default, so an old store is re-made, extended or simulated as what it is."""
-    config = dict(manifest.get("config", {}))
-    config["physics"] = {**LEGACY_PHYSICS, **config.get("physics", {})}
-    return from_dict(GenerateConfig, config)
 
 
 def simulate(cfg: GenerateConfig, progress: bool = True, render: bool = True) -> Dataset:
@@ -200,4 +105,5 @@ def episode_contact_fraction(ds: Dataset) -> float:
     return float((ds.labels["contact"].max(axis=1) > 0).mean())
 
 
-__all__ = ["GenerateConfig", "CORPORA", "PRESETS", "make_config", "simulate", "run"]
+__all__ = ["GenerateConfig", "CORPORA", "PRESETS", "LEGACY_PHYSICS", "make_config", "resolved", "content_config",
+           "generator_config", "store_bytes", "simulate", "run"]

@@ -7,8 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..config import from_preset
+from ..config import SEED, Limit, check_fields, from_preset
 from ..errors import ConfigError
+from ..io import atomic_path, check_outputs, save_figure
 from .core import PhysicsConfig, PokeWorldSim
 
 PAIRS = {  # parameter -> (low value, high value, base params, finger start, object start, action program)
@@ -31,6 +32,11 @@ class PairsConfig:
     """Seed of the touch noise (trajectories are noise-free)."""
     contact_damping: str = PhysicsConfig.contact_damping
     """The contact-damping law (PhysicsConfig.contact_damping): "tangent" (the default) or "constant"."""
+
+    LIMITS = {"steps": Limit(1, 10**4), "seed": SEED}
+
+    def __post_init__(self) -> None:
+        check_fields(self)
 
 
 PRESETS = {"tiny": {"steps": 12}, "cpu": {}, "paper": {}}
@@ -75,6 +81,30 @@ def final_gap(pair: dict) -> float:
     return float(np.linalg.norm(pair["object"][0, -1] - pair["object"][1, -1]))
 
 
+def _draw_pair(ax, pr: dict, plt) -> None:
+    """One panel: both episodes' object paths (solid / dashed, end position circled), the finger's paths (dotted) and
+    the shared start positions, with axis labels and a legend that names every mark."""
+    for k, (style, alpha) in enumerate((("-", 1.0), ("--", 0.8))):
+        ob, fi = pr["object"][k], pr["finger"][k]
+        ax.plot(ob[:, 0], ob[:, 1], style, color=f"C{k}", alpha=alpha,
+                label=f"object path, {pr['param']} = {pr['values'][k]:g}")
+        ax.plot(fi[:, 0], fi[:, 1], ":", color="goldenrod", alpha=0.6, label="finger path" if k == 0 else None)
+        ax.add_patch(plt.Circle(ob[-1], 0.09, fill=False, color=f"C{k}", label=f"object at the end, {pr['param']} = "
+                                f"{pr['values'][k]:g}"))
+    ax.add_patch(plt.Circle(pr["object"][0, 0], 0.09, color="tab:blue", alpha=0.4, label="object at start"))
+    ax.add_patch(plt.Circle(pr["finger"][0, 0], 0.06, color="gold", alpha=0.6, label="finger at start"))
+    same0 = np.array_equal(pr["frames"][0, 0], pr["frames"][1, 0])
+    peak = pr["touch"][:, :, 2].max(1)
+    ax.set_title(f"{pr['param']}: first frames {'identical' if same0 else 'DIFFER'}\npeak touch {peak[0]:.2f} vs "
+                 f"{peak[1]:.2f} (× max finger force)\nfinal object gap {final_gap(pr):.3f} arena units", fontsize=8)
+    ax.set_xlim(0, 1)
+    ax.set_ylim(0, 1)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (arena units)")
+    ax.set_ylabel("y (arena units)")
+    ax.legend(fontsize=7, loc="upper left")
+
+
 def run(cfg: PairsConfig) -> Path:
     import matplotlib
 
@@ -82,36 +112,16 @@ def run(cfg: PairsConfig) -> Path:
     import matplotlib.pyplot as plt
 
     out = Path(cfg.out)
-    out.mkdir(parents=True, exist_ok=True)
+    check_outputs(out, "pairs.png", "pairs.pdf", "pairs.npz")  # a user's file of those names is refused first
     pairs = [rollout_pair(p, cfg.steps, cfg.seed, cfg.contact_damping) for p in PAIRS]
-    fig, axes = plt.subplots(1, 3, figsize=(12, 4.2))
+    fig, axes = plt.subplots(1, 3, figsize=(12, 4.8))
     for ax, pr in zip(axes, pairs):
-        for k, (style, alpha) in enumerate((("-", 1.0), ("--", 0.8))):
-            ob, fi = pr["object"][k], pr["finger"][k]
-            ax.plot(ob[:, 0], ob[:, 1], style, color=f"C{k}", alpha=alpha,
-                    label=f"{pr['param']} = {pr['values'][k]:g}")
-            ax.plot(fi[:, 0], fi[:, 1], ":", color="goldenrod", alpha=0.6)
-            ax.add_patch(plt.Circle(ob[-1], 0.09, fill=False, color=f"C{k}"))
-        ax.add_patch(plt.Circle(pr["object"][0, 0], 0.09, color="tab:blue", alpha=0.4))
-        ax.add_patch(plt.Circle(pr["finger"][0, 0], 0.06, color="gold", alpha=0.6))
-        same0 = np.array_equal(pr["frames"][0, 0], pr["frames"][1, 0])
-        peak = pr["touch"][:, :, 2].max(1)
-        gap = final_gap(pr)
-        ax.set_title(f"{pr['param']}: frame 0 identical={same0}\npeak touch {peak[0]:.2f} vs {peak[1]:.2f} F_max; "
-                     f"final object gap {gap:.3f}", fontsize=9)
-        ax.set_xlim(0, 1)
-        ax.set_ylim(0, 1)
-        ax.set_aspect("equal")
-        ax.legend(fontsize=8, loc="upper left")
+        _draw_pair(ax, pr, plt)
     fig.suptitle("Matched pairs: identical start frame and actions, one hidden parameter differs "
                  f"({cfg.contact_damping} contact damping)")
     fig.tight_layout()
-    for ext in ("png", "pdf"):
-        tmp = out / f".pairs.tmp.{ext}"
-        fig.savefig(tmp, dpi=130)
-        tmp.replace(out / f"pairs.{ext}")
-    plt.close(fig)
-    np.savez_compressed(out / "pairs.npz", **{f"{p['param']}_{k}": p[k] for p in pairs
-                                              for k in ("object", "finger", "touch")})
-    print(f"[pairs] wrote {out / 'pairs.png'}")
+    save_figure(fig, out, "pairs", dpi=130)
+    with atomic_path(out / "pairs.npz") as tmp, open(tmp, "wb") as fh:
+        np.savez_compressed(fh, **{f"{p['param']}_{k}": p[k] for p in pairs for k in ("object", "finger", "touch")})
+    print(f"[pairs] wrote {out / 'pairs.png'}, pairs.pdf and pairs.npz")
     return out

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..config import FRACTION, Limit, check_fields
 from ..errors import ConfigError
 
 PURSUIT, STRIKE, DRIFT, AVOID = 0, 1, 2, 3
@@ -84,18 +85,18 @@ class PolicyConfig:
     (spread KNOT_SD per coordinate around it); 0 gives exactly the planner's first CEM proposal, N(0, KNOT_SD²).
     Aimed programs still miss often, and keep ``static16`` in band at a share of 0.2 where unaimed ones do not."""
 
+    LIMITS = {"mode_weights": Limit(0, 1e6), "switch_prob": FRACTION, "pursuit_gain": Limit(0, 100),
+              "strike_gain": Limit(0, 100), "retreat_steps": Limit(1, 10**4), "ou_theta": Limit(0, 1e4),
+              "ou_sigma": Limit(0, 1e4), "action_noise": Limit(0, 1e3), "launch_fraction": FRACTION,
+              "launch_speed": Limit(0, 1e3), "glide_fraction": FRACTION, "open_loop_share": FRACTION,
+              "open_loop_aim": FRACTION}  # the aim is an action magnitude
+
     def __post_init__(self) -> None:
-        if len(self.mode_weights) != 3 or min(self.mode_weights) < 0 or sum(self.mode_weights) <= 0:
-            raise ConfigError(f"mode_weights must be three non-negative numbers, got {self.mode_weights}")
-        for name in ("switch_prob", "launch_fraction", "glide_fraction", "open_loop_share"):
-            v = getattr(self, name)
-            if not 0 <= v <= 1:
-                raise ConfigError(f"PolicyConfig.{name} must be in [0, 1], got {v}")
-        if self.retreat_steps[0] < 1 or self.retreat_steps[1] < self.retreat_steps[0]:
+        check_fields(self)
+        if sum(self.mode_weights) <= 0:
+            raise ConfigError(f"mode_weights must be three non-negative numbers, not all 0, got {self.mode_weights}")
+        if self.retreat_steps[1] < self.retreat_steps[0]:
             raise ConfigError(f"retreat_steps must be 1 <= lo <= hi, got {self.retreat_steps}")
-        if not 0 <= self.open_loop_aim <= 1:
-            raise ConfigError(f"PolicyConfig.open_loop_aim must be in [0, 1] (an action magnitude), "
-                              f"got {self.open_loop_aim}")
 
 
 class MixedPolicy:

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..config import check_fields
 from ..data import Dataset, load
 from ..errors import DataError
 from ..paper_values import CORPUS_STATS
@@ -106,6 +107,9 @@ class StatsConfig:
 
     data: str = "data/pokeworld"
     """Store written by ``pokeworld generate``."""
+
+    def __post_init__(self) -> None:
+        check_fields(self)
 
 
 def make_config(preset: str = "cpu", **overrides) -> StatsConfig:

@@ -36,7 +36,7 @@ from .. import protocol as P
 from ..config import from_preset, to_dict
 from ..errors import ConfigError, DataError
 from ..evaluate import tables as R
-from ..io import atomic_path, hash_arrays, read_jsonl, remove_own_file, write_json
+from ..io import atomic_path, hash_arrays, read_json_if_present, read_jsonl, remove_own_file, write_json
 from . import lewm_config as LC
 from .factor_gate import KIND, FactorCertifyConfig, certify_factors
 from .factor_report import factor_rows, figure, table_markdown
@@ -172,7 +172,7 @@ def corpus(cfg: SwmCertifyConfig, out: Path) -> tuple[Path, float]:
     path, key_path = out / CORPUS, out / "corpus.json"
     key = {k: getattr(cfg, k) for k in ("env", "factors", "episodes", "steps", "num_envs", "image_size", "seed")}
     key = json.loads(json.dumps(key))
-    if path.exists() and key_path.exists() and json.loads(key_path.read_text()) == key:
+    if path.exists() and read_json_if_present(key_path, "a cached corpus's key (corpus.json)") == key:
         print(f"[swm-certify] reusing {path}")
         return path, 0.0
     t0 = time.time()

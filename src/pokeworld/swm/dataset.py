@@ -37,9 +37,9 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from ..data import SPLITS, Dataset, assign_splits, load, save
+from ..data import SPLITS, Dataset, assign_splits, check_store_destination, load, save
 from ..errors import ConfigError, DataError
-from ..io import atomic_path
+from ..io import atomic_path, check_outputs, check_writable_dir
 from ..sim.core import PARAM_NAMES
 
 EXPORT_FORMAT = "pokeworld-swm-hdf5"
@@ -108,15 +108,28 @@ def export_store(ds: Dataset, out: str | os.PathLike) -> Path:
 
 # ---------------------------------------------------------------------- import: readers
 def _checked_index(lengths, offsets, rows: int, where: str) -> tuple[np.ndarray, np.ndarray]:
+    """The episode index as int64, refused unless every episode is 1 or more of the ``rows`` stored rows and no two
+    share a row: a file of two rows declaring a million overlapping episodes would otherwise make the gather copy
+    those two rows a million times, far past the declared bytes :func:`over_budget` checked."""
     lengths, offsets = np.asarray(lengths), np.asarray(offsets)
     if lengths.ndim != 1 or lengths.shape != offsets.shape or lengths.size == 0:
         raise DataError(f"{where}: episode index must be two equal-length 1-d arrays with at least one episode, "
                         f"got ep_len {lengths.shape}, ep_offset {offsets.shape}")
     if lengths.dtype.kind not in "iu" or offsets.dtype.kind not in "iu":
         raise DataError(f"{where}: ep_len / ep_offset must be integers, got {lengths.dtype} / {offsets.dtype}")
-    lengths, offsets = lengths.astype(np.int64), offsets.astype(np.int64)
-    if (lengths < 1).any() or (offsets < 0).any() or (offsets + lengths > rows).any():
-        raise DataError(f"{where}: episode index points outside the {rows} stored rows (or has empty episodes)")
+    lengths, offsets = lengths.astype(np.int64), offsets.astype(np.int64)  # a uint64 past int64 turns negative
+    # each bound on its own first, so that offset + length cannot wrap around
+    if (lengths < 1).any() or (offsets < 0).any() or (lengths > rows).any() or (offsets > rows - lengths).any():
+        raise DataError(f"{where}: episode index points outside the {rows} stored rows (or has empty episodes): "
+                        f"every episode needs ep_len >= 1, ep_offset >= 0 and ep_offset + ep_len <= {rows}")
+    order = np.argsort(offsets, kind="stable")
+    starts, ends = offsets[order], offsets[order] + lengths[order]
+    shared = np.flatnonzero(starts[1:] < ends[:-1])
+    if shared.size:
+        a, b = order[shared[0]], order[shared[0] + 1]
+        raise DataError(f"{where}: episodes {a} and {b} share stored rows (ep_offset {offsets[a]} + ep_len "
+                        f"{lengths[a]} > ep_offset {offsets[b]}); swm stores each episode's rows once, so the episode "
+                        "index is corrupt: re-export or re-collect the dataset")
     return lengths, offsets
 
 
@@ -139,16 +152,50 @@ def over_budget(path: Path, declared: dict[str, int], max_bytes: int) -> DataErr
                      "is there, raise --max-gib")
 
 
+MAX_RECORD_DEPTH = 64
+"""Deepest nesting of our export record (its source manifest included) an import accepts: a pokeworld manifest nests
+a few levels; a deeper one would only make the store's own manifest fail to write or read back."""
+
+
+def _nesting(obj, limit: int) -> int:
+    """How deep JSON ``obj`` nests, walked without recursion and stopping past ``limit``."""
+    deepest, todo = 0, [(obj, 1)]
+    while todo and deepest <= limit:
+        node, depth = todo.pop()
+        deepest = max(deepest, depth)
+        if isinstance(node, dict):
+            todo += [(v, depth + 1) for v in node.values()]
+        elif isinstance(node, list):
+            todo += [(v, depth + 1) for v in node]
+    return deepest
+
+
 def h5_record(f: h5py.File, path: Path) -> dict:
-    """Our export record (the root attribute ``pokeworld``), checked; empty for other writers."""
+    """Our export record (the root attribute ``pokeworld``), checked; empty for other writers. A record that is
+    not a JSON object of our format (a list, a bare string, nesting deeper than :data:`MAX_RECORD_DEPTH`) is one
+    DataError."""
     raw = f.attrs.get("pokeworld")
-    meta = json.loads(raw) if raw is not None else {}
+    if raw is None:
+        return {}
+    bad = f"{path}: attribute 'pokeworld' is not a {EXPORT_FORMAT} record"
+    if not isinstance(raw, (str, bytes)):
+        raise DataError(f"{bad} (it holds {type(raw).__name__}, not JSON text); re-export the store")
+    try:
+        meta = json.loads(raw)
+    except (ValueError, RecursionError) as e:  # JSONDecodeError and bad UTF-8 are ValueErrors; deep nesting
+        raise DataError(f"{bad} (not valid JSON: {type(e).__name__}); re-export the store") from None
+    if not isinstance(meta, dict):
+        raise DataError(f"{bad} (a JSON {type(meta).__name__}, not an object); re-export the store")
+    if _nesting(meta, MAX_RECORD_DEPTH) > MAX_RECORD_DEPTH:
+        raise DataError(f"{bad} (it nests deeper than {MAX_RECORD_DEPTH} levels); re-export the store")
     if not meta:
         return {}
     named = [meta.get(k, []) for k in ("labels", "params")]
     if meta.get("format") != EXPORT_FORMAT or not all(isinstance(v, list) and all(isinstance(n, str) for n in v)
                                                       for v in named):
-        raise DataError(f"{path}: attribute 'pokeworld' is not a {EXPORT_FORMAT} record")
+        raise DataError(f"{bad}; re-export the store")
+    if not isinstance(meta.get("source_manifest"), (dict, type(None))):
+        raise DataError(f"{bad} (its source_manifest is not a JSON object); re-export the store")
     return meta
 
 
@@ -174,6 +221,9 @@ def _read_h5(path: Path, max_bytes: int, select=wanted_columns) -> tuple[dict[st
             meta = h5_record(f, path)
             # strings / objects / compounds are no PokeWorld column: left unread (a missing stream is named later)
             nodes = {k: f[k] for k in select(names, meta) if f[k].dtype.kind in "biuf"}
+            scalar = [k for k, n in nodes.items() if n.ndim == 0]
+            if scalar:
+                raise DataError(f"{path}: columns {scalar} hold a single value, not one per row; not an swm dataset")
             error = over_budget(path, {k: n.size * n.dtype.itemsize for k, n in nodes.items()}, max_bytes)
             if error:
                 raise error
@@ -265,6 +315,18 @@ def _episode_length(lengths: np.ndarray, steps: int) -> int:
     return max(counts, key=lambda n: (counts[n], n))
 
 
+def _check_gather(cols: dict, E: int, T1: int, cfg: ImportConfig) -> None:
+    """Refuse, before anything is copied, a gather of ``E`` episodes x ``T1`` rows of ``cols`` (and its row index)
+    past ``cfg.max_gib``. :func:`_checked_index` already keeps it within the stored rows; this bounds what the
+    import itself allocates whoever built the columns."""
+    row_bytes = sum(v.dtype.itemsize * int(np.prod(v.shape[1:], dtype=np.int64)) for v in cols.values()) + 8
+    need, allowed = E * T1 * row_bytes, int(cfg.max_gib * 2**30)
+    if need > allowed:
+        raise DataError(f"{cfg.source}: gathering {E} episodes x {T1} rows needs {need / 2**30:.3g} GiB, over the "
+                        f"allowed {cfg.max_gib:g} GiB; if the file is trusted and the memory is there, raise "
+                        "--max-gib")
+
+
 def _gather(cols: dict, lengths: np.ndarray, offsets: np.ndarray, keep: np.ndarray, T1: int) -> dict:
     rows = (offsets[keep][:, None] + np.arange(T1)[None]).reshape(-1)
     E = int(keep.size)
@@ -288,6 +350,7 @@ def to_store(cols: dict, lengths: np.ndarray, offsets: np.ndarray, meta: dict, c
     absent = [k for k in wanted if k not in cols]
     if absent:
         raise DataError(f"{where}: columns {absent} named in its pokeworld record are missing")
+    _check_gather({k: cols[k] for k in wanted}, int(keep.size), T1, cfg)
     ep = _gather({k: cols[k] for k in wanted}, lengths, offsets, keep, T1)
     frames, how = _pixels_to_frames(ep["pixels"].reshape(-1, *ep["pixels"].shape[2:]), where)
     E = keep.size
@@ -365,8 +428,19 @@ class ImportConfig:
 
 
 def _refuse_existing(out: Path, overwrite: bool) -> None:
-    if out.exists() and not overwrite:
+    if os.path.lexists(out) and not overwrite:
         raise ConfigError(f"{out} exists; pass --overwrite or choose another --out")
+
+
+def check_export_destination(out: Path, overwrite: bool) -> None:
+    """Raise ConfigError, before the store is loaded and converted, unless :func:`export_store` may write ``out``:
+    an .h5/.hdf5 name, absent or (with ``overwrite``) a regular file pokeworld wrote, in a writable folder."""
+    if out.suffix not in (".h5", ".hdf5"):
+        raise ConfigError(f"the swm HDF5 format needs a .h5 or .hdf5 file name, got {out}")
+    _refuse_existing(out, overwrite)
+    if out.is_dir() and not out.is_symlink():
+        raise ConfigError(f"--out {out} is a folder, not a regular file; choose a file path for the export")
+    check_outputs(out.parent, out.name)  # no link, no special file, never a file pokeworld did not write
 
 
 def run_export(cfg: ExportConfig) -> Path:
@@ -374,7 +448,7 @@ def run_export(cfg: ExportConfig) -> Path:
     if not cfg.store:
         raise ConfigError("swm-export needs the store to export")
     out = Path(cfg.out)
-    _refuse_existing(out, cfg.overwrite)
+    check_export_destination(out, cfg.overwrite)
     ds = load(cfg.store)
     export_store(ds, out)
     print(f"[swm-export] wrote {ds.num_episodes} episodes x {ds.num_steps + 1} rows to {out} "
@@ -388,6 +462,8 @@ def run_import(cfg: ImportConfig) -> Path:
         raise ConfigError("swm-import needs the swm dataset to import")
     out = Path(cfg.out)
     _refuse_existing(out, cfg.overwrite)
+    check_store_destination(out, None)  # a folder save would refuse is refused before the file is read
+    check_writable_dir(out.parent)
     ds = import_dataset(cfg)
     save(ds, out)
     m = ds.manifest
@@ -399,6 +475,7 @@ def run_import(cfg: ImportConfig) -> Path:
 __all__ = [
     "ExportConfig",
     "ImportConfig",
+    "check_export_destination",
     "export_columns",
     "export_store",
     "import_dataset",

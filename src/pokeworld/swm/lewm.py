@@ -51,7 +51,7 @@ from ..config import to_dict
 from ..data import Dataset, load
 from ..errors import ConfigError, DataError
 from ..evaluate.measure import padded_actions
-from ..io import append_jsonl, atomic_path, read_jsonl, write_json
+from ..io import append_jsonl, atomic_path, read_json_if_present, read_jsonl, write_json
 from ..windows import make_windows
 from .compare import certify_run, comparison_markdown, summarize
 from .lewm_config import INPUTS, NOT_TRAINING, PRESETS, READOUTS, LeWMConfig, make_config
@@ -213,8 +213,9 @@ def training_config(cfg: LeWMConfig) -> dict:
 
 def _check_run_dir(cfg: LeWMConfig, out: Path) -> None:
     stored = out / "config.json"
-    if stored.exists():
-        prev = {k: v for k, v in json.loads(stored.read_text()).items() if k not in NOT_TRAINING}
+    stored_cfg = read_json_if_present(stored, "a LeWM run's config.json")
+    if stored_cfg is not None:
+        prev = {k: v for k, v in stored_cfg.items() if k not in NOT_TRAINING}
         if prev != training_config(cfg):
             now = training_config(cfg)
             diff = sorted(k for k in set(prev) | set(now) if prev.get(k) != now.get(k))

@@ -4,7 +4,6 @@ whether an existing run directory may be resumed with a config (paper App. B "Op
 from __future__ import annotations
 
 import dataclasses
-import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -12,11 +11,18 @@ from typing import Any
 
 import torch
 
-from ..config import from_preset, to_dict
+from ..config import FRACTION, SEED, Limit, check_fields, from_preset, positive, to_dict
 from ..devices import pick_device
 from ..errors import ConfigError
 from ..losses import SIGREG_POOLS
-from ..models.xjepa import GNLL_HEADS, OBJECTIVES, VALUES_BEFORE_THE_FIELD, check_gnll_variance, check_variant
+from ..models.xjepa import (
+    GNLL_HEADS,
+    MAX_HORIZONS,
+    OBJECTIVES,
+    VALUES_BEFORE_THE_FIELD,
+    check_gnll_variance,
+    check_variant,
+)
 from ..rundir import read_run_config
 
 
@@ -170,6 +176,9 @@ class TrainConfig:
     """CPU threads for torch (0 = auto: half the usable cores, 1 on a 2-core machine; see ``auto_threads``)."""
     ckpt_every: int = 1000
     """Checkpoint every this many steps (and at the end / ``stop_at``)."""
+    keep_every: int = 0
+    """Also keep a copy of the checkpoint every this many steps, as ``kept/ckpt-<step>.pt`` (a multiple of
+    ``ckpt_every``; 0 keeps none): the learning curve over the budget (``scripts/budget_curve.py``)."""
     log_every: int = 100
     """Write metrics every this many steps."""
     tensorboard: bool = True
@@ -199,6 +208,24 @@ class TrainConfig:
     """Unix time after which the loop checkpoints and returns without ``DONE`` (0 = none); a run whose
     deadline has passed before it starts returns at once. For time-sliced jobs (``pokeworld map
     --time-budget-min``); re-running resumes."""
+
+    # :func:`validate` holds every field to these (and the model's sizes to models.xjepa.MODEL_INT_BOUNDS, what a
+    # checkpoint may declare): far above the paper's, far below a batch that cannot be allocated
+    LIMITS = {"seed": SEED, "steps": Limit(1, 10**9), "stop_at": Limit(0, 10**9), "batch_size": Limit(1, 65536),
+              "window": Limit(2, 4096), "horizons": Limit(1, 4095), "head_layers": Limit(1, 16),
+              "gnll_beta": FRACTION, "gnll_logvar_bound": positive(1e6), "belief_dim": Limit(1, 65536),
+              "belief_kl_weight": Limit(0, 1e6), "sysid_weight": Limit(0, 1e6), "image_size": Limit(16, 1024),
+              "channels": Limit(1, 65536), "latent_dim": Limit(1, 65536), "width": Limit(1, 65536),
+              "depth": Limit(1, 64), "heads": Limit(1, 1024), "dropout": Limit(0, 1), "vec_dim": Limit(1, 65536),
+              "sigreg_weight": Limit(0, 1e6), "sigreg_dirs": Limit(1, 2**20), "sigreg_knots": Limit(2, 10**4),
+              "program_aligned_share": FRACTION, "sigreg_reference_rows": Limit(0, 2**31),
+              "sigreg_rows": Limit(1, 2**24), "token_rows": Limit(1, 2**24), "token_dirs": Limit(1, 2**20),
+              "touch_contact_weight": Limit(0, 1e6), "contact_channel": Limit(0, 4095),
+              "proprio_weight": Limit(0, 1e6), "touch_weight": Limit(0, 1e6), "glide_loss_weight": Limit(0, 1e6),
+              "motion_loss_weight": Limit(0, 1e6), "lr": positive(10.0), "warmup": Limit(0, 10**9),
+              "weight_decay": Limit(0, 1e3), "grad_clip": Limit(0, 1e9), "threads": Limit(0, 4096),
+              "ckpt_every": Limit(1, 10**9), "keep_every": Limit(0, 10**9), "log_every": Limit(1, 10**9),
+              "deadline": Limit(0, 2**40)}
 
     def __post_init__(self) -> None:
         # configs and callers from before 'auto' pass a boolean; the run's config.json then records the setting
@@ -231,7 +258,7 @@ COMPILE_MODES = ("auto", "default", "reduce-overhead", "max-autotune-no-cudagrap
 """``torch.compile`` modes a run may name (``TrainConfig.compile_mode``; 'auto' is resolved per device)."""
 
 #: Fields that may differ when re-running into an existing run directory.
-RESUMABLE_FIELDS = ("steps", "stop_at", "ckpt_every", "log_every", "tensorboard", "progress", "threads", "device",
+RESUMABLE_FIELDS = ("steps", "stop_at", "ckpt_every", "keep_every", "log_every", "tensorboard", "progress", "threads", "device",
                     "fast", "compile", "compile_mode", "deadline")
 
 #: Fields removed from TrainConfig -> the value with which a run made before the removal behaves
@@ -250,29 +277,38 @@ def make_config(preset: str = "cpu", **overrides: Any) -> TrainConfig:
     validate(cfg)
     return cfg
 
+MAX_BATCH_FRAME_BYTES = 16 << 30
+"""Most bytes one step's input frames may take (batch × window × image_size², float32, the frame and its motion
+channel): the paper's batch takes 50 MB; this is beyond any one accelerator's memory."""
+
+
 def validate(cfg: TrainConfig) -> None:
-    """Raise ConfigError on inconsistent settings."""
+    """Raise ConfigError on inconsistent settings: every field's type and range first (:data:`TrainConfig.LIMITS`),
+    before anything is created on disk, then how the fields fit together."""
+    check_fields(cfg)
+    frame_bytes = cfg.batch_size * cfg.window * cfg.image_size**2 * 4 * 2
+    if frame_bytes > MAX_BATCH_FRAME_BYTES:
+        raise ConfigError(f"batch_size {cfg.batch_size} × window {cfg.window} at image_size {cfg.image_size} needs "
+                          f"{frame_bytes / 2**30:.0f} GiB of frames per step (at most {MAX_BATCH_FRAME_BYTES >> 30}); "
+                          "lower batch_size, window or image_size")
     check_variant(cfg.variant)
+    if cfg.keep_every < 0 or (cfg.keep_every and cfg.keep_every % cfg.ckpt_every):
+        raise ConfigError(f"keep_every {cfg.keep_every} must be 0 or a multiple of ckpt_every {cfg.ckpt_every}: only "
+                          "steps that write a checkpoint can keep one")
     if cfg.objective not in OBJECTIVES:
         raise ConfigError(f"unknown objective {cfg.objective!r}; choose one of {list(OBJECTIVES)}")
     hs = tuple(cfg.horizons)
-    if not hs or min(hs) < 1 or 1 not in hs:
-        raise ConfigError(f"horizons must be positive and include 1, got {hs}")
+    if not hs or min(hs) < 1 or 1 not in hs or len(hs) > MAX_HORIZONS:
+        raise ConfigError(f"horizons must be positive, include 1 and number at most {MAX_HORIZONS}, got {hs!r:.80}")
     if max(hs) >= cfg.window:
         raise ConfigError(f"window {cfg.window} must exceed the largest horizon {max(hs)}")
     if cfg.tokens and cfg.objective != "latent":
         raise ConfigError("tokens=True supports objective='latent' only")
-    if cfg.head_layers < 1:
-        raise ConfigError(f"head_layers must be ≥ 1, got {cfg.head_layers}")
-    if cfg.objective == "belief" and cfg.belief_dim < 1:
-        raise ConfigError(f"belief_dim must be ≥ 1, got {cfg.belief_dim}")
     if cfg.gnll_heads not in GNLL_HEADS:
         raise ConfigError(f"unknown gnll_heads {cfg.gnll_heads!r}; choose one of {list(GNLL_HEADS)}")
     if cfg.gnll_heads != "latent" and cfg.objective != "gnll":
         raise ConfigError(f"gnll_heads={cfg.gnll_heads!r} needs objective='gnll'")
     check_gnll_variance(cfg.gnll_variance, cfg.objective, cfg.gnll_logvar_bound)
-    if not 0.0 <= cfg.gnll_beta <= 1.0:
-        raise ConfigError(f"gnll_beta must lie in [0, 1], got {cfg.gnll_beta}")
     # an option that the chosen parameterisation ignores would only make the run's config lie about it
     if cfg.gnll_beta != 0.5 and cfg.gnll_variance != "beta":
         raise ConfigError(f"gnll_beta={cfg.gnll_beta} applies to gnll_variance='beta' only")
@@ -280,10 +316,6 @@ def validate(cfg: TrainConfig) -> None:
         raise ConfigError(f"gnll_logvar_bound={cfg.gnll_logvar_bound} applies to gnll_variance='bounded' only")
     if cfg.sigreg_pool not in SIGREG_POOLS:
         raise ConfigError(f"unknown sigreg_pool {cfg.sigreg_pool!r}; choose one of {list(SIGREG_POOLS)}")
-    if cfg.sigreg_rows < 1:
-        raise ConfigError(f"sigreg_rows must be ≥ 1, got {cfg.sigreg_rows}")
-    if not 0.0 <= cfg.program_aligned_share <= 1.0:
-        raise ConfigError(f"program_aligned_share must be in [0, 1], got {cfg.program_aligned_share}")
     if cfg.compile not in COMPILE_SETTINGS:
         raise ConfigError(f"compile must be one of {list(COMPILE_SETTINGS)}, got {cfg.compile!r}")
     if cfg.compile_mode not in COMPILE_MODES:
@@ -291,9 +323,6 @@ def validate(cfg: TrainConfig) -> None:
     # 'default' is what every config written before 'auto' existed holds, compiled or not
     if cfg.compile == "off" and cfg.compile_mode not in ("auto", "default"):
         raise ConfigError(f"compile_mode={cfg.compile_mode!r} applies to a compiled run; --compile off trains eagerly")
-    if cfg.sigreg_reference_rows < 0:
-        raise ConfigError(f"sigreg_reference_rows must be ≥ 0 (0: the rows' own count), "
-                          f"got {cfg.sigreg_reference_rows}")
     if cfg.sigreg_pool != "step":
         if cfg.tokens:
             raise ConfigError("sigreg_pool applies to global latents; tokens=True always pools token rows "
@@ -306,16 +335,8 @@ def validate(cfg: TrainConfig) -> None:
         raise ConfigError(f"image_size must be a multiple of 16 (4 stride-2 stages), got {cfg.image_size}")
     if len(cfg.channels) != 4:
         raise ConfigError(f"channels must list the 4 CNN stages, got {cfg.channels}")
-    for name in ("steps", "batch_size", "log_every", "ckpt_every"):
-        if getattr(cfg, name) < 1:
-            raise ConfigError(f"{name} must be ≥ 1, got {getattr(cfg, name)}")
     if cfg.motion_loss_weight > 0 and cfg.objective == "recon":
         raise ConfigError("motion_loss_weight weights latent targets; objective='recon' has none")
-    if min(cfg.glide_loss_weight, cfg.sysid_weight, cfg.sigreg_weight, cfg.belief_kl_weight,
-           cfg.motion_loss_weight) < 0:
-        raise ConfigError("weights must be non-negative")
-    if not math.isfinite(cfg.glide_loss_weight):
-        raise ConfigError(f"glide_loss_weight must be finite, got {cfg.glide_loss_weight}")
     if cfg.fast not in ("auto", "on", "off"):
         raise ConfigError(f"fast must be 'auto', 'on' or 'off', got {cfg.fast!r}")
 

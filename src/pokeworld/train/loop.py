@@ -2,14 +2,17 @@
 
 The loop owns the cadence: a step, the sum of its loss terms on the device, a metrics row every ``log_every``
 steps, a checkpoint every ``ckpt_every``, the non-finite check before either (the only host syncs: reading a
-loss every step would make the host wait for the GPU), the deadline, and the progress display. What a step is,
-what a row holds and what a checkpoint stores belong to the :class:`Trainee` it drives.
+loss every step would make the host wait for the GPU), the deadline, SIGINT / SIGTERM (:class:`StopSignals`: a
+checkpoint at the step they arrive in, then :class:`TrainingInterrupted`), and the progress display. What a step
+is, what a row holds and what a checkpoint stores belong to the :class:`Trainee` it drives.
 """
 
 from __future__ import annotations
 
 import math
+import signal
 import sys
+import threading
 import time
 from dataclasses import dataclass
 from typing import Protocol
@@ -39,6 +42,11 @@ class Trainee(Protocol):
 
     def save_checkpoint(self, step: int) -> None:
         """Checkpoint everything needed to resume at ``step``."""
+
+    # Optional (read with getattr, so a trainee without it stops on its own process's signal):
+    # def agree_to_stop(self, step: int, signalled: bool) -> bool:
+    #     """Whether to stop at ``step`` for a signal, ``signalled`` saying whether this process received one; a
+    #     data-parallel trainee returns the same answer on every rank (or the others hang in the next all-reduce)."""
 
 
 @dataclass
@@ -132,15 +140,23 @@ def status_every() -> float:
 
 @dataclass
 class LoopPosition:
-    """How far the loop got: steps done, and the step of the last checkpoint (None: none written yet)."""
+    """How far the loop got: steps done, the step of the last checkpoint (None: none written yet), and the signal
+    that stopped it (None: it ran to its end or deadline)."""
 
     done: int
     saved: int | None
+    stopped_by: str | None = None
 
 
 class TrainingInterrupted(KeyboardInterrupt):
-    """Ctrl-C during training; its message says at which step training stopped and what a re-run resumes from
-    (the CLI adds the command and exits with 130)."""
+    """Training stopped by SIGINT (Ctrl-C) or SIGTERM. ``checkpointed``: a checkpoint at the step it stopped was
+    written and the message says so in full (the CLI prints it as it is); otherwise (a second Ctrl-C, or one outside
+    the loop's handlers) the message says which earlier checkpoint a re-run resumes from, and the CLI adds the
+    command. ``exit_code``: the shell's convention for a process ended by that signal (128 + its number)."""
+
+    def __init__(self, message: str, checkpointed: bool = False, signum: int = signal.SIGINT):
+        super().__init__(message)
+        self.checkpointed, self.exit_code = checkpointed, 128 + int(signum)
 
 
 def interrupted_line(step: int, total: int, saved: int | None, checkpoints: str) -> str:
@@ -151,21 +167,78 @@ def interrupted_line(step: int, total: int, saved: int | None, checkpoints: str)
     return f"training stopped at step {step} of {total}; {resume}"
 
 
+def signalled_line(step: int, signal_name: str) -> str:
+    """What a person (or a job log) needs after a signal stopped training with a checkpoint at ``step``."""
+    return f"interrupted at step {step} by {signal_name}; checkpoint saved: the same command resumes from step {step}"
+
+
+#: Signals that stop training with a checkpoint at the current step: Ctrl-C, and what ``kill``, SLURM (at a job's
+#: time limit or on preemption) and torchrun send to end a job.
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+class StopSignals:
+    """While training: the first SIGINT / SIGTERM only records its name in ``received``, which the loop reads after
+    the step in progress, so the step ends cleanly and everything is checkpointed at it; a second one raises
+    KeyboardInterrupt at once, so a step or a write that hangs can still be left (the last checkpoint then stands).
+
+    Handlers go in only in the main thread (Python allows no other; a run trained in a worker thread keeps the
+    old behaviour), only for the duration of the ``with`` block, and the previous handlers come back after it. A
+    signal its previous owner ignores (SIG_IGN, e.g. SIGINT of a job started in the background) stays ignored.
+    """
+
+    def __init__(self) -> None:
+        self.received: str | None = None
+        self._previous: dict[int, object] = {}
+
+    def __enter__(self) -> StopSignals:
+        if threading.current_thread() is not threading.main_thread():
+            return self
+        for sig in STOP_SIGNALS:
+            if signal.getsignal(sig) is not signal.SIG_IGN:
+                self._previous[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        for sig, handler in self._previous.items():
+            # None: a handler installed outside Python, which cannot be put back; the default is the nearest
+            signal.signal(sig, signal.SIG_DFL if handler is None else handler)
+        self._previous.clear()
+
+    def _handle(self, signum: int, frame) -> None:
+        if self.received is not None:
+            raise KeyboardInterrupt
+        self.received = signal.Signals(signum).name
+
+    def stop_now(self, t: Trainee, step: int) -> bool:
+        """Whether the loop stops after ``step`` for a signal (agreed across ranks by trainees that need it)."""
+        agree = getattr(t, "agree_to_stop", None)
+        return agree(step, self.received is not None) if agree else self.received is not None
+
+
 def run_loop(t: Trainee, sched: LoopSchedule, dev: torch.device, progress: Progress,
              loss_shape: tuple[int, ...] = (), members: list[str] | None = None, checkpoints: str = "ckpt.pt") -> int:
-    """Train ``t`` from ``sched.start`` until ``sched.end`` or its deadline; returns the step reached. Ctrl-C
-    becomes :class:`TrainingInterrupted` naming the step and the checkpoint (``checkpoints``, in words) that a
-    re-run resumes from."""
+    """Train ``t`` from ``sched.start`` until ``sched.end`` or its deadline; returns the step reached.
+
+    SIGINT or SIGTERM ends the step in progress, checkpoints at it as the periodic checkpoint does, and raises
+    :class:`TrainingInterrupted` (``checkpointed``); a KeyboardInterrupt that bypasses that (a second Ctrl-C)
+    becomes one naming the step and the earlier checkpoint (``checkpoints``, in words) that a re-run resumes from.
+    """
     # a run that starts past step 0 was resumed from a checkpoint at that step
     pos = LoopPosition(sched.start, sched.start if sched.start > 0 else None)
     try:
-        return _loop(t, sched, dev, progress, loss_shape, members, pos)
+        with StopSignals() as stop:
+            step = _loop(t, sched, dev, progress, loss_shape, members, pos, stop)
     except KeyboardInterrupt:
         raise TrainingInterrupted(interrupted_line(pos.done, sched.total, pos.saved, checkpoints)) from None
+    if pos.stopped_by is not None:
+        signum = getattr(signal, pos.stopped_by, signal.SIGTERM)
+        raise TrainingInterrupted(signalled_line(step, pos.stopped_by), checkpointed=True, signum=signum)
+    return step
 
 
 def _loop(t: Trainee, sched: LoopSchedule, dev: torch.device, progress: Progress, loss_shape: tuple[int, ...],
-          members: list[str] | None, pos: LoopPosition) -> int:
+          members: list[str] | None, pos: LoopPosition, stop: StopSignals) -> int:
     """The body of :func:`run_loop`, keeping ``pos`` current."""
     step = sched.start
     # loss terms are summed on the device and read only when a row is logged: a per-step .item() or
@@ -183,9 +256,12 @@ def _loop(t: Trainee, sched: LoopSchedule, dev: torch.device, progress: Progress
             acc[k] = acc.get(k, 0.0) + v.float()
         n_acc += 1
         progress.update(step)
+        # both are asked every step, in this order, on every rank: under DDP each may be a collective
         out_of_time = t.out_of_time(step)
-        log_now = step % sched.log_every == 0 or step == sched.end or out_of_time
-        ckpt_now = step % sched.ckpt_every == 0 or step == sched.end or out_of_time
+        signalled = stop.stop_now(t, step) and step < sched.end  # a signal in the last step: training is done
+        stopping = out_of_time or signalled
+        log_now = step % sched.log_every == 0 or step == sched.end or stopping
+        ckpt_now = step % sched.ckpt_every == 0 or step == sched.end or stopping
         if log_now or ckpt_now:
             check_finite(first_bad, acc, step, members)
         if log_now:
@@ -198,7 +274,10 @@ def _loop(t: Trainee, sched: LoopSchedule, dev: torch.device, progress: Progress
         if ckpt_now:
             t.save_checkpoint(step)
             pos.saved = step
-        if out_of_time:
+        if signalled:
+            # under DDP a rank may stop for another rank's signal
+            pos.stopped_by = stop.received or "a signal to another process"
+        if stopping:
             break
     return step
 
@@ -208,5 +287,5 @@ def past(deadline: float) -> bool:
     return deadline > 0 and clock.wall_clock() >= deadline
 
 
-__all__ = ["Trainee", "LoopSchedule", "LoopPosition", "Progress", "TrainingInterrupted", "interrupted_line", "run_loop",
-           "speed_row", "check_finite", "status_every", "past"]
+__all__ = ["Trainee", "LoopSchedule", "LoopPosition", "Progress", "TrainingInterrupted", "StopSignals", "STOP_SIGNALS",
+           "interrupted_line", "signalled_line", "run_loop", "speed_row", "check_finite", "status_every", "past"]

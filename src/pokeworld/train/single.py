@@ -2,8 +2,10 @@
 
 ``run(cfg)`` trains (or resumes, or returns at once when finished) and returns the run directory, in the
 format :mod:`pokeworld.rundir` owns. An interrupted run resumes from ``ckpt.pt`` and reproduces the
-uninterrupted run bit for bit on CPU. The whole training split lives in memory as tensors (on the GPU when there
-is one), so window sampling never bottlenecks a step.
+uninterrupted run bit for bit on CPU; SIGINT (Ctrl-C) or SIGTERM (``kill``, SLURM) checkpoints at the step it
+arrives in before training stops (:class:`~.loop.StopSignals`), so nothing since the last periodic checkpoint is
+lost. The whole training split lives in memory as tensors (on the GPU when there is one), so window sampling never
+bottlenecks a step.
 
 Fast path (``fast``; on by default on CUDA): the step's window indices and SIGReg directions are drawn on the
 host exactly as on the plain path but uploaded from pinned memory without blocking, AdamW is fused, and nothing
@@ -32,6 +34,7 @@ from ..rundir import (
     check_run_dir_writable,
     check_run_files,
     check_state_fits,
+    keep_checkpoint,
     load_resume_checkpoint,
     restart_metrics,
     restoring,
@@ -152,6 +155,8 @@ class _SingleRun:
         step = int(ck["step"])
         if ranks.main:
             restart_metrics(self.out, step)
+            # an interrupted run that starts again says so, so nobody wonders whether it is starting over
+            print(f"[train] resuming {self.out} from step {step}", flush=True)
         return step
 
     def wrap(self) -> None:
@@ -196,6 +201,20 @@ class _SingleRun:
         dist.broadcast(flag, 0)
         return bool(flag)
 
+    def agree_to_stop(self, step: int, signalled: bool) -> bool:
+        """Whether to stop for SIGINT / SIGTERM. Under DDP the ranks must stop at the same step (or the others hang
+        in the next all-reduce); torchrun passes a signal to every rank, but not at the same instant, so they agree
+        at log steps, where a signal to any rank stops all (one more sync per logged row)."""
+        if not self.cfg.ddp:
+            return signalled
+        if step % self.cfg.log_every:
+            return False
+        import torch.distributed as dist
+
+        flag = torch.tensor(float(signalled), device=self.dev)
+        dist.all_reduce(flag, op=dist.ReduceOp.MAX)
+        return bool(flag)
+
     def write_rows(self, row: dict[str, float], sums: dict[str, torch.Tensor], n: int) -> float:
         row.update({k: float(v) / n for k, v in sums.items()})
         if self.log is not None:
@@ -208,6 +227,8 @@ class _SingleRun:
                              "scheduler": self.sched.state_dict(), "rng": checkpoint.rng_state(),
                              "sampler": self.sampler.gen.get_state(), "step": step, "model_kwargs": self.mk,
                              "config": self.cfg_dict}, self.out / "ckpt.pt")
+            if self.cfg.keep_every and step % self.cfg.keep_every == 0:  # a point of the run's learning curve
+                keep_checkpoint(self.out, step)
 
 
 def _train(cfg: TrainConfig, out: Path, cfg_dict: dict, status_every: float) -> Path:

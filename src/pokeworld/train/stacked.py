@@ -58,7 +58,7 @@ import torch
 from torch.nn.attention import SDPBackend, sdpa_kernel
 
 from .. import checkpoint, data as data_mod
-from ..config import from_preset, to_dict
+from ..config import SEED, Limit, check_fields, from_preset, to_dict
 from ..errors import ConfigError
 from ..io import run_lock
 from ..models.xjepa import VARIANTS, XJEPA, check_variant as validate_variant
@@ -139,6 +139,12 @@ class StackedConfig:
     """TrainConfig ``fast`` (non-blocking uploads, fused AdamW; 'auto' = on for CUDA)."""
     progress: bool = True
     """Show a progress bar per group."""
+
+    LIMITS = {"seeds": SEED, "sigreg_weights": Limit(0, 1e6), "max_members": Limit(0, 10**4),
+              "steps": Limit(0, 10**9), "threads": Limit(0, 4096)}
+
+    def __post_init__(self) -> None:
+        check_fields(self)
 
 
 #: Each TrainConfig preset by name (``tiny`` also silences the progress bar, as its TrainConfig preset does).

@@ -71,8 +71,8 @@ from .cameras import (
                        other_external_serials,
 )
 from .config import PRESETS, ConvertConfig, content_config, make_config, out_dir
-from .files import calibration_folder, dataset_file, open_dataset_file, read_dataset_file, scene_root
 from .convert import corpus_source, run
+from .files import calibration_folder, dataset_file, open_dataset_file, read_dataset_file, scene_root
 from .folders import SceneRef, check_scene_name, parse_scene_name, scan
 from .format import (
                        ALIGN_BASE_ROT,

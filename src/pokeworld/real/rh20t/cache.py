@@ -8,7 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ...io import OwnedDir, atomic_path, remove_own_file, write_json
+from ...errors import DataError
+from ...io import OwnedDir, atomic_path, read_json, remove_own_file, write_json
 from .config import ConvertConfig, out_dir
 from .folders import SceneRef, check_scene_name
 from .scene import process_scene
@@ -60,9 +61,9 @@ def convert_scene_cached(ref: SceneRef, cfg: ConvertConfig, cdir: Path) -> tuple
             remove_own_file(ok)  # damaged cache entry: recompute
     if skip.exists():
         try:
-            return None, json.loads(skip.read_text())
-        except json.JSONDecodeError:
-            remove_own_file(skip)
+            return None, read_json(skip, "a cached skip record")
+        except DataError:
+            remove_own_file(skip)  # damaged cache entry: recompute
     try:
         arrays = process_scene(ref, cfg)
     except SceneSkip as e:

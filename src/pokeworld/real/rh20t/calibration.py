@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..npy_child import UnpicklerTimeout, load_npy_isolated, load_npy_item_isolated
+from ..npy_child import load_npy_isolated, load_npy_item_isolated
 from ..safe_pickle import UnsafePickleError
 from .files import dataset_file
 from .format import ALIGN_BASE_ROT, IN_HAND_CALIB, ROBOTS, TCP_CAMERA_ROT
@@ -48,8 +48,6 @@ def base_to_camera_rotations(calib_dir: Path, cfg_num: int, root: Path | None = 
         ext = load_npy_item_isolated(ext_path)
         mats = {str(k): np.asarray(v, np.float64).reshape(-1, 4, 4)[0][:3, :3] for k, v in dict(ext).items()}
         r_tcp = calib_tcp_rotation(load_npy_isolated(tcp_path), cfg_num)
-    except UnpicklerTimeout as e:
-        raise SceneSkip("unsafe_pickle", f"calibration {calib_dir}: {e}", cacheable=False) from None
     except UnsafePickleError as e:
         raise SceneSkip("unsafe_pickle", f"calibration {calib_dir}: {e}") from None
     except Exception as e:  # damaged calibration files

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from ..npy_child import UnpicklerTimeout, load_npy_item_isolated
+from ..npy_child import load_npy_item_isolated
 from ..regular_files import NotRegularFileError
 from ..safe_pickle import UnsafePickleError
 from .calibration import base_to_camera_rotations
@@ -27,8 +27,6 @@ def load_untrusted_npy(path: Path, root: Path | None, what: str) -> Any:
         raise SceneSkip("missing_stream", f"{what} file {path} is absent")
     try:
         return load_npy_item_isolated(real)
-    except UnpicklerTimeout as e:
-        raise SceneSkip("unsafe_pickle", f"{path}: {e}", cacheable=False) from None
     except UnsafePickleError as e:
         raise SceneSkip("unsafe_pickle", f"{path}: {e}") from None
     except NotRegularFileError as e:  # swapped for a FIFO after the check

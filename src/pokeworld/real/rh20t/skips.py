@@ -54,4 +54,4 @@ class SceneSkip(DataError):
         super().__init__(f"{reason}: {message}")
         self.reason, self.message = reason, message
         self.cacheable = cacheable
-        """False when a rerun could decide otherwise (a timeout under load): the skip is not cached."""
+        """False when a rerun could decide otherwise: the skip is not cached."""

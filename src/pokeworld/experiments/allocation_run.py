@@ -1,0 +1,235 @@
+"""One GPU allocation's training, as ``scripts/gpu_allocation.sh`` runs it after its smoke check: the runs of a
+queue one at a time in one ``pokeworld map`` (:class:`.map.RunHooks`), each started only when its predicted time fits
+what is left, each packed for the trip back as soon as it is measured and while it trains
+(:mod:`.allocation_pack`), checkpoints that earlier allocations returned resumed first.
+
+* The queue: run tokens ``VARIANT`` or ``VARIANT@SEED`` (``VFX``, ``VF@1``), in priority order (default
+  :data:`PRIORITY`). Runs an earlier allocation given with ``--resume`` finished are dropped, runs with a checkpoint
+  (returned by an earlier allocation, or left in the work folder) move to the front (:func:`order_queue`);
+  ``python scripts/merge_allocations.py --plan`` prints the same order from what earlier allocations returned.
+* The time: a run starts (or resumes) only when ``overhead + steps left × s/step`` fits the time left before the
+  budget's reserve (:class:`Pace`): the s/step and overhead (compilation, measurement) this allocation measured on
+  its last finished run, or the preset's prior (:data:`PRIORS`) before one finished. A run the prediction lets in
+  but the budget still cuts stops at the map's deadline with a checkpoint, which comes back.
+* Resuming: a returned checkpoint is restored into the work folder's run (its config.json pointed at this
+  machine's corpus and folder, its metrics, ``resumed.json`` naming where and at which step it came from); training
+  refuses it if this machine's corpus has other content. Allocations with other map settings are not resumed from.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import statistics
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+from .. import checkpoint, clock
+from ..config import to_dict
+from ..errors import PokeworldError
+from ..io import atomic_path, read_regular_bytes, write_json
+from ..rundir import last_logged_step, read_metrics
+from . import allocations, stages
+from .allocation_pack import Packer, ReturnLimits, Snapshots
+from .allocation_queue import PRIORITY, order_queue, parse_token, token
+from .config import MapConfig
+from .map import RunHooks, run as run_map
+from .presets import make_config
+from .runs import RunSpec, run_dir
+
+#: preset -> (s/step, overhead s) a run is predicted with until this allocation has timed one. paper: the H200's
+#: 0.0104 s/step with CUDA graphs (docs/model.md "Fast path"); its 90 s of overhead are ≈ 30 s of compilation plus a
+#: guess for the measurement on the 8,000-episode corpus, not yet timed. tiny and cpu: this repository's CPUs.
+PRIORS = {"paper": (0.0104, 90.0), "cpu": (0.3, 60.0), "tiny": (0.05, 10.0)}
+
+
+def spec_key(s: RunSpec) -> tuple[str, int]:
+    return s.train["variant"], s.seed
+
+
+@dataclass
+class Pace:
+    """The time a run is predicted to take: ``overhead_s + steps × s_per_step``."""
+
+    s_per_step: float
+    overhead_s: float
+    source: str = "prior"
+
+    def predict(self, steps: int) -> float:
+        return self.overhead_s + steps * self.s_per_step
+
+    def learn(self, run: Path, from_step: int, wall_s: float) -> None:
+        """Take the s/step of the rows ``run`` logged past ``from_step`` (the first left out: it holds the
+        compilation) and the rest of ``wall_s`` as the overhead."""
+        rows = [r for r in read_metrics(run) if r["step"] > from_step and r.get("steps_per_s", 0) > 0][1:]
+        steps = last_logged_step(run) - from_step
+        if rows:
+            self.s_per_step = statistics.median(1 / r["steps_per_s"] for r in rows)
+        elif steps > 0:
+            self.s_per_step = wall_s / steps
+        self.overhead_s = max(0.0, wall_s - steps * self.s_per_step)
+        self.source = "measured"
+
+
+def checkpoint_step(run: Path) -> int:
+    """The step an unfinished run resumes from: its ckpt.pt's (0 without one)."""
+    if not (run / "ckpt.pt").exists():
+        return 0
+    return int(checkpoint.load(run / "ckpt.pt").get("step", 0))
+
+
+class AllocationHooks(RunHooks):
+    """The map's runs in queue order, each admitted when it fits the time left, snapshotted while it trains and
+    packed once measured."""
+
+    def __init__(self, queue: list[str], packer: Packer, deadline: float, pace: Pace, snapshot_s: float):
+        self.queue, self.packer, self.deadline, self.pace, self.snapshot_s = queue, packer, deadline, pace, snapshot_s
+
+    def order(self, jobs: list[dict]) -> list[dict]:
+        by_name = {j["name"]: j for j in jobs}
+        return [by_name[n] for n in self.queue if n in by_name]
+
+    def execute(self, job: dict) -> dict:
+        name, run = job["name"], Path(job["train"]["out"])
+        if (run / "DONE").exists():  # trained by an earlier invocation in this work folder: measured, if not yet
+            return stages.execute(job)
+        done = checkpoint_step(run)
+        steps = stages.job_train_config(job).steps
+        need, left = self.pace.predict(steps - done), self.deadline - clock.wall_clock()
+        if need > left:
+            print(f"[allocation] {name}: not started, {steps - done} steps predicted to take {need:.0f} s "
+                  f"({self.pace.source} pace) but {max(left, 0):.0f} s are left", flush=True)
+            return {"name": name, "status": "pending"}
+        print(f"[allocation] {name}: {'resuming at step ' + str(done) if done else 'starting'}, {steps - done} steps "
+              f"predicted {need:.0f} s ({self.pace.source} pace), {left:.0f} s left", flush=True)
+        t0 = clock.wall_clock()
+        with Snapshots(self.packer, name, self.snapshot_s):
+            result = stages.execute(job)
+        wall = clock.wall_clock() - t0
+        if result["status"] == "finished":
+            self.pace.learn(run, done, wall)
+            self.packer.facts[name] = {"wall_s": round(wall, 1), "from_step": done,
+                                       "sec_per_step": self.pace.s_per_step, "overhead_s": self.pace.overhead_s}
+        return result
+
+    def measured(self, job: dict, result: dict, prog: dict) -> None:
+        if result["status"] != "pending":
+            self.packer.pack()
+
+
+# ---------------------------------------------------------------------- resuming earlier allocations
+
+
+def restore(c: MapConfig, specs: dict[tuple[str, int], RunSpec], folders: list[Path],
+            scratch: Path) -> set[tuple[str, int]]:
+    """Read the allocations returned in ``folders``: restore each checkpoint they hold (the furthest one of a run)
+    into the run's folder under ``c.out`` unless that run already has one; returns the runs they finished."""
+    finished: set[tuple[str, int]] = set()
+    best: dict[str, tuple[int, allocations.Allocation]] = {}
+    by_name = {s.name: s for s in specs.values()}
+    for folder in folders:
+        a = allocations.open_allocation(folder, scratch)
+        mine = to_dict(c)  # tuples as the JSON lists map_config.json holds
+        differ = [k for k in allocations.AGREE if a.map_config.get(k) != mine.get(k)]
+        if differ:
+            print(f"[allocation] {folder}: not resumed from, it ran the map with other settings ({differ})")
+            continue
+        finished |= {spec_key(by_name[n]) for n in a.progress.get("finished", []) if n in by_name}
+        for name, step in a.checkpoints.items():
+            if name in by_name and step > best.get(name, (-1, None))[0]:
+                best[name] = (step, a)
+    for name, (step, a) in best.items():
+        if spec_key(by_name[name]) not in finished:
+            restore_run(c, by_name[name], a, step)
+    return finished
+
+
+def restore_run(c: MapConfig, spec: RunSpec, a: allocations.Allocation, step: int) -> None:
+    """Put allocation ``a``'s checkpoint of ``spec`` (step ``step``) into this map's run folder, with its config
+    (pointed at this machine's corpus and folder), its metrics and resumed.json; a run folder that already holds a
+    checkpoint or a finished run is left as it is."""
+    dest, src = run_dir(c, spec.name), a.root / "runs" / spec.name
+    if (dest / "ckpt.pt").exists() or (dest / "DONE").exists():
+        print(f"[allocation] {spec.name}: its folder already holds a checkpoint; not restored from {a.source}")
+        return
+    job = stages.jobs(c, [spec], 0)[0]
+    cfg = {**allocations.read_json(src / "config.json", "a returned run's config.json"), "data": job["train"]["data"],
+           "out": job["train"]["out"]}
+    dest.mkdir(parents=True, exist_ok=True)
+    write_json(dest / "config.json", cfg)
+    for name in ("metrics.jsonl", "ckpt.pt"):
+        data = read_regular_bytes(src / name, f"a returned run's {name}", 1 << 30)
+        with atomic_path(dest / name) as tmp:
+            tmp.write_bytes(data)
+    write_json(dest / "resumed.json", {"step": step, "from": a.source, "device": a.device.get("device"),
+                                       "date": a.device.get("date"), "git": a.device.get("git"),
+                                       "checkpoint": "returned compacted: float32 tensors of at least 4096 elements "
+                                                     "(weights and AdamW moments) rounded to bfloat16"})
+    print(f"[allocation] {spec.name}: restored the checkpoint at step {step} from {a.source}", flush=True)
+
+
+# ---------------------------------------------------------------------- the allocation
+
+
+def allocate(a: argparse.Namespace) -> int:
+    """Restore, plan, train and pack one allocation (see the module docstring); returns the exit status."""
+    started = a.started or clock.wall_clock()
+    deadline = started + 60 * a.budget_min - 60 * a.reserve_min
+    requested = [parse_token(t) for t in a.runs]
+    base = dict(out=str(a.work / "map"), experiments=("factorial",), certify=False, mlp_probes=False,
+                untrained=False, workers=1, train_steps=a.steps)
+    c = make_config(a.preset, **base, variants=tuple(dict.fromkeys(v for v, _ in requested)),
+                    seeds=tuple(sorted({s for _, s in requested})))
+    specs = {spec_key(s): s for s in stages.all_specs(c)}
+    with tempfile.TemporaryDirectory(prefix="pokeworld-resume-") as scratch:
+        finished = restore(c, specs, a.resume, Path(scratch))
+    resumable = {k for k, s in specs.items() if (run_dir(c, s.name) / "ckpt.pt").exists()
+                 and not (run_dir(c, s.name) / "DONE").exists()}
+    queue = order_queue(requested, finished, resumable)
+    print(f"[allocation] queue: {' '.join(map(token, queue)) or 'nothing'}"
+          + (f" (finished earlier: {' '.join(map(token, sorted(finished)))})" if finished else ""), flush=True)
+    left_min = (deadline - clock.wall_clock()) / 60
+    if queue:  # the map's progress then names the queue's variants × seeds
+        c = dataclasses.replace(c, variants=tuple(dict.fromkeys(v for v, _ in queue)),
+                                seeds=tuple(sorted({s for _, s in queue})))
+    packer = Packer(c, stages.all_specs(c), a.out, clock.wall_clock(), ReturnLimits())
+    packer.pack()  # the device record and any restored checkpoint come back even if nothing else does
+    if not queue or left_min <= 0.25:
+        print(f"[allocation] {'nothing to train' if not queue else f'only {left_min:.2f} min left'}; no map started")
+        return 0 if not queue else 4
+    prior = PRIORS.get(a.preset, PRIORS["paper"])
+    pace = Pace(a.prior_s_per_step or prior[0], a.prior_overhead_s if a.prior_overhead_s >= 0 else prior[1])
+    names = [specs[k].name for k in queue]
+    hooks = AllocationHooks(names, packer, deadline, pace, a.snapshot_s)
+    run_map(dataclasses.replace(c, time_budget_min=left_min + a.reserve_min, time_reserve_min=a.reserve_min), hooks)
+    packer.pack()
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description="One GPU allocation's training (scripts/gpu_allocation.sh runs it).")
+    ap.add_argument("out", type=Path, help="the folder the device machine returns")
+    ap.add_argument("--work", type=Path, required=True, help="the map's working folder (corpus, checkpoints)")
+    ap.add_argument("--runs", nargs="*", default=list(PRIORITY), help="VARIANT or VARIANT@SEED, in priority order")
+    ap.add_argument("--preset", default="paper")
+    ap.add_argument("--steps", type=int, default=0, help="training steps per run (0: the preset's)")
+    ap.add_argument("--budget-min", type=float, default=8.5, help="minutes from --started to the end")
+    ap.add_argument("--reserve-min", type=float, default=0.5, help="minutes kept at the end for the last pack")
+    ap.add_argument("--started", type=float, default=0.0, help="unix time the allocation started (default: now)")
+    ap.add_argument("--resume", nargs="*", type=Path, default=[], help="folders earlier allocations returned")
+    ap.add_argument("--snapshot-s", type=float, default=30.0, help="seconds between checkpoint snapshots")
+    ap.add_argument("--prior-s-per-step", type=float, default=0.0, help="s/step before one is measured")
+    ap.add_argument("--prior-overhead-s", type=float, default=-1.0, help="seconds per run beside its steps")
+    a = ap.parse_args(argv)
+    try:
+        return allocate(a)
+    except PokeworldError as e:
+        raise SystemExit(f"error: {e}") from None
+
+
+__all__ = ["PRIORITY", "PRIORS", "parse_token", "token", "order_queue", "spec_key", "Pace", "checkpoint_step",
+           "AllocationHooks", "restore", "restore_run", "allocate", "main"]
+
+if __name__ == "__main__":
+    raise SystemExit(main())
