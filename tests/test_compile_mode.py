@@ -132,3 +132,54 @@ def test_a_compiled_stacked_group_trains_as_its_eager_twin(monkeypatch, tmp_path
     for eager, compiled in zip(rows["off"], rows["on"]):
         for a, b in zip(eager[1:], compiled[1:]):
             assert b["loss"] == pytest.approx(a["loss"], rel=1e-4)
+
+
+def _rows(run):
+    return [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
+
+
+def test_a_compile_failure_falls_back_to_eager_recorded_and_bit_exact(tiny_dataset, tmp_path, monkeypatch, capsys):
+    """A planted compile error at the first step (as inductor raises it) costs the compiled speed, not the run:
+    the same batch is taken eagerly, so the weights equal an eager run's, and the metrics say compiled=0."""
+    from pokeworld.data import save
+    from pokeworld.rundir import load_model
+    from pokeworld.train import run
+
+    data = tmp_path / "data"
+    save(tiny_dataset, data)
+    eager = run(make_config("tiny", data=str(data), out=str(tmp_path / "eager"), steps=6, compile="off"))
+
+    def broken_compile(net, mode=None):
+        def compiled(*a, **k):
+            raise RuntimeError("BackendCompilerFailed: planted")
+        return compiled
+
+    monkeypatch.setattr(torch, "compile", broken_compile)
+    fell = run(make_config("tiny", data=str(data), out=str(tmp_path / "fell"), steps=6, compile="on"))
+    assert "torch.compile (mode default) failed at the first step (RuntimeError: BackendCompilerFailed: planted)" \
+        in capsys.readouterr().out
+    a, b = load_model(eager).state_dict(), load_model(fell).state_dict()
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    assert {r.get("compiled") for r in _rows(fell) if r["step"] > 0} == {0.0}
+    assert {r.get("compiled") for r in _rows(eager) if r["step"] > 0} == {0.0}
+
+
+def test_a_later_error_is_not_taken_for_a_compile_failure(tiny_dataset, tmp_path, monkeypatch):
+    from pokeworld.data import save
+    from pokeworld.train import run
+
+    data = tmp_path / "data"
+    save(tiny_dataset, data)
+    calls = {"n": 0}
+
+    def flaky_compile(net, mode=None):
+        def compiled(*a, **k):
+            calls["n"] += 1
+            if calls["n"] == 3:
+                raise RuntimeError("an error in step 3, not a compilation")
+            return net(*a, **k)
+        return compiled
+
+    monkeypatch.setattr(torch, "compile", flaky_compile)
+    with pytest.raises(RuntimeError, match="not a compilation"):
+        run(make_config("tiny", data=str(data), out=str(tmp_path / "r"), steps=6, compile="on"))

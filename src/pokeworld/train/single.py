@@ -99,6 +99,18 @@ class _Ranks:
         return self.rank == 0
 
 
+def compile_status(mode: str | None) -> dict[str, float]:
+    """What a metrics row records of compilation, never assumed: ``compiled`` (1: the compiled loss is in use, 0:
+    eager) and, for CUDA graphs ('reduce-overhead'), ``cudagraph_skips``: how many graphs inductor declined to
+    capture so far in this process (it does so silently, e.g. for a host read; 0 means every graph was captured)."""
+    status = {"compiled": float(mode is not None)}
+    if mode == "reduce-overhead":
+        from torch._dynamo.utils import counters  # inductor's own tally, the one its logs report
+
+        status["cudagraph_skips"] = float(counters["inductor"].get("cudagraph_skips", 0))
+    return status
+
+
 class _SingleRun:
     """One model, its optimizer, schedule and sampler: the :class:`~.loop.Trainee` of a single run."""
 
@@ -173,13 +185,33 @@ class _SingleRun:
         # (compile_mode_for): the step's inputs are device tensors uploaded ahead and nothing in the global-latent
         # loss reads a value back on the host, so the graphs capture forward and backward whole (the token variant
         # draws its SIGReg row subset on the host inside the loss: that part runs outside the graphs)
-        mode = compile_mode_for(cfg, dev)
-        self.loss_fn = torch.compile(net, mode=mode) if mode else net
+        self.mode = compile_mode_for(cfg, dev)
+        self.eager_fn = net
+        self.loss_fn = torch.compile(net, mode=self.mode) if self.mode else net
+        self.compile_checked = self.mode is None  # a compiled step proves itself once, on the first step
+
+    def fall_back_to_eager(self, error: Exception) -> None:
+        """A compilation that fails (it happens at the first call) costs the compiled speed, never the run: the
+        same step is taken again eagerly, and the run's metrics say so (``compiled`` 0)."""
+        first = (str(error).strip().splitlines() or [""])[0][:200]
+        print(f"[train] torch.compile (mode {self.mode}) failed at the first step ({type(error).__name__}: {first}); "
+              "training eagerly, recorded as compiled=0 in metrics.jsonl", flush=True)
+        self.loss_fn, self.mode, self.compile_checked = self.eager_fn, None, True
 
     # ------------------------------------------------------------------ Trainee
     def step(self, step: int) -> dict[str, torch.Tensor]:
-        loss, terms = train_step(self.model, self.opt, self.cfg, self.sampler.sample(self.cfg.batch_size), step,
-                                 self.dev, self.loss_kw, amp=self.use_amp, fast=self.fast, loss_fn=self.loss_fn)
+        batch = self.sampler.sample(self.cfg.batch_size)
+        try:
+            loss, terms = train_step(self.model, self.opt, self.cfg, batch, step, self.dev, self.loss_kw,
+                                     amp=self.use_amp, fast=self.fast, loss_fn=self.loss_fn)
+        except Exception as e:  # noqa: BLE001 - only the first compiled step; the eager retry raises a real error
+            if self.compile_checked:
+                raise
+            # nothing was applied: a compile error comes before opt.step(), so the same batch is taken again
+            self.fall_back_to_eager(e)
+            loss, terms = train_step(self.model, self.opt, self.cfg, batch, step, self.dev, self.loss_kw,
+                                     amp=self.use_amp, fast=self.fast, loss_fn=self.loss_fn)
+        self.compile_checked = True
         self.sched.step()
         terms["loss"] = loss
         return terms
@@ -217,6 +249,7 @@ class _SingleRun:
 
     def write_rows(self, row: dict[str, float], sums: dict[str, torch.Tensor], n: int) -> float:
         row.update({k: float(v) / n for k, v in sums.items()})
+        row.update(compile_status(self.mode))
         if self.log is not None:
             self.log.write(row)
         return row["loss"]
