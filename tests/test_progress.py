@@ -52,6 +52,8 @@ def test_run_progress_reads_steps_rate_and_time_left(tmp_path):
     _metrics(run, [{"step": 0}, {"step": 100, "steps_per_s": 2.0}])
     assert progress.run_progress("VFX", run, 200) == "VFX 100/200 steps, 2 steps/s, ~50 s left"
     (run / "DONE").write_text("")
+    assert progress.run_progress("VFX", run, 200) == "VFX trained, being measured"
+    (run / "measure.json").write_text("{}")
     assert progress.run_progress("VFX", run, 200) == "VFX finished"
 
 
@@ -59,6 +61,7 @@ def test_runs_progress_puts_unfinished_runs_first(tmp_path):
     _metrics(tmp_path / "a", [{"step": 30, "steps_per_s": 1.0}])
     (tmp_path / "b").mkdir()
     (tmp_path / "b" / "DONE").write_text("")
+    (tmp_path / "b" / "measure.json").write_text("{}")
     line = progress.runs_progress({"a": (tmp_path / "a", 90), "b": (tmp_path / "b", 90)})
     assert line == "training 1/2 runs finished; a 30/90 steps, 1 steps/s, ~1 min 00 s left"
 
@@ -75,3 +78,26 @@ def test_map_says_its_plan_first():
     c = make_map_config("tiny", out="unused", experiments=("factorial",), variants=("V", "VFX"), seeds=(0,))
     line = stages.plan_line(c)
     assert line.startswith("[map] plan: ") and "2 runs x " in line and "standard" in line and "--quiet" in line
+
+
+def test_map_estimates_its_training_from_this_machine(tmp_path):
+    c = make_map_config("tiny", out=str(tmp_path / "m"), experiments=("factorial",), variants=("V", "VFX"), seeds=(0,))
+    specs = stages.all_specs(c)
+    line = stages.training_estimate(c, specs, workers=2, threads=1)
+    assert line.startswith("[map] this machine: ") and "s/step per model on 1 thread(s)" in line
+    assert "the 2 runs to train take about " in line
+    for s in specs:  # once every run is trained there is nothing to estimate
+        (tmp_path / "m" / "runs" / s.name).mkdir(parents=True)
+        (tmp_path / "m" / "runs" / s.name / "DONE").write_text("")
+    assert stages.training_estimate(c, specs, workers=2, threads=1) is None
+
+
+def test_a_timing_leaves_the_process_as_it_was():
+    import torch
+
+    from pokeworld.train import make_config
+    from pokeworld.train.speed import seconds_per_step
+
+    threads, state = torch.get_num_threads(), torch.random.get_rng_state()
+    assert seconds_per_step(make_config("tiny"), threads=1, steps=1) > 0
+    assert torch.get_num_threads() == threads and torch.equal(torch.random.get_rng_state(), state)

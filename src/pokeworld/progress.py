@@ -71,10 +71,11 @@ def heartbeat(tag: str, status: Callable[[], str] | str, every: float = HEARTBEA
 
 def run_progress(name: str, run_dir: str | Path, steps: int) -> str:
     """One run's training progress from its metrics: ``VFX-… 1200/2200 steps, 2.1 steps/s, ~8 min left``;
-    ``waiting`` before its first row, ``finished`` once ``DONE`` is there."""
+    ``waiting`` before its first row, ``trained, being measured`` once ``DONE`` is there, ``finished`` once its
+    measurement is written too."""
     run_dir = Path(run_dir)
-    if (run_dir / "DONE").exists():
-        return f"{name} finished"
+    if (run_dir / "DONE").exists():  # trained; the map's worker measures it next
+        return f"{name} finished" if any(run_dir.glob("measure*.json")) else f"{name} trained, being measured"
     try:
         rows = read_metrics(run_dir) if run_dir.is_dir() else []
     except PokeworldError:

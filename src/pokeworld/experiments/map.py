@@ -187,6 +187,10 @@ def _run_locked(c: MapConfig, hooks: RunHooks | None = None) -> Path:
         print(f"[map] {len(specs)} runs, launcher={c.launcher}, workers={workers}"
               + (f", training until {c.time_budget_min - c.time_reserve_min:g} min" if deadline else ""))
         jobs = stages.jobs(c, specs, threads, deadline)
+        # a time-sliced invocation spends its budget on training, not on timing it
+        estimate = stages.training_estimate(c, specs, workers, threads) if hooks is None and not deadline else None
+        if estimate:
+            print(estimate, flush=True)
         if hooks is not None:
             run_one_by_one(c, jobs, specs, started, hooks)
         else:

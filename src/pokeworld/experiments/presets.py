@@ -48,7 +48,7 @@ def make_demo_config(preset: str = "cpu", **overrides) -> MapConfig:
     """The demo's map config (:data:`DEMO` over the preset; at tiny only its experiment list)."""
     cfg = from_preset(MapConfig, PRESETS, preset)
     demo = {k: v for k, v in DEMO.items() if preset != "tiny" or k in ("experiments",)}
-    return check_names(dataclasses.replace(cfg, out="out/demo", **{**demo, **overrides}))
+    return check_names(dataclasses.replace(cfg, **{"out": "out/demo", **demo, **overrides}))
 
 
 def check_names(c: MapConfig) -> MapConfig:

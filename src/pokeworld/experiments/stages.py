@@ -9,13 +9,14 @@ from pathlib import Path
 from typing import Any
 
 from .. import certify, clock, train
+from ..config import to_dict
 from ..data import read_manifest
 from ..errors import PokeworldError
 from ..evaluate import measure
 from ..evaluate.coordinate import build_flow_corpus
 from ..io import atomic_path, read_json, write_json
 from ..models import flow
-from ..progress import HEARTBEAT_S
+from ..progress import HEARTBEAT_S, duration
 from ..rundir import last_logged_step
 from ..sim import generate
 from ..sim.generate import LEGACY_PHYSICS
@@ -23,7 +24,7 @@ from ..train import stacked as train_stacked
 from ..train.loop import past, status_every
 from .attributes import CORPUS_TARGETS
 from .config import MapConfig
-from .launch import default_workers
+from .launch import cores, default_workers
 from .registry import EXPERIMENTS
 from .runs import RunSpec, corpus_dir, run_dir, spec_measure_path, with_map_training
 
@@ -247,3 +248,29 @@ def plan_line(c: MapConfig) -> str:
     return (f"[map] plan: {len(corpora)} corpora ({', '.join(corpora)}; generated or reused) -> {certs} -> "
             f"{len(specs)} runs x {steps} steps on {workers} worker(s) -> probes -> report; progress every "
             f"{int(HEARTBEAT_S)} s (--quiet silences it)")
+
+
+def training_estimate(c: MapConfig, specs: list[RunSpec], workers: int, threads: int) -> str | None:
+    """The time the runs still to train will take on this machine, from two steps of each distinct model timed now
+    (:func:`pokeworld.train.speed.seconds_per_step`); None on a GPU (its speed is not the CPU's) or when every run
+    is trained already."""
+    from ..train.speed import seconds_per_step
+
+    todo = [s for s in specs if not (run_dir(c, s.name) / "DONE").exists()]
+    if not todo:
+        return None
+    steps = {"steps": c.train_steps} if c.train_steps else {}
+    cfgs = [train.make_config(c.train_preset or c.preset, **{**s.train, **steps}) for s in todo]
+    if train.resolve_device(cfgs[0]).type != "cpu":
+        return None
+    threads = threads or max(1, cores() // workers)
+    timed: dict[str, float] = {}  # one timing per distinct model (the seed does not change a step's cost)
+    for cfg in cfgs:
+        key = repr({k: v for k, v in to_dict(cfg).items() if k not in ("seed", "out", "data")})
+        if key not in timed:
+            timed[key] = seconds_per_step(cfg, threads, steps=2)
+    total = sum(timed[repr({k: v for k, v in to_dict(cfg).items() if k not in ("seed", "out", "data")})] * cfg.steps
+                for cfg in cfgs) / min(workers, len(cfgs))
+    rates = ", ".join(f"{s:.2f}" for s in sorted(set(timed.values())))
+    return (f"[map] this machine: {rates} s/step per model on {threads} thread(s) (timed now): the {len(todo)} runs to "
+            f"train take about {duration(total)} on {workers} worker(s), certificates and measurement on top")
