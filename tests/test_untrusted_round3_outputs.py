@@ -276,3 +276,14 @@ def test_a_certificate_record_from_before_ownership_records_is_replaced(tmp_path
     assert io.adopt_legacy(folder, ["certificates.json", "absent.json"]) == ["certificates.json"]
     io.write_json(folder / "certificates.json", {"certificate": {"new": 1}})
     assert io.adopt_legacy(folder, ["certificates.json"]) == []  # a folder with a record adopts nothing more
+
+
+def test_generate_cleans_a_killed_writers_temporary_of_its_own_store_only(tmp_path):
+    from pokeworld.cli import main
+
+    ours = io.temporary_folder(tmp_path / "store")
+    (ours / "store").mkdir()
+    (ours / "store" / "data.h5").write_bytes(b"half")
+    other = io.temporary_folder(tmp_path / "results.json")  # another output's: not this command's to clean
+    assert main(["generate", "--preset", "tiny", "--out", str(tmp_path / "store")]) == 0
+    assert not ours.exists() and other.exists()

@@ -253,15 +253,17 @@ def temporary_folder(final: Path) -> Path:
     return Path(tempfile.mkdtemp(prefix=f".{final.name}.tmp-", dir=final.parent))
 
 
-def remove_stale_temporaries(folder: str | os.PathLike) -> int:
+def remove_stale_temporaries(folder: str | os.PathLike, name: str | None = None) -> int:
     """Delete what interrupted atomic writes left directly in ``folder``: private temporary folders
     (``.<name>.tmp-<random>``, walked without following links) and older temporary files (``.<name>.tmp-<pid>``); a
-    link under such a name is left alone. Only for a folder whose writers have all stopped (the caller holds its
-    lock). Returns how many were removed."""
+    link under such a name is left alone; with ``name``, only the temporaries of that one output. Only for outputs
+    whose writers have all stopped (the caller holds their lock). Returns how many were removed."""
     removed = 0
     with os.scandir(folder) as it:
         for e in it:
-            if _TEMPORARY.fullmatch(e.name) and (e.is_file(follow_symlinks=False) or e.is_dir(follow_symlinks=False)):
+            m = _TEMPORARY.fullmatch(e.name)
+            if m and (name is None or m.group(1) == name) and (e.is_file(follow_symlinks=False)
+                                                                or e.is_dir(follow_symlinks=False)):
                 _discard(Path(e.path))
                 removed += 1
     return removed

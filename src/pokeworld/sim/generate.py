@@ -9,7 +9,7 @@ from tqdm.auto import tqdm
 
 from .. import __version__
 from ..data import Dataset, assign_splits, check_store_destination, save, store_is_current, store_lock
-from ..io import check_writable_dir
+from ..io import check_writable_dir, remove_stale_temporaries
 from .core import PARAM_NAMES, PokeWorldSim
 from .generate_config import (  # the settings live there (the store reader checks manifests with them)
     CORPORA,
@@ -90,6 +90,8 @@ def run(cfg: GenerateConfig) -> Path:
     check_store_destination(out, "pokeworld")
     check_writable_dir(out.parent)
     with store_lock(out):
+        if out.parent.is_dir():  # a killed writer's half-written store (we hold its lock: no writer is left)
+            remove_stale_temporaries(out.parent, out.name)
         if store_is_current(out, content_config(cfg), cfg.overwrite):
             print(f"[generate] {out} already holds this corpus; skipping")
             return out
