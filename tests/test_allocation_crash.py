@@ -29,7 +29,7 @@ STEPS = 400  # long enough at tiny (~20 steps/s here) for the test to kill the s
 
 def _env(work: Path, **extra) -> dict:
     return {**os.environ, "PYTHON": sys.executable, "ALLOC_PRESET": "tiny", "ALLOC_STEPS": str(STEPS),
-            "ALLOC_TESTS": "0", "ALLOC_SNAPSHOT_S": "0.5", "ALLOC_BUDGET_MIN": "6", "ALLOC_WORK": str(work), **extra}
+            "ALLOC_TESTS": "0", "ALLOC_SNAPSHOT_S": "3", "ALLOC_BUDGET_MIN": "6", "ALLOC_WORK": str(work), **extra}
 
 
 def _returned(out: Path) -> set[tuple[str, str]]:
@@ -43,7 +43,8 @@ def _returned(out: Path) -> set[tuple[str, str]]:
 @pytest.fixture(scope="module")
 def killed(tmp_path_factory):
     """An allocation of V then VFX, SIGKILLed (its whole process group) once V came back and VFX's checkpoint
-    did."""
+    did: within a poll (0.2 s) of a snapshot that was read back whole, well before the next one starts (3 s), since
+    a kill while a snapshot is being written may cost that snapshot (docs/model.md, "GPU allocations")."""
     base = tmp_path_factory.mktemp("killed")
     out, work = base / "A", base / "A_work"
     proc = subprocess.Popen(["bash", "scripts/gpu_allocation.sh", str(out), "V", "VFX"], cwd=ROOT,
@@ -97,10 +98,12 @@ def test_the_next_allocation_resumes_the_cut_run_and_the_plan_puts_it_first(kill
     b = allocations.open_allocation(out2, tmp_path)
     assert b.progress["finished"] == [VFX] and b.weights == {VFX: "returned"}
     rows = [json.loads(x) for x in (b.root / "runs" / VFX / "metrics.jsonl").read_text().splitlines()]
-    assert rows[0]["step"] == 0 and rows[-1]["step"] == STEPS  # the first allocation's rows kept
     merged, _ = _merge(tmp_path, out, out2)
     assert set(merged["runs"]) == {V, VFX}
     resumed = merged["runs"][VFX]["allocation"]["resumed"]
+    # the first allocation's rows are kept, unless the kill fell between its parts and its records (then said)
+    kept = resumed.get("metrics_before_resume") == "returned"
+    assert (rows[0]["step"] == 0 if kept else rows[0]["step"] >= step) and rows[-1]["step"] == STEPS
     assert resumed["step"] == step and resumed["from"] == str(carried) and resumed["git"] == "abc1234"
     assert "bfloat16" in resumed["checkpoint"]
 

@@ -158,11 +158,15 @@ def restore_run(c: MapConfig, spec: RunSpec, a: allocations.Allocation, step: in
            "out": job["train"]["out"]}
     dest.mkdir(parents=True, exist_ok=True)
     write_json(dest / "config.json", cfg)
-    for name in ("metrics.jsonl", "ckpt.pt"):
+    # the parts are written before the records, so a kill between the two returns a checkpoint whose metrics the
+    # records do not hold yet: the run resumes all the same, its earlier rows missing (said in resumed.json)
+    names = ("metrics.jsonl", "ckpt.pt") if (src / "metrics.jsonl").exists() else ("ckpt.pt",)
+    for name in names:
         data = read_regular_bytes(src / name, f"a returned run's {name}", 1 << 30)
         with atomic_path(dest / name) as tmp:
             tmp.write_bytes(data)
     write_json(dest / "resumed.json", {"step": step, "from": a.source, "device": a.device.get("device"),
+                                       "metrics_before_resume": "returned" if len(names) == 2 else "not returned",
                                        "date": a.device.get("date"), "git": a.device.get("git"),
                                        "checkpoint": "returned compacted: float32 tensors of at least 4096 elements "
                                                      "(weights and AdamW moments) rounded to bfloat16"})

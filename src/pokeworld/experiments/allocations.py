@@ -203,13 +203,20 @@ def restore_returned(a: Allocation, folder: Path, scratch: Path) -> None:
     finished = set(a.progress.get("finished", []))
     for m in read_stream(folder):
         run = a.root / "runs" / m.run
-        if not (run / "config.json").exists() or (m.kind == "final") != (m.run in finished):
+        if (m.kind == "final") != (m.run in finished) or (m.kind == "final" and not (run / "config.json").exists()):
             continue  # records of another state of the map than the parts (a kill between the two writes)
         ck = load_member(m, scratch)
         try:
             model_from_checkpoint(ck, Path(f"{folder}: the returned {m.kind} of {m.run}"))
         except PokeworldError as e:
             raise ConfigError(str(e)) from None
+        if not (run / "config.json").exists():
+            # the parts are written before the records: a kill between the two returns a checkpoint whose run the
+            # records do not list yet, and the checkpoint carries the run's config itself
+            if not isinstance(ck.get("config"), dict):
+                continue
+            run.mkdir(parents=True, exist_ok=True)
+            write_json(run / "config.json", ck["config"])
         checkpoint.save(ck, run / f"{m.kind}.pt")
         if m.kind == "final":
             a.weights[m.run] = "returned"
