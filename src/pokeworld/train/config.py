@@ -386,6 +386,18 @@ def auto_threads() -> int:
     n = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     return max(1, min(8, n // 2))
 
+def compile_status(mode: str | None) -> dict[str, float]:
+    """What a metrics row records of compilation, never assumed: ``compiled`` (1: the compiled loss is in use, 0:
+    eager) and, for CUDA graphs ('reduce-overhead'), ``cudagraph_skips``: how many graphs inductor declined to
+    capture so far in this process (it does so silently, e.g. for a host read; 0 means every graph was captured)."""
+    status = {"compiled": float(mode is not None)}
+    if mode == "reduce-overhead":
+        from torch._dynamo.utils import counters  # inductor's own tally, the one its logs report
+
+        status["cudagraph_skips"] = float(counters["inductor"].get("cudagraph_skips", 0))
+    return status
+
+
 def resolve_device(cfg: TrainConfig, local_rank: int = 0) -> torch.device:
     """The device ``cfg.device`` names ('auto': the GPU of ``local_rank`` when CUDA is available, else the CPU)."""
     return pick_device(cfg.device, local_rank)
@@ -393,4 +405,4 @@ def resolve_device(cfg: TrainConfig, local_rank: int = 0) -> torch.device:
 
 __all__ = ["TrainConfig", "PRESETS", "RESUMABLE_FIELDS", "RETIRED_FIELDS", "COMPILE_SETTINGS", "COMPILE_MODES",
            "field_defaults", "make_config", "validate", "use_fast_path", "compile_mode_for", "legacy_compile",
-           "check_existing", "auto_threads", "resolve_device"]
+           "check_existing", "auto_threads", "resolve_device", "compile_status"]

@@ -45,6 +45,7 @@ from .config import (
     auto_threads,
     check_existing,
     compile_mode_for,
+    compile_status,
     resolve_device,
     use_fast_path,
     validate,
@@ -97,18 +98,6 @@ class _Ranks:
     @property
     def main(self) -> bool:
         return self.rank == 0
-
-
-def compile_status(mode: str | None) -> dict[str, float]:
-    """What a metrics row records of compilation, never assumed: ``compiled`` (1: the compiled loss is in use, 0:
-    eager) and, for CUDA graphs ('reduce-overhead'), ``cudagraph_skips``: how many graphs inductor declined to
-    capture so far in this process (it does so silently, e.g. for a host read; 0 means every graph was captured)."""
-    status = {"compiled": float(mode is not None)}
-    if mode == "reduce-overhead":
-        from torch._dynamo.utils import counters  # inductor's own tally, the one its logs report
-
-        status["cudagraph_skips"] = float(counters["inductor"].get("cudagraph_skips", 0))
-    return status
 
 
 class _SingleRun:

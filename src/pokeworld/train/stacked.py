@@ -79,6 +79,7 @@ from .config import (
     auto_threads,
     check_existing,
     compile_mode_for,
+    compile_status,
     make_config as make_train_config,
     resolve_device,
     use_fast_path,
@@ -351,7 +352,7 @@ class StackedGroup:
                                        dict(sigreg_directions=dirs, **mkw, **self.shared_kw))
 
         self.vloss = torch.vmap(member_loss, randomness="different")
-        mode = compile_mode_for(c0, dev)  # compile is a group-key field: one setting for the whole group
+        mode = self.mode = compile_mode_for(c0, dev)  # compile is a group-key field: one setting for the whole group
         if mode:
             # the stacked state is updated in place and never moves: marked static, CUDA graphs read it where it
             # lives (a plain tensor argument would be copied in before every replay, and its in-place BatchNorm
@@ -549,7 +550,7 @@ class _StackedRun:
     def write_rows(self, row: dict[str, float], sums: dict[str, torch.Tensor], n: int) -> float:
         vals = {k: (v / n).cpu() for k, v in sums.items()}
         for i, log in enumerate(self.logs):
-            member = dict(row, stacked_members=self.g.M)
+            member = dict(row, stacked_members=self.g.M, **compile_status(self.g.mode))
             member.update({k: float(v[i]) for k, v in vals.items()
                            if k not in ("proprio", "touch") or k in self.g.own_terms[i]})
             log.write(member)
