@@ -163,6 +163,12 @@ def parsing_command_line() -> Iterator[None]:
         _PARSING.reset(token)
 
 
+def config_error(message: str) -> PokeworldError:
+    """The error a config's own check raises: :class:`FieldError` while the command line is parsed (one line, not
+    the parser's box), ConfigError otherwise."""
+    return (FieldError if _PARSING.get() else ConfigError)(message)
+
+
 def check_fields(cfg: Any) -> None:
     """ConfigError, in one line naming the field, unless every field of the dataclass ``cfg`` holds a value of
     its annotated type (bool, int, float, str, a nested config, tuples of them), every number in it is finite
@@ -173,9 +179,8 @@ def check_fields(cfg: Any) -> None:
         value = getattr(cfg, f.name)
         problem = _problem(value, hints.get(f.name), limits.get(f.name))
         if problem:
-            error = FieldError if _PARSING.get() else ConfigError
-            raise error(f"{cls.__name__}.{f.name}{'' if problem.startswith('[') else ' '}{problem}, "
-                        f"got {shown(value)}")
+            raise config_error(f"{cls.__name__}.{f.name}{'' if problem.startswith('[') else ' '}{problem}, "
+                               f"got {shown(value)}")
 
 
 def check_fractions(name: str, fractions: tuple[float, ...]) -> None:

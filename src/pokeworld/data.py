@@ -177,7 +177,8 @@ def save(ds: Dataset, out_dir: str | os.PathLike, manifest: dict[str, Any] | Non
                 # one chunk per episode, deflate level 1; not LZF: h5py's LZF leaves its hash table
                 # uninitialised, so the same array can compress to different bytes from run to run
                 per_episode = {"chunks": (1,) + a.shape[1:], "compression": "gzip", "compression_opts": 1}
-                f.create_dataset(name, data=a, track_times=False, **(per_episode if a.ndim >= 2 else {}))
+                chunked = a.ndim >= 2 and a.size > 0  # a width-0 stream (no touch) has no chunk to compress
+                f.create_dataset(name, data=a, track_times=False, **(per_episode if chunked else {}))
         with open(tmp / "data.h5", "xb") as fh:  # a new file in our private temporary folder
             fh.write(image.getbuffer())
         del image

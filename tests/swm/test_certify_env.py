@@ -3,6 +3,8 @@ a LeWM and its untrained twin through certify_model, the factor table and figure
 
 import json
 
+import numpy as np
+
 import pytest
 
 from pokeworld.cli import main
@@ -19,7 +21,8 @@ def test_world_collected_corpus_runs_end_to_end_and_is_reused(tmp_path, capsys):
     result = json.loads((out / "swm_certify.json").read_text())
     assert set(result["factors"]) == {"physics.mass", "physics.stiffness"}
     row = result["factors"]["physics.mass"]
-    for key in ("certificate", "gru_oracle", "linear_floor", "ridge", "untrained", "gate_passed", "status"):
+    for key in ("certificate", "gru_oracle", "linear_floor", "local_dynamics", "ridge", "untrained", "gate_passed",
+                "status"):
         assert key in row
     assert row["ridge"] is not None and row["untrained"] is not None  # the protocol probed the factor itself
     assert result["corpus"]["episodes"] == 24 and result["corpus"]["observations"] == ["proprio", "touch"]
@@ -27,9 +30,10 @@ def test_world_collected_corpus_runs_end_to_end_and_is_reused(tmp_path, capsys):
     assert set(protocol["probes"]["ridge"]["all"]) == {"physics.mass", "physics.stiffness"}
     assert protocol["certificates"]["source"] == "given"
     md = (out / "swm_certify.md").read_text()
-    assert "| factor | certificate (GRU oracle / linear floor) |" in md and "| physics.mass |" in md
+    assert "| factor | certificate (GRU oracle / linear floor / local dynamics) |" in md and "| physics.mass |" in md
     assert (out / "swm_certify.png").stat().st_size > 0
-    assert set(result["cost_seconds"]) == {"collect_s", "certify_s", "train_s", "protocol_s", "total_s"}
+    assert set(result["cost_seconds"]) == {"collect_s", "certify_s", "train_s", "protocol_s", "xjepa_s",
+                                           "total_s"}
     capsys.readouterr()
     assert main(argv) == 0  # the second run reuses the corpus and the trained LeWM
     printed = capsys.readouterr().out
@@ -65,3 +69,52 @@ def test_bad_input_is_one_line_before_any_collection(tmp_path, capsys, args, mes
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and re.search(message, err[0]), err
     assert not (out / "corpus.h5").exists()
+
+
+def test_the_variant_factorial_trains_probes_and_reports_every_variant(tmp_path, capsys):
+    eps = planted_rollouts(48, 20)
+    eps["pixels"] = eps["pixels"].repeat(2, 2).repeat(2, 3)  # 16 px: the smallest frame X-JEPA reads
+    data = write_swm_h5(tmp_path / "planted16.h5", eps)
+    out = tmp_path / "factorial"
+    argv = ["swm-certify", "--data", data, "--preset", "tiny", "--out", str(out), "--variants", "V", "VF", "VX",
+            "VFX", "--xjepa-seeds", "0", "1"]
+    assert main(argv) == 0
+    result = json.loads((out / "swm_certify.json").read_text())
+    x = result["xjepa"]
+    assert set(x["variants"]) == {"V", "VF", "VX", "VFX"} and x["seeds"] == [0, 1]
+    for v, role in (("V", "absent"), ("VF", "input only"), ("VX", "target only"), ("VFX", "input and target")):
+        assert x["state_role"][v] == role and set(x["variants"][v]) == {"0", "1"}
+        config = json.loads((out / "xjepa" / "runs" / f"{v}-s1" / "config.json").read_text())
+        assert config["variant"] == v and config["seed"] == 1 and config["window"] <= 21
+    row = x["summary"]["drag.damping"]
+    assert set(row["variants"]) == {"V", "VF", "VX", "VFX"}
+    assert set(row["effects_ridge"]) == {"target_without_input", "target_with_input", "input_without_target"}
+    cell = row["variants"]["VX"]
+    assert cell["ridge"] == pytest.approx(np.mean([s["ridge"] for s in cell["per_seed"].values()]))
+    md = (out / "swm_certify.md").read_text()
+    assert "## Targets, not inputs?" in md and "VX (target only)" in md and "| drag.damping |" in md
+    assert (out / "swm_certify_variants.png").stat().st_size > 0
+    capsys.readouterr()
+    assert main(argv) == 0  # trained variants are reused, not retrained
+    assert "training" not in capsys.readouterr().out.lower().replace("x-jepa", "")
+
+
+def test_a_variant_the_factorial_does_not_define_is_one_line(tmp_path, capsys):
+    assert main(["swm-certify", "--data", "x.h5", *TINY, "--variants", "V", "VX_t", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--variants takes distinct names from ['V', 'VF', 'VX', 'VFX']" in err[0], err
+
+
+def test_the_held_policy_collects_actions_held_for_several_steps(tmp_path):
+    import h5py
+
+    from pokeworld.swm.certify_env import collect, make_config
+
+    cfg = make_config("tiny", env="swm/PokeWorld-v0", factors=("physics.mass",), episodes=4, policy="held",
+                      hold=(3, 5), out=str(tmp_path))
+    with h5py.File(collect(cfg, tmp_path / "corpus.h5"), "r") as f:
+        actions, lengths = f["action"][()], f["ep_len"][()]
+    first = actions[: lengths[0] - 1]  # one episode's transitions (the last row holds no transition)
+    changes = np.flatnonzero(np.any(first[1:] != first[:-1], axis=-1)) + 1
+    runs = np.diff(changes)
+    assert len(changes) >= 2 and runs.min() >= 3 and runs.max() <= 5, changes

@@ -96,5 +96,8 @@ def test_planted_factor_is_certified_and_noise_is_not(planted):
     assert not gate["noise.level"]["passed"] and not gate["noise.level"]["paper_rule_passed"], gate["noise.level"]
     assert certs["estimators"]["gru"]["all"]["noise.level"] < 0.2
     assert certs["estimators"]["linear"]["all"]["drag.damping"] < 0.4  # the floor alone would not certify it
-    assert set(certs["estimators"]) == {"gru", "linear"}
+    assert set(certs["estimators"]) == {"gru", "linear", "sysid"}
+    # the local-dynamics fit reads the damping off each window's velocity decay, and nothing of the noise level
+    assert certs["estimators"]["sysid"]["all"]["drag.damping"] > 0.95
+    assert certs["estimators"]["sysid"]["all"]["noise.level"] < 0.2
     assert gate["drag.damping"]["rule"] == "best estimator R^2 on all windows >= 0.4"

@@ -92,7 +92,7 @@ def check_gnll_variance(variance: str, objective: str, bound: float) -> None:
 #: inside every range); they exist so that a checkpoint from elsewhere cannot make the constructor build
 #: millions of modules before its weights are compared (the parameter count is bounded separately).
 MODEL_INT_BOUNDS: dict[str, tuple[int, int]] = {
-    "proprio_dim": (1, 4096), "touch_dim": (1, 4096), "action_dim": (1, 4096), "image_size": (16, 4096),
+    "proprio_dim": (0, 4096), "touch_dim": (0, 4096), "action_dim": (1, 4096), "image_size": (16, 4096),
     "latent_dim": (1, 65536), "width": (1, 65536), "depth": (1, 64), "heads": (1, 1024), "max_len": (1, 65536),
     "vec_dim": (1, 65536), "contact_channel": (0, 4095), "recon_positions": (1, 65536), "belief_dim": (1, 65536),
     "head_layers": (1, 16)}
@@ -290,10 +290,13 @@ class XJEPA(nn.Module):
         per_head = objective == "gnll" and gnll_variance == "per_head"
         lv_out = 2 if objective == "gnll" and not per_head else 1
         self.variant, self.horizons, self.latent_dim, self.width = variant, horizons, latent_dim, width
-        self.inputs, self.targets = VARIANTS[variant]
         self.objective, self.tokens, self.image_size = objective, tokens, image_size
         self.contact_channel, self.recon_positions = contact_channel, recon_positions
         self.dims = {"proprio": proprio_dim, "touch": touch_dim}
+        # a stream of width 0 (a store without touch, as an swm environment's) is neither read nor forecast, so
+        # on such a store VX is VX_p and VFX reads and forecasts proprio only
+        present = lambda streams: tuple(m for m in streams if self.dims.get(m, 1) > 0)  # noqa: E731
+        self.inputs, self.targets = (present(streams) for streams in VARIANTS[variant])
         self.action_dim = action_dim
 
         self.encoder = FusedEncoder(image_size, tuple(channels), proprio_dim, touch_dim,

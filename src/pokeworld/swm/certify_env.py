@@ -3,7 +3,8 @@
 stable-worldmodel environments vary physical factors when they are named in ``options={"variation": [...]}``
 (``swm/FingerDMControl-v0``: ``spinner.density``, ``spinner.friction``, ``agent.proximal_density``, ...). The command
 
-1. collects a corpus with ``swm.World`` and swm's ``RandomPolicy`` under the named variations (HDF5, ``<out>/
+1. collects a corpus with ``swm.World`` and a behaviour policy (swm's ``RandomPolicy``, or actions held for several
+   steps: :mod:`pokeworld.swm.behaviour`) under the named variations (HDF5, ``<out>/
    corpus.h5``; reused when collected with the same settings), or takes an existing labelled dataset (``--data``);
 2. reads it into a protocol store (:mod:`pokeworld.swm.factors`: factors constant within episodes are the targets,
    the others are dropped and listed);
@@ -33,11 +34,13 @@ from typing import Any
 import torch
 
 from .. import protocol as P
-from ..config import from_preset, to_dict
+from ..config import config_error, from_preset, to_dict
 from ..errors import ConfigError, DataError
 from ..evaluate import tables as R
 from ..io import atomic_path, hash_arrays, read_json_if_present, read_jsonl, remove_own_file, write_json
-from . import lewm_config as LC
+from ..train.config import PRESETS as TRAIN_PRESETS
+from . import factorial as X, lewm_config as LC
+from .behaviour import POLICIES, make_policy
 from .factor_gate import KIND, FactorCertifyConfig, certify_factors
 from .factor_report import factor_rows, figure, table_markdown
 from .factors import FactorDataConfig, read_factors
@@ -66,6 +69,11 @@ class SwmCertifyConfig:
     """Steps per collected episode."""
     num_envs: int = 1
     """Environments World steps side by side."""
+    policy: str = "random"
+    """Behaviour policy of the collection: random (swm's RandomPolicy, a new action every step) or held (each random
+    action held for a random number of steps in --hold, which excites the dynamics; pokeworld.swm.behaviour)."""
+    hold: tuple[int, int] = (4, 16)
+    """--policy held: the fewest and most steps an action is held."""
     image_size: int = 32
     """Side of the collected pixels."""
     observations: tuple[str, ...] = ()
@@ -73,7 +81,7 @@ class SwmCertifyConfig:
     split_fractions: tuple[float, float, float] = (0.5, 0.25, 0.25)
     """Train (LeWM) / probe-fit (certificates and probes) / probe-test fractions of the episodes."""
     seed: int = 0
-    """Seed of the collection (resets and random policy), the split, the certificates, LeWM and the probes."""
+    """Seed of the collection (resets and behaviour policy), the split, the certificates, LeWM and the probes."""
     certificate: FactorCertifyConfig = field(default_factory=FactorCertifyConfig)
     """The factor certificates (window, GRU oracle size, gate threshold)."""
     lewm_preset: str = "cpu"
@@ -84,23 +92,41 @@ class SwmCertifyConfig:
     """Other LeWMConfig fields to override, from Python (e.g. {"embed_dim": 32})."""
     protocol_preset: str = "cpu"
     """Preset of pokeworld.protocol.ProtocolConfig (window and stride come from the certificate config)."""
+    variants: tuple[str, ...] = ()
+    """X-JEPA variants to train beside the LeWM, with the environment's low-dimensional observation in the proprio
+    role: V (absent), VF (input only), VX (forecasting target only), VFX (both); empty: the LeWM only."""
+    xjepa_preset: str = "cpu"
+    """pokeworld train preset of the X-JEPA variants (window and horizons fitted to the episode length)."""
+    xjepa_steps: int = 0
+    """X-JEPA optimiser steps (0: the preset's)."""
+    xjepa_seeds: tuple[int, ...] = (0,)
+    """Seeds of the X-JEPA variants (initialisation and window sampling); every variant is trained at each."""
 
     def __post_init__(self) -> None:
         if self.lewm_steps < 0:
-            raise ConfigError(f"lewm_steps must be >= 0 (0: the preset's), got {self.lewm_steps}")
+            raise config_error(f"lewm_steps must be >= 0 (0: the preset's), got {self.lewm_steps}")
         for name in ("episodes", "steps", "num_envs", "image_size"):
             if getattr(self, name) < 1:
-                raise ConfigError(f"{name} must be >= 1, got {getattr(self, name)}")
+                raise config_error(f"{name} must be >= 1, got {getattr(self, name)}")
         if not self.data and self.steps < self.certificate.window:
-            raise ConfigError(f"steps ({self.steps}) must be at least the certificate window "
-                              f"({self.certificate.window}): every window lies inside one episode")
+            raise config_error(f"steps ({self.steps}) must be at least the certificate window "
+                               f"({self.certificate.window}): every window lies inside one episode")
+        X.check_variants(self.variants)
+        if self.policy not in POLICIES or len(self.hold) != 2 or not 1 <= self.hold[0] <= self.hold[1] <= 1000:
+            raise config_error(f"policy must be one of {list(POLICIES)} and hold two step counts 1 <= min <= max <= "
+                               f"1000, got {self.policy!r}, {list(self.hold)}")
+        if self.xjepa_steps < 0 or self.xjepa_preset not in TRAIN_PRESETS or not self.xjepa_seeds:
+            raise config_error(f"xjepa_steps must be >= 0, xjepa_preset one of {sorted(TRAIN_PRESETS)} and "
+                               f"xjepa_seeds not empty, got {self.xjepa_steps}, {self.xjepa_preset!r}, "
+                               f"{list(self.xjepa_seeds)}")
         if self.lewm_preset not in LC.PRESETS or self.protocol_preset not in P.PRESETS:
-            raise ConfigError(f"lewm_preset must be one of {sorted(LC.PRESETS)} and protocol_preset one of "
-                              f"{sorted(P.PRESETS)}, got {self.lewm_preset!r}, {self.protocol_preset!r}")
+            raise config_error(f"lewm_preset must be one of {sorted(LC.PRESETS)} and protocol_preset one of "
+                               f"{sorted(P.PRESETS)}, got {self.lewm_preset!r}, {self.protocol_preset!r}")
 
 
 PRESETS: dict[str, dict[str, Any]] = {
     "tiny": {"episodes": 32, "steps": 16, "image_size": 16, "lewm_preset": "tiny", "protocol_preset": "tiny",
+             "xjepa_preset": "tiny",
              "certificate": {"window": 8, "stride": 2, "epochs": 4, "patience": 2, "gru_hidden": 16,
                              "max_windows": 400}},
     "cpu": {},
@@ -139,7 +165,8 @@ def variation_names(env_id: str) -> list[str]:
 
 
 def collect(cfg: SwmCertifyConfig, path: Path) -> Path:
-    """Record ``cfg.episodes`` random-policy episodes of ``cfg.env`` under the variations ``cfg.factors`` (HDF5)."""
+    """Record ``cfg.episodes`` episodes of ``cfg.env`` under the variations ``cfg.factors`` with the behaviour policy
+    ``cfg.policy`` (HDF5)."""
     swm = stable_worldmodel()
     names = variation_names(cfg.env)
     unknown = [f for f in cfg.factors if f not in names]
@@ -149,7 +176,7 @@ def collect(cfg: SwmCertifyConfig, path: Path) -> Path:
                       max_episode_steps=cfg.steps, goal_conditioned=False)
     staging = path.with_name(f".{path.stem}.staging-{os.getpid()}{path.suffix}")
     try:
-        world.set_policy(swm.policy.RandomPolicy(seed=cfg.seed))
+        world.set_policy(make_policy(cfg.policy, cfg.seed, cfg.hold))
         writer = swm.data.get_format("hdf5").open_writer(staging, mode="overwrite")
         world.collect(writer=writer, episodes=cfg.episodes, seed=cfg.seed,
                       options={"variation": list(cfg.factors)}, progress=False)
@@ -171,6 +198,8 @@ def corpus(cfg: SwmCertifyConfig, out: Path) -> tuple[Path, float]:
     os.environ.setdefault("MUJOCO_GL", "osmesa")  # headless DMControl rendering; read when dm_control loads
     path, key_path = out / CORPUS, out / "corpus.json"
     key = {k: getattr(cfg, k) for k in ("env", "factors", "episodes", "steps", "num_envs", "image_size", "seed")}
+    if cfg.policy != "random":  # corpora collected before the option existed keep their key
+        key.update(policy=cfg.policy, hold=cfg.hold)
     key = json.loads(json.dumps(key))
     if path.exists() and read_json_if_present(key_path, "a cached corpus's key (corpus.json)") == key:
         print(f"[swm-certify] reusing {path}")
@@ -221,6 +250,10 @@ def run(cfg: SwmCertifyConfig) -> dict:
     name = f"LeWM ({lcfg.readout})"
     report = P.certify_model(model, ds, out / "protocol", untrained=twin, certificates=certs, name=name, config=pcfg)
     cost["protocol_s"] = time.time() - t0
+    t0 = time.time()
+    xjepa = (X.run_factorial(ds, certs, pcfg, out, digest, cfg.variants, cfg.xjepa_seeds, cfg.xjepa_preset,
+                             cfg.xjepa_steps) if cfg.variants else None)
+    cost["xjepa_s"] = time.time() - t0
     cost["total_s"] = time.time() - t_all
     rows = factor_rows(report, certs)
     result = {"env": None if cfg.data else cfg.env, "source": str(source), "command": command_line(),
@@ -231,16 +264,41 @@ def run(cfg: SwmCertifyConfig) -> dict:
                          "frame_shape": list(ds.frames.shape[2:])},
               "factors": rows, "dropped_factors": ds.manifest["dropped_factors"],
               "certificates": {k: certs[k] for k in ("estimators", "counts", "gate")},
-              "training": read_jsonl(out / "lewm" / "metrics.jsonl")[-1:],
+              "training": read_jsonl(out / "lewm" / "metrics.jsonl")[-1:], "xjepa": xjepa,
               "cost_seconds": {k: round(v, 1) for k, v in cost.items()},
               "provenance": {"git": R.git_commit(), "torch_threads": torch.get_num_threads()}}
     write_json(out / f"{RESULT}.json", result)
     figure(rows, name, out / f"{RESULT}.png")
+    if xjepa:
+        X.figure(xjepa["summary"], cfg.variants, f"{result['env'] or source}: X-JEPA variants (state absent / "
+                 "input / target / both) vs the certificate", out / f"{RESULT}_variants.png")
     with atomic_path(out / f"{RESULT}.md") as tmp:
         Path(tmp).write_text(markdown(result, name))
     print("\n".join(table_markdown(rows, name)))
     print(f"[swm-certify] wrote {out / RESULT}.{{json,md,png}} ({cost['total_s']:.0f}s)")
     return result
+
+
+def policy_words(result: dict) -> str:
+    """The collection's behaviour policy in words (a given dataset's is unknown)."""
+    cfg = result["config"]
+    if cfg["data"]:
+        return "given dataset"
+    if cfg.get("policy", "random") == "held":
+        return f"random actions held {cfg['hold'][0]}–{cfg['hold'][1]} steps"
+    return "random policy"
+
+
+def variants_markdown(xjepa: dict, variants: list[str]) -> list[str]:
+    """The X-JEPA factorial's section of the record: what was trained, the factor × variant table, its costs."""
+    runs = [r for per_seed in xjepa["variants"].values() for r in per_seed.values()]
+    return ["## Targets, not inputs? X-JEPA with the state absent, an input, a target, both", "",
+            f"X-JEPA at the `{xjepa['preset']}` train preset, {runs[0]['steps']} steps, seeds {xjepa['seeds']}, the "
+            "environment's low-dimensional observation in the proprio role (no touch stream); cells: predictor-state "
+            "R² ridge / MLP (untrained twin's ridge), the mean over seeds; † and \"no claim\": the factor's gate "
+            f"failed. Cost: training {sum(r['train_s'] for r in runs):.0f} s, probes "
+            f"{sum(r['protocol_s'] for r in runs):.0f} s in all.", "",
+            *X.table_markdown(xjepa["summary"], tuple(variants))]
 
 
 def command_line() -> str:
@@ -255,23 +313,26 @@ def markdown(result: dict, name: str) -> str:
     c, cost = result["corpus"], result["cost_seconds"]
     lines = [f"# What {name} knows about {result['env'] or result['source']}'s physical factors", "",
              f"Command: `{result['command']}`", "",
-             f"Corpus: {c['episodes']} episodes × {c['steps']} steps (random policy; split train / probe-fit / "
+             f"Corpus: {c['episodes']} episodes × {c['steps']} steps ({policy_words(result)}; split train / probe-fit / "
              f"probe-test {c['split_counts']['train']} / {c['split_counts']['probe_fit']} / "
              f"{c['split_counts']['probe_test']}), frames {c['frame_shape']}, observations {c['observations']} "
              f"(width {c['observation_width']}), content {c['content_sha256'][:12]}.", "",
              f"Cost (wall seconds): collect {cost['collect_s']}, certificates {cost['certify_s']}, LeWM training "
-             f"{cost['train_s']}, protocol {cost['protocol_s']}, total {cost['total_s']}.", "",
+             f"{cost['train_s']}, protocol {cost['protocol_s']}, X-JEPA variants {cost.get('xjepa_s', 0.0)}, total "
+             f"{cost['total_s']}.", "",
              *table_markdown(result["factors"], name), "",
              "Certificate: held-out R² on probe-test episodes, best of the GRU oracle and the linear floor, both "
              "reading the raw non-pixel observations and actions of the same windows the probes read (all windows; the "
              "action after the last observation zeroed). Model: leak-free ridge / MLP probes of the LeWM predictor "
              "state; untrained: the same ridge probe of the untrained twin. † and \"no claim\": the gate failed, so "
              "the model's number says nothing about what it knows."]
+    if result.get("xjepa"):
+        lines += ["", *variants_markdown(result["xjepa"], result["config"]["variants"])]
     if result["dropped_factors"]:
         lines += ["", "Dropped factors (not per-episode targets): "
                   + "; ".join(f"{k}: {v}" for k, v in result["dropped_factors"].items()) + "."]
     return "\n".join(lines) + "\n"
 
 
-__all__ = ["PRESETS", "SwmCertifyConfig", "collect", "command_line", "corpus", "make_config", "markdown", "run",
-           "variation_names"]
+__all__ = ["PRESETS", "SwmCertifyConfig", "collect", "command_line", "corpus", "make_config", "markdown", "policy_words",
+           "run", "variants_markdown", "variation_names"]

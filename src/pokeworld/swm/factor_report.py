@@ -1,7 +1,7 @@
 """The factor table of ``pokeworld swm-certify``: certificate, model R² and gate per physical factor, and its figure.
 
-One row per factor: the certificate (best of the GRU oracle and the linear floor, held-out R² from raw non-pixel
-observations and actions, :mod:`pokeworld.swm.factor_gate`), the model's leak-free probes (ridge, MLP) and the
+One row per factor: the certificate (best of the GRU oracle, the linear floor and the local-dynamics fit, held-out R²
+from raw non-pixel observations and actions, :mod:`pokeworld.swm.factor_gate`), the model's leak-free probes (ridge, MLP) and the
 untrained twin's ridge probe from :func:`pokeworld.protocol.certify_model`'s report, and the gate. A factor whose
 gate failed gets † on its model numbers and the status "no claim": the model's R² then says nothing about
 whether the model knows it, since the raw observations may not carry it either.
@@ -24,7 +24,8 @@ def factor_rows(report: dict, certificates: dict) -> dict[str, dict]:
     for q, g in certificates["gate"].items():
         est = {e: r[KIND].get(q) for e, r in certificates["estimators"].items() if KIND in r}
         rows[q] = {"certificate": g.get("certificate"), "certificate_estimator": g.get("estimator"),
-                   "gru_oracle": est.get("gru"), "linear_floor": est.get("linear"), "threshold": g["threshold"],
+                   "gru_oracle": est.get("gru"), "linear_floor": est.get("linear"),
+                   "local_dynamics": est.get("sysid"), "threshold": g["threshold"],
                    "gate_passed": bool(g["passed"]), "paper_rule_passed": bool(g["paper_rule_passed"]),
                    "ridge": get("probes", "ridge", q), "mlp": get("probes", "mlp", q),
                    "action_conditioned": get("probes_action_conditioned", "ridge", q),
@@ -39,12 +40,14 @@ def fmt(v: float | None) -> str:
 
 def table_markdown(rows: dict[str, dict], model: str) -> list[str]:
     """The markdown table: factor | certificate | model R² (ridge, MLP) | untrained | gate."""
-    lines = [f"| factor | certificate (GRU oracle / linear floor) | {model} R² ridge / MLP | untrained ridge | gate |",
+    lines = [f"| factor | certificate (GRU oracle / linear floor / local dynamics) | {model} R² ridge / MLP | untrained "
+             "ridge | gate |",
              "|---|---|---|---|---|"]
     for q, r in rows.items():
         mark = "" if r["gate_passed"] else "†"
         verdict = "PASS" if r["gate_passed"] else "FAIL: no claim"
-        lines.append(f"| {q} | {fmt(r['certificate'])} ({fmt(r['gru_oracle'])} / {fmt(r['linear_floor'])}) | "
+        lines.append(f"| {q} | {fmt(r['certificate'])} ({fmt(r['gru_oracle'])} / {fmt(r['linear_floor'])} / "
+                     f"{fmt(r.get('local_dynamics'))}) | "
                      f"{fmt(r['ridge'])}{mark} / {fmt(r['mlp'])}{mark} | {fmt(r['untrained'])} | "
                      f"{verdict} (≥ {r['threshold']:.2f}) |")
     return lines
@@ -59,15 +62,17 @@ def figure(rows: dict[str, dict], model: str, path: Path) -> Path:
 
     qs = list(rows)
     series = [("certificate (gate)", "certificate", "0.75"), ("GRU oracle", "gru_oracle", "0.45"),
-              ("linear floor", "linear_floor", "0.6"), (f"{model} ridge", "ridge", "tab:blue"),
+              ("linear floor", "linear_floor", "0.6"), ("local dynamics", "local_dynamics", "0.3"),
+              (f"{model} ridge", "ridge", "tab:blue"),
               (f"{model} MLP", "mlp", "tab:cyan"), ("untrained ridge", "untrained", "tab:orange")]
-    series = [s for s in series if any(rows[q][s[1]] is not None for q in qs)]
+    series = [s for s in series if any(rows[q].get(s[1]) is not None for q in qs)]
     fig, ax = plt.subplots(figsize=(1.6 * len(qs) + 3.0, 3.6))
     width, x = 0.8 / len(series), np.arange(len(qs))
     for i, (label, key, color) in enumerate(series):
-        vals = np.clip([np.nan if rows[q][key] is None else rows[q][key] for q in qs], -0.1, 1.0)
+        vals = np.clip([np.nan if rows[q].get(key) is None else rows[q][key] for q in qs], -0.1, 1.0)
         # a model bar for a factor whose gate failed is hatched: its height is no claim
-        hatch = ["//" if i >= 3 and not rows[q]["gate_passed"] else "" for q in qs]
+        model_bar = key in ("ridge", "mlp", "untrained")
+        hatch = ["//" if model_bar and not rows[q]["gate_passed"] else "" for q in qs]
         for j, v in enumerate(vals):
             if np.isfinite(v):
                 ax.bar(x[j] + (i - (len(series) - 1) / 2) * width, v, width, color=color, hatch=hatch[j],

@@ -131,7 +131,7 @@ def data_stats(ds, episodes: np.ndarray) -> dict[str, np.ndarray]:
     ep = np.asarray(episodes)
     st = {}
     for name, arr in (("proprio", ds.proprio[ep]), ("touch", ds.touch[ep]), ("action", ds.actions[ep])):
-        flat = arr.reshape(-1, arr.shape[-1]).astype(np.float64)
+        flat = arr.reshape(-1, arr.shape[-1]).astype(np.float64) if arr.size else np.zeros((1, arr.shape[-1]))
         st[f"{name}_mean"], st[f"{name}_std"] = flat.mean(0), flat.std(0)
     if all(k in ds.params for k in SYSID_PARAMS):
         p = np.stack([ds.params[k][ep] for k in SYSID_PARAMS], -1).astype(np.float64)
