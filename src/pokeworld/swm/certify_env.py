@@ -313,19 +313,19 @@ def markdown(result: dict, name: str) -> str:
     c, cost = result["corpus"], result["cost_seconds"]
     lines = [f"# What {name} knows about {result['env'] or result['source']}'s physical factors", "",
              f"Command: `{result['command']}`", "",
-             f"Corpus: {c['episodes']} episodes × {c['steps']} steps ({policy_words(result)}; split train / probe-fit / "
-             f"probe-test {c['split_counts']['train']} / {c['split_counts']['probe_fit']} / "
+             f"Corpus: {c['episodes']} episodes × {c['steps']} steps ({policy_words(result)}; split train / "
+             f"probe-fit / probe-test {c['split_counts']['train']} / {c['split_counts']['probe_fit']} / "
              f"{c['split_counts']['probe_test']}), frames {c['frame_shape']}, observations {c['observations']} "
              f"(width {c['observation_width']}), content {c['content_sha256'][:12]}.", "",
              f"Cost (wall seconds): collect {cost['collect_s']}, certificates {cost['certify_s']}, LeWM training "
              f"{cost['train_s']}, protocol {cost['protocol_s']}, X-JEPA variants {cost.get('xjepa_s', 0.0)}, total "
              f"{cost['total_s']}.", "",
              *table_markdown(result["factors"], name), "",
-             "Certificate: held-out R² on probe-test episodes, best of the GRU oracle and the linear floor, both "
-             "reading the raw non-pixel observations and actions of the same windows the probes read (all windows; the "
-             "action after the last observation zeroed). Model: leak-free ridge / MLP probes of the LeWM predictor "
-             "state; untrained: the same ridge probe of the untrained twin. † and \"no claim\": the gate failed, so "
-             "the model's number says nothing about what it knows."]
+             "Certificate: held-out R² on probe-test episodes, best of the GRU oracle, the linear floor and the "
+             "local-dynamics fit, all reading the raw non-pixel observations and actions of the same windows the "
+             "probes read (all windows; the action after the last observation zeroed). Model: leak-free ridge / MLP "
+             "probes of the LeWM predictor state; untrained: the same ridge probe of the untrained twin. † and "
+             "\"no claim\": the gate failed, so the model's number says nothing about what it knows."]
     if result.get("xjepa"):
         lines += ["", *variants_markdown(result["xjepa"], result["config"]["variants"])]
     if result["dropped_factors"]:
@@ -334,5 +334,5 @@ def markdown(result: dict, name: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-__all__ = ["PRESETS", "SwmCertifyConfig", "collect", "command_line", "corpus", "make_config", "markdown", "policy_words",
-           "run", "variants_markdown", "variation_names"]
+__all__ = ["PRESETS", "SwmCertifyConfig", "collect", "command_line", "corpus", "make_config", "markdown",
+           "policy_words", "run", "variants_markdown", "variation_names"]

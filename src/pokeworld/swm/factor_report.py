@@ -1,10 +1,10 @@
 """The factor table of ``pokeworld swm-certify``: certificate, model R² and gate per physical factor, and its figure.
 
-One row per factor: the certificate (best of the GRU oracle, the linear floor and the local-dynamics fit, held-out R²
-from raw non-pixel observations and actions, :mod:`pokeworld.swm.factor_gate`), the model's leak-free probes (ridge, MLP) and the
-untrained twin's ridge probe from :func:`pokeworld.protocol.certify_model`'s report, and the gate. A factor whose
-gate failed gets † on its model numbers and the status "no claim": the model's R² then says nothing about
-whether the model knows it, since the raw observations may not carry it either.
+One row per factor: the certificate (best of the GRU oracle, the linear floor and the local-dynamics fit, held-out
+R² from raw non-pixel observations and actions, :mod:`pokeworld.swm.factor_gate`), the model's leak-free probes
+(ridge, MLP) and the untrained twin's ridge probe from :func:`pokeworld.protocol.certify_model`'s report, and the
+gate. A factor whose gate failed gets † on its model numbers and the status "no claim": the model's R² then says
+nothing about whether the model knows it, since the raw observations may not carry it either.
 """
 
 from __future__ import annotations
@@ -40,8 +40,8 @@ def fmt(v: float | None) -> str:
 
 def table_markdown(rows: dict[str, dict], model: str) -> list[str]:
     """The markdown table: factor | certificate | model R² (ridge, MLP) | untrained | gate."""
-    lines = [f"| factor | certificate (GRU oracle / linear floor / local dynamics) | {model} R² ridge / MLP | untrained "
-             "ridge | gate |",
+    lines = [f"| factor | certificate (GRU oracle / linear floor / local dynamics) | {model} R² ridge / MLP | "
+             "untrained ridge | gate |",
              "|---|---|---|---|---|"]
     for q, r in rows.items():
         mark = "" if r["gate_passed"] else "†"
