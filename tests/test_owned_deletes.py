@@ -6,7 +6,7 @@ import os
 import pytest
 
 from pokeworld.errors import ConfigError
-from pokeworld.io import check_owned_dir, foreign_entries, remove_own_file
+from pokeworld.io import check_owned_dir, foreign_entries, record_owned, remove_own_file, staging_path
 from pokeworld.real.rh20t.cache import SCENE_CACHE
 from pokeworld.real.synthetic import SYNTHETIC_CFG_DIR, SYNTHETIC_TRUTH
 
@@ -14,6 +14,7 @@ from pokeworld.real.synthetic import SYNTHETIC_CFG_DIR, SYNTHETIC_TRUTH
 def test_remove_own_file_deletes_regular_files_only(tmp_path):
     mine = tmp_path / "scissors.png"
     mine.write_bytes(b"png")
+    record_owned(mine)  # as every pokeworld writer does
     remove_own_file(mine)
     assert not mine.exists()
     remove_own_file(mine)  # already gone: nothing to do
@@ -27,6 +28,14 @@ def test_remove_own_file_deletes_regular_files_only(tmp_path):
     (tmp_path / "folder").mkdir()
     with pytest.raises(ConfigError, match="folder"):
         remove_own_file(tmp_path / "folder")
+    # a regular file pokeworld never recorded writing (a user's) is refused, and stays
+    with pytest.raises(ConfigError, match="was not written by pokeworld"):
+        remove_own_file(target)
+    assert target.read_text() == "years of work"
+    staging = staging_path(tmp_path / "corpus.h5")  # a staging copy of ours is recognised by its name
+    staging.write_bytes(b"partial")
+    remove_own_file(staging)
+    assert not staging.exists()
 
 
 def _tree(root, files):

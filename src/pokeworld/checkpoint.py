@@ -32,7 +32,7 @@ def save(obj: Any, path: str | os.PathLike) -> None:
     """``torch.save`` to a temporary sibling, then rename: a killed writer never leaves a half-written file under
     ``path`` (readers see the old checkpoint or the new one)."""
     with atomic_path(path) as tmp:
-        torch.save(obj, tmp)
+        torch.save(obj, tmp)  # into atomic_path's private temporary: the output contract
 
 
 def load(path: str | os.PathLike, map_location: str | torch.device = "cpu") -> dict[str, Any]:

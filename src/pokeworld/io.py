@@ -138,8 +138,8 @@ def remove_owned_dir(directory: str | os.PathLike, owned: OwnedDir) -> None:
             inner = owned.subfolder(e)
             if inner is not None:
                 remove_owned_dir(e.path, inner)
-            elif owned.owns_file(e):
-                remove_own_file(e.path)
+            elif owned.owns_file(e):  # a file of the folder's own layout (checked above), not a user's
+                _unlink_regular(Path(e.path))
             elif owned.owns_temporary(e):
                 _discard(Path(e.path))
     try:
@@ -149,19 +149,46 @@ def remove_owned_dir(directory: str | os.PathLike, owned: OwnedDir) -> None:
                       stacklevel=2)
 
 
-def remove_own_file(path: str | os.PathLike) -> None:
-    """Delete one file pokeworld wrote (a stale temporary, a damaged cache entry, an output it replaces): only a
-    regular file, never a folder, a link (whose target a careless delete could reach through) or a special file,
-    which are refused with a ConfigError naming them. A missing file is nothing to do."""
-    path = Path(path)
+def _unlink_regular(path: Path) -> bool:
+    """Unlink ``path`` if it is a regular file (False when missing); a folder, link or special file is refused with
+    a ConfigError naming it, so no delete ever reaches through a link to its target."""
     try:
         mode = os.lstat(path).st_mode
     except FileNotFoundError:
-        return
+        return False
     if not stat.S_ISREG(mode):
         raise ConfigError(f"{path} is a {_file_kind(mode)} where pokeworld expected a file it wrote; it deletes only "
                           "its own regular files: remove or move it yourself")
     os.unlink(path)
+    return True
+
+
+def staging_path(path: str | os.PathLike) -> Path:
+    """A sibling of ``path`` for a third-party writer (h5py, swm's writers) to write into before a rename:
+    ``.<stem>.staging-<pid><suffix>`` (the suffix kept: such writers pick the layout from it). The name is what
+    :func:`remove_own_file` recognises as a staging copy of ours."""
+    path = Path(path)
+    return path.with_name(f".{path.stem}.staging-{os.getpid()}{path.suffix}")
+
+
+_STAGING = re.compile(r"\..+\.staging-\d+(?:\.[A-Za-z0-9]+)?")
+
+
+def remove_own_file(path: str | os.PathLike) -> None:
+    """Delete one file pokeworld wrote (a stale temporary, a damaged cache entry, an output it replaces): only a
+    regular file that its folder's :data:`OWNED_RECORD` lists, or one of our temporary (:func:`atomic_path`) or
+    staging (:func:`staging_path`) names. A file pokeworld did not record, a folder, a link (whose target a careless
+    delete could reach through) or a special file is refused with a ConfigError naming it. A missing file is
+    nothing to do."""
+    path = Path(path)
+    if not os.path.lexists(path):
+        return
+    ours = (path.name in owned_names(path.parent) or _TEMPORARY.fullmatch(path.name) is not None
+            or _STAGING.fullmatch(path.name) is not None)
+    if not ours and stat.S_ISREG(os.lstat(path).st_mode):
+        raise ConfigError(f"{path} was not written by pokeworld (its folder's {OWNED_RECORD} does not list it); it "
+                          "deletes only its own files: remove or move it yourself, or choose another output path")
+    _unlink_regular(path)
 
 
 _TMP_SUFFIX = r"(?:\d+|[a-z0-9_]{8})"
@@ -506,6 +533,18 @@ def read_regular_bytes(path: str | os.PathLike, what: str, max_bytes: int) -> by
     if len(data) > max_bytes:
         raise DataError(f"{path} is over {max_bytes} bytes; {what} may be at most {max_bytes} bytes")
     return data
+
+
+def save_bytes(path: str | os.PathLike, data: bytes) -> None:
+    """Atomically write ``data`` to ``path`` under the output contract (:func:`atomic_path`)."""
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data)
+
+
+def save_text(path: str | os.PathLike, text: str) -> None:
+    """Atomically write ``text`` (UTF-8) to ``path`` under the output contract (:func:`atomic_path`)."""
+    with atomic_path(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
 
 
 def write_json(path: str | os.PathLike, obj: Any) -> None:

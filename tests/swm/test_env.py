@@ -6,6 +6,7 @@ import pytest
 import stable_worldmodel as swm
 
 from pokeworld.errors import ConfigError
+from pokeworld.io import OWNED_RECORD
 from pokeworld.sim.core import PARAM_NAMES, ParamRanges
 from pokeworld.swm.env import (
     DEFAULT_VARIATIONS,
@@ -139,7 +140,8 @@ def test_collect_config_checks_and_writes_atomically(tmp_path):
     with pytest.raises(ConfigError, match=r"\.h5"):
         CollectConfig(out=str(tmp_path / "x.lance"), format="hdf5")
     out = collect(CollectConfig(out=str(tmp_path / "pw.h5"), episodes=2, steps=3, num_envs=1))
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["pw.h5"]  # no staging file left behind
+    # no staging file left behind; the output is recorded as pokeworld's, so a later --overwrite may replace it
+    assert sorted(p.name for p in tmp_path.iterdir()) == [OWNED_RECORD, "pw.h5"]
     assert list(swm.data.load_dataset(out).lengths) == [3, 3]
     with pytest.raises(ConfigError, match="exists"):
         collect(CollectConfig(out=str(out), episodes=1, steps=3, num_envs=1))

@@ -47,7 +47,7 @@ import torch
 
 from .. import checkpoint
 from ..errors import ConfigError, PokeworldError
-from ..io import atomic_path, read_regular_bytes, remove_own_file, write_json
+from ..io import read_regular_bytes, remove_own_file, save_bytes, write_json
 from . import stages
 from .config import MapConfig
 from .runs import RunSpec, run_dir
@@ -140,7 +140,7 @@ def compact_bytes(path: Path) -> tuple[bytes, int]:
     """The compacted form of the checkpoint at ``path`` (read weights-only), serialised, and its step."""
     ck = checkpoint.load(path)
     buf = io.BytesIO()
-    torch.save(compact(ck), buf)
+    torch.save(compact(ck), buf)  # into memory; the pack is written by write_bytes
     return buf.getvalue(), int(ck.get("step", 0))
 
 
@@ -162,6 +162,7 @@ def tar_bytes(members: list[tuple[str, bytes]]) -> bytes:
     """An uncompressed tar of ``members`` (name, bytes), byte for byte the same for the same members: no dates,
     owners or modes of the machine, so appending a member leaves every earlier byte as it was."""
     buf = io.BytesIO()
+    # built in memory; the parts reach disk through write_bytes (the output contract)
     with tarfile.open(fileobj=buf, mode="w", format=tarfile.USTAR_FORMAT) as tar:
         for name, data in members:
             info = tarfile.TarInfo(name)
@@ -190,8 +191,7 @@ def write_parts(folder: Path, data: bytes, part_bytes: int, written: dict[int, s
         path = part_path(folder, i)
         if written.get(i) == sha and path.exists():
             continue
-        with atomic_path(path) as tmp:
-            tmp.write_bytes(piece)
+        save_bytes(path, piece)
         written[i] = sha
     i = len(pieces)
     while part_path(folder, i).exists() or i in written:
@@ -251,8 +251,7 @@ def load_member(member: Member, scratch: Path) -> dict[str, Any]:
     """A verified member's checkpoint, read weights-only (:func:`pokeworld.checkpoint.load`) and expanded to
     float32; ConfigError when it is not one."""
     path = scratch / f"{member.run}.{member.kind}.pt"
-    with atomic_path(path) as tmp:
-        tmp.write_bytes(member.data)
+    save_bytes(path, member.data)
     try:
         return expand(checkpoint.load(path), f"{member.kind} of {member.run}")
     except PokeworldError as e:

@@ -28,7 +28,7 @@ from pathlib import Path
 from .. import checkpoint, clock
 from ..config import to_dict
 from ..errors import PokeworldError
-from ..io import atomic_path, read_regular_bytes, write_json
+from ..io import read_regular_bytes, save_bytes, write_json
 from ..rundir import last_logged_step, read_metrics
 from . import allocations, stages
 from .allocation_pack import Packer, ReturnLimits, Snapshots
@@ -163,8 +163,7 @@ def restore_run(c: MapConfig, spec: RunSpec, a: allocations.Allocation, step: in
     names = ("metrics.jsonl", "ckpt.pt") if (src / "metrics.jsonl").exists() else ("ckpt.pt",)
     for name in names:
         data = read_regular_bytes(src / name, f"a returned run's {name}", 1 << 30)
-        with atomic_path(dest / name) as tmp:
-            tmp.write_bytes(data)
+        save_bytes(dest / name, data)
     write_json(dest / "resumed.json", {"step": step, "from": a.source, "device": a.device.get("device"),
                                        "metrics_before_resume": "returned" if len(names) == 2 else "not returned",
                                        "date": a.device.get("date"), "git": a.device.get("git"),

@@ -43,7 +43,15 @@ from .. import __version__, checkpoint, paper_values as P
 from ..config import from_dict
 from ..errors import ConfigError, PokeworldError
 from ..evaluate.tables import fmt, git_commit, probe
-from ..io import atomic_path, check_regular_file, read_json as io_read_json, read_jsonl, read_regular_bytes, write_json
+from ..io import (
+    check_regular_file,
+    read_json as io_read_json,
+    read_jsonl,
+    read_regular_bytes,
+    save_bytes,
+    save_text,
+    write_json,
+)
 from ..rundir import model_from_checkpoint
 from . import merge, report, stages
 from .allocation_pack import COMPACT_MIN_ELEMENTS, INDEX, RECORDS, load_member, read_stream
@@ -460,11 +468,9 @@ def export_runs(allocs: list[Allocation], merged: dict, dest: Path) -> list[str]
         src, out = a.root / "runs" / name, dest / name
         for f in ("config.json", "metrics.jsonl", "final.pt", "measure.json"):
             if (src / f).exists():
-                with atomic_path(out / f) as tmp:
-                    tmp.write_bytes(read_regular_bytes(src / f, f"a returned run's {f}", MAX_PACK_BYTES << 2))
-        with atomic_path(out / "DONE") as tmp:
-            tmp.write_text(f"finished (weights returned from {a.source}: float32 tensors of at least "
-                           f"{COMPACT_MIN_ELEMENTS} elements rounded to bfloat16)\n")
+                save_bytes(out / f, read_regular_bytes(src / f, f"a returned run's {f}", MAX_PACK_BYTES << 2))
+        save_text(out / "DONE", f"finished (weights returned from {a.source}: float32 tensors of at least "
+                                 f"{COMPACT_MIN_ELEMENTS} elements rounded to bfloat16)\n")
         names.append(name)
     return names
 
@@ -479,8 +485,7 @@ def write_merged(a: argparse.Namespace, allocs: list[Allocation], words: list[st
                                command=" ".join(["python scripts/merge_allocations.py", *map(str, words)]))
     write_json(a.out, merged)
     if a.markdown:
-        with atomic_path(a.markdown) as tmp:
-            tmp.write_text(markdown(merged))
+        save_text(a.markdown, markdown(merged))
     if not a.no_figure:
         fig = a.figure or a.out.with_suffix(".png")
         report.figure(merged, fig.parent, stem=fig.stem)

@@ -27,7 +27,7 @@ import sys
 from pathlib import Path
 
 from ..errors import ConfigError, PokeworldError
-from ..io import atomic_path, write_json
+from ..io import save_text, write_json
 from . import report
 from .record import MEASURED, read_record
 
@@ -158,8 +158,7 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit(f"error: {e}") from None
     write_json(a.out, merged)
     if a.markdown:
-        with atomic_path(a.markdown) as tmp:
-            tmp.write_text(report.markdown(merged))
+        save_text(a.markdown, report.markdown(merged))
     print(f"[merge] {len(record['runs_replaced_reproduced'])} runs reproduced and replaced, "
           f"{len(record['runs_added'])} added, {len(record['runs_replaced_differing'])} differing and replaced "
           f"{ {k: round(v, 4) if isinstance(v, float) else v for k, v in record['runs_replaced_differing'].items()} }"

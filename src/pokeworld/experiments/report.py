@@ -26,7 +26,7 @@ from ..evaluate.tables import (
     run_gate_failed,
     variant_runs,
 )
-from ..io import atomic_path, read_json_if_present, save_figure
+from ..io import read_json_if_present, save_figure, save_text
 from .registry import REPORT_ORDER
 from .runs import spec_measure_path
 from .stages import spec_experiments
@@ -303,8 +303,7 @@ def figure(results: dict, out: Path, stem: str = "identifiability_map") -> list[
 def write_all(c, results: dict) -> None:
     """results.md and every figure, into the map folder."""
     out = Path(c.out)
-    with atomic_path(out / "results.md") as tmp:
-        tmp.write_text(markdown(results))
+    save_text(out / "results.md", markdown(results))
     figure(results, out)
     for experiment in REPORT_ORDER:
         if hasattr(experiment, "figures"):

@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from ..config import config_error
 from ..errors import ConfigError
 from .require import stable_worldmodel
 
@@ -25,7 +26,7 @@ POLICIES = ("random", "held")
 
 def check_hold(hold: tuple[int, int]) -> None:
     if len(hold) != 2 or not 1 <= hold[0] <= hold[1] <= 1000:
-        raise ConfigError(f"hold must be two step counts 1 <= min <= max <= 1000, got {list(hold)}")
+        raise config_error(f"hold must be two step counts 1 <= min <= max <= 1000, got {list(hold)}")
 
 
 class HeldActions:

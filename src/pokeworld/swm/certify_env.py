@@ -37,10 +37,19 @@ from .. import protocol as P
 from ..config import config_error, from_preset, to_dict
 from ..errors import ConfigError, DataError
 from ..evaluate import tables as R
-from ..io import atomic_path, hash_arrays, read_json_if_present, read_jsonl, remove_own_file, write_json
+from ..io import (
+    atomic_path,
+    hash_arrays,
+    read_json_if_present,
+    read_jsonl,
+    record_owned,
+    remove_own_file,
+    staging_path,
+    write_json,
+)
 from ..train.config import PRESETS as TRAIN_PRESETS
 from . import factorial as X, lewm_config as LC
-from .behaviour import POLICIES, make_policy
+from .behaviour import POLICIES, check_hold, make_policy
 from .factor_gate import KIND, FactorCertifyConfig, certify_factors
 from .factor_report import factor_rows, figure, table_markdown
 from .factors import FactorDataConfig, read_factors
@@ -112,9 +121,9 @@ class SwmCertifyConfig:
             raise config_error(f"steps ({self.steps}) must be at least the certificate window "
                                f"({self.certificate.window}): every window lies inside one episode")
         X.check_variants(self.variants)
-        if self.policy not in POLICIES or len(self.hold) != 2 or not 1 <= self.hold[0] <= self.hold[1] <= 1000:
-            raise config_error(f"policy must be one of {list(POLICIES)} and hold two step counts 1 <= min <= max <= "
-                               f"1000, got {self.policy!r}, {list(self.hold)}")
+        if self.policy not in POLICIES:
+            raise config_error(f"policy must be one of {list(POLICIES)}, got {self.policy!r}")
+        check_hold(self.hold)
         if self.xjepa_steps < 0 or self.xjepa_preset not in TRAIN_PRESETS or not self.xjepa_seeds:
             raise config_error(f"xjepa_steps must be >= 0, xjepa_preset one of {sorted(TRAIN_PRESETS)} and "
                                f"xjepa_seeds not empty, got {self.xjepa_steps}, {self.xjepa_preset!r}, "
@@ -174,13 +183,14 @@ def collect(cfg: SwmCertifyConfig, path: Path) -> Path:
         raise ConfigError(f"{cfg.env} has no variation {unknown}; its variations: {names}")
     world = swm.World(cfg.env, num_envs=cfg.num_envs, image_shape=(cfg.image_size, cfg.image_size),
                       max_episode_steps=cfg.steps, goal_conditioned=False)
-    staging = path.with_name(f".{path.stem}.staging-{os.getpid()}{path.suffix}")
+    staging = staging_path(path)
     try:
         world.set_policy(make_policy(cfg.policy, cfg.seed, cfg.hold))
         writer = swm.data.get_format("hdf5").open_writer(staging, mode="overwrite")
         world.collect(writer=writer, episodes=cfg.episodes, seed=cfg.seed,
                       options={"variation": list(cfg.factors)}, progress=False)
         os.replace(staging, path)  # only a finished collection appears under the final name
+        record_owned(path)
     finally:
         world.close()
         remove_own_file(staging)  # our own pid-named staging copy, if the collection failed

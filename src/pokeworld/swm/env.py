@@ -32,7 +32,7 @@ import gymnasium as gym
 import numpy as np
 
 from ..errors import ConfigError
-from ..io import OwnedDir, check_owned_dir, remove_own_file, remove_owned_dir
+from ..io import OwnedDir, check_owned_dir, record_owned, remove_own_file, remove_owned_dir, staging_path
 from ..plan import GOAL_BOX, PlanConfig
 from ..sim.core import PARAM_NAMES, ParamRanges, PhysicsConfig, PokeWorldSim
 from .require import stable_worldmodel
@@ -249,12 +249,14 @@ class CollectConfig:
 def _staged(out: Path) -> Iterator[Path]:
     """A sibling path with ``out``'s suffix (swm's writers pick the layout from it) renamed to ``out`` only when
     the block succeeds, so an interrupted collection leaves no half-written dataset under the final name."""
-    staging = out.with_name(f".{out.stem}.staging-{os.getpid()}{out.suffix}")
+    staging = staging_path(out)
     _remove(staging)
     try:
         yield staging
         _remove(out)
         os.replace(staging, out)
+        if out.is_file():  # a Lance table is a folder its own layout (LANCE_TABLE) identifies
+            record_owned(out)
     finally:
         _remove(staging)
 
