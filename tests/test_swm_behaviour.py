@@ -42,3 +42,14 @@ def test_a_hold_of_one_step_is_a_fresh_action_every_step_and_the_seed_reproduces
 def test_a_bad_hold_is_refused(hold):
     with pytest.raises(ConfigError, match="hold must be two step counts"):
         HeldActions(-np.ones((1, 1)), np.ones((1, 1)), hold, seed=0)
+
+
+def test_counted_policy_counts_calls_and_returns_the_actions():
+    from pokeworld.swm.certify_env import counted
+
+    class Policy:
+        def get_action(self, obs, **kwargs):
+            return obs * 2
+
+    policy, calls = counted(Policy())
+    assert [policy.get_action(i, extra=1) for i in range(3)] == [0, 2, 4] and calls == [3]

@@ -102,6 +102,9 @@ COMMANDS: dict[str, Command] = {
     "swm-certify": Command("pokeworld.swm.certify_env", "SwmCertifyConfig",
                            "certify an swm environment's physical factors, then what a LeWM knows of them", "env",
                            extra="swm"),
+    "swm-targets": Command("pokeworld.swm.targets_table", "TargetsConfig",
+                           "swm-certify factorial records of several environments side by side: which role of the "
+                           "state (input or target) puts each certified factor in the latent"),
 }
 
 #: What ``--preset`` costs, shown by ``pokeworld --help`` and each command's ``--help`` (timings:

@@ -47,6 +47,7 @@ from ..io import (
     staging_path,
     write_json,
 )
+from ..progress import heartbeat
 from ..train.config import PRESETS as TRAIN_PRESETS
 from . import factorial as X, lewm_config as LC
 from .behaviour import POLICIES, check_hold, make_policy
@@ -173,6 +174,18 @@ def variation_names(env_id: str) -> list[str]:
         env.close()
 
 
+def counted(policy: Any) -> tuple[Any, list[int]]:
+    """``policy`` with its ``get_action`` calls counted in the returned one-element list (for progress lines)."""
+    calls, get_action = [0], policy.get_action
+
+    def counting(*args: Any, **kwargs: Any) -> Any:
+        calls[0] += 1
+        return get_action(*args, **kwargs)
+
+    policy.get_action = counting
+    return policy, calls
+
+
 def collect(cfg: SwmCertifyConfig, path: Path) -> Path:
     """Record ``cfg.episodes`` episodes of ``cfg.env`` under the variations ``cfg.factors`` with the behaviour policy
     ``cfg.policy`` (HDF5)."""
@@ -185,10 +198,17 @@ def collect(cfg: SwmCertifyConfig, path: Path) -> Path:
                       max_episode_steps=cfg.steps, goal_conditioned=False)
     staging = staging_path(path)
     try:
-        world.set_policy(make_policy(cfg.policy, cfg.seed, cfg.hold))
+        policy, calls = counted(make_policy(cfg.policy, cfg.seed, cfg.hold))
+        world.set_policy(policy)
         writer = swm.data.get_format("hdf5").open_writer(staging, mode="overwrite")
-        world.collect(writer=writer, episodes=cfg.episodes, seed=cfg.seed,
-                      options={"variation": list(cfg.factors)}, progress=False)
+
+        def status() -> str:  # one policy call steps every environment once
+            return (f"collecting {cfg.env}: about {min(cfg.episodes, calls[0] * cfg.num_envs // cfg.steps)} of "
+                    f"{cfg.episodes} episodes")
+
+        with heartbeat("swm-certify", status):  # swm's tqdm bar is off: it floods redirected logs
+            world.collect(writer=writer, episodes=cfg.episodes, seed=cfg.seed,
+                          options={"variation": list(cfg.factors)}, progress=False)
         os.replace(staging, path)  # only a finished collection appears under the final name
         record_owned(path)
     finally:
@@ -303,11 +323,11 @@ def variants_markdown(xjepa: dict, variants: list[str]) -> list[str]:
     """The X-JEPA factorial's section of the record: what was trained, the factor × variant table, its costs."""
     runs = [r for per_seed in xjepa["variants"].values() for r in per_seed.values()]
     return ["## Targets, not inputs? X-JEPA with the state absent, an input, a target, both", "",
-            f"X-JEPA at the `{xjepa['preset']}` train preset, {runs[0]['steps']} steps, seeds {xjepa['seeds']}, the "
-            "environment's low-dimensional observation in the proprio role (no touch stream); cells: predictor-state "
-            "R² ridge / MLP (untrained twin's ridge), the mean over seeds; † and \"no claim\": the factor's gate "
-            f"failed. Cost: training {sum(r['train_s'] for r in runs):.0f} s, probes "
-            f"{sum(r['protocol_s'] for r in runs):.0f} s in all.", "",
+            (f"X-JEPA at the `{xjepa['preset']}` train preset, {runs[0]['steps']} steps, seeds {xjepa['seeds']}, the "
+             "environment's low-dimensional observation in the proprio role (no touch stream); cells: predictor-state "
+             "R² ridge / MLP (untrained twin's ridge), the mean over seeds; † and \"no claim\": the factor's gate "
+             f"failed. Cost: training {sum(r['train_s'] for r in runs):.0f} s, probes "
+             f"{sum(r['protocol_s'] for r in runs):.0f} s in all."), "",
             *X.table_markdown(xjepa["summary"], tuple(variants))]
 
 
@@ -323,19 +343,20 @@ def markdown(result: dict, name: str) -> str:
     c, cost = result["corpus"], result["cost_seconds"]
     lines = [f"# What {name} knows about {result['env'] or result['source']}'s physical factors", "",
              f"Command: `{result['command']}`", "",
-             f"Corpus: {c['episodes']} episodes × {c['steps']} steps ({policy_words(result)}; split train / "
-             f"probe-fit / probe-test {c['split_counts']['train']} / {c['split_counts']['probe_fit']} / "
-             f"{c['split_counts']['probe_test']}), frames {c['frame_shape']}, observations {c['observations']} "
-             f"(width {c['observation_width']}), content {c['content_sha256'][:12]}.", "",
-             f"Cost (wall seconds): collect {cost['collect_s']}, certificates {cost['certify_s']}, LeWM training "
-             f"{cost['train_s']}, protocol {cost['protocol_s']}, X-JEPA variants {cost.get('xjepa_s', 0.0)}, total "
-             f"{cost['total_s']}.", "",
+             (f"Corpus: {c['episodes']} episodes × {c['steps']} steps ({policy_words(result)}; split train / "
+              f"probe-fit / probe-test {c['split_counts']['train']} / {c['split_counts']['probe_fit']} / "
+              f"{c['split_counts']['probe_test']}), frames {c['frame_shape']}, observations {c['observations']} "
+              f"(width {c['observation_width']}), content {c['content_sha256'][:12]}."), "",
+             (f"Cost of this invocation (wall seconds; 0: reused from an earlier one or given): collect "
+              f"{cost['collect_s']:.0f}, certificates {cost['certify_s']:.0f}, LeWM training {cost['train_s']:.0f}, "
+              f"protocol {cost['protocol_s']:.0f}, X-JEPA variants {cost.get('xjepa_s', 0.0):.0f}, total "
+              f"{cost['total_s']:.0f}."), "",
              *table_markdown(result["factors"], name), "",
-             "Certificate: held-out R² on probe-test episodes, best of the GRU oracle, the linear floor and the "
-             "local-dynamics fit, all reading the raw non-pixel observations and actions of the same windows the "
-             "probes read (all windows; the action after the last observation zeroed). Model: leak-free ridge / MLP "
-             "probes of the LeWM predictor state; untrained: the same ridge probe of the untrained twin. † and "
-             "\"no claim\": the gate failed, so the model's number says nothing about what it knows."]
+             ("Certificate: held-out R² on probe-test episodes, best of the GRU oracle, the linear floor and the "
+              "local-dynamics fit, all reading the raw non-pixel observations and actions of the same windows the "
+              "probes read (all windows; the action after the last observation zeroed). Model: leak-free ridge / MLP "
+              "probes of the LeWM predictor state; untrained: the same ridge probe of the untrained twin. † and "
+              "\"no claim\": the gate failed, so the model's number says nothing about what it knows.")]
     if result.get("xjepa"):
         lines += ["", *variants_markdown(result["xjepa"], result["config"]["variants"])]
     if result["dropped_factors"]:
