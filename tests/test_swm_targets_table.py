@@ -36,6 +36,9 @@ def test_verdicts_on_planted_factorials():
     summary = T.summarise({"a.json": rec})
     got = {r["factor"]: r["verdict"] for r in summary["rows"]}
     assert got == {"g": "target", "m": "input", "b": "both", "n": "neither", "s": "neither", "x": "no claim"}
+    rec["factor_effects"] = {"x": {"inert": True}, "g": {"inert": False}}
+    again = {r["factor"]: r["verdict"] for r in T.summarise({"a.json": rec})["rows"]}
+    assert again["x"] == "no claim (inert)" and again["g"] == "target"
     g = next(r for r in summary["rows"] if r["factor"] == "g")
     assert g["effects_per_seed"]["target_without_input"] == pytest.approx({"0": 0.5, "1": 0.4})
     assert g["effects_ridge"]["target_with_input"] == pytest.approx(0.55)

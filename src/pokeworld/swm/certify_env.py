@@ -51,6 +51,7 @@ from ..progress import heartbeat
 from ..train.config import PRESETS as TRAIN_PRESETS
 from . import factorial as X, lewm_config as LC
 from .behaviour import POLICIES, check_hold, make_policy
+from .factor_effect import factor_effects, inert_words
 from .factor_gate import KIND, FactorCertifyConfig, certify_factors
 from .factor_report import factor_rows, figure, table_markdown
 from .factors import FactorDataConfig, read_factors
@@ -186,14 +187,19 @@ def counted(policy: Any) -> tuple[Any, list[int]]:
     return policy, calls
 
 
-def collect(cfg: SwmCertifyConfig, path: Path) -> Path:
-    """Record ``cfg.episodes`` episodes of ``cfg.env`` under the variations ``cfg.factors`` with the behaviour policy
-    ``cfg.policy`` (HDF5)."""
-    swm = stable_worldmodel()
+def check_factor_names(cfg: SwmCertifyConfig) -> None:
+    """One line for a factor ``cfg.env`` does not vary (or an unknown environment)."""
     names = variation_names(cfg.env)
     unknown = [f for f in cfg.factors if f not in names]
     if unknown:
         raise ConfigError(f"{cfg.env} has no variation {unknown}; its variations: {names}")
+
+
+def collect(cfg: SwmCertifyConfig, path: Path) -> Path:
+    """Record ``cfg.episodes`` episodes of ``cfg.env`` under the variations ``cfg.factors`` with the behaviour policy
+    ``cfg.policy`` (HDF5)."""
+    swm = stable_worldmodel()
+    check_factor_names(cfg)
     world = swm.World(cfg.env, num_envs=cfg.num_envs, image_shape=(cfg.image_size, cfg.image_size),
                       max_episode_steps=cfg.steps, goal_conditioned=False)
     staging = staging_path(path)
@@ -241,6 +247,18 @@ def corpus(cfg: SwmCertifyConfig, out: Path) -> tuple[Path, float]:
     return path, time.time() - t0
 
 
+def check_effects(cfg: SwmCertifyConfig) -> dict[str, dict]:
+    """Whether each factor changes the observations at all (:mod:`pokeworld.swm.factor_effect`), said before the
+    collection; {} with --data (no environment to run)."""
+    if cfg.data:
+        return {}
+    check_factor_names(cfg)  # registers the environments; one line for an unknown id or factor
+    effects = factor_effects(cfg.env, tuple(cfg.factors), steps=cfg.steps)
+    for line in inert_words(effects):
+        print(f"[swm-certify] warning: {line}", flush=True)
+    return effects
+
+
 # --------------------------------------------------------------------------- the run
 def run(cfg: SwmCertifyConfig) -> dict:
     """Collect (or read), certify, train LeWM and its twin, probe, and write the factor table and figure."""
@@ -251,6 +269,7 @@ def run(cfg: SwmCertifyConfig) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     cost: dict[str, float] = {}
     t_all = time.time()
+    effects = check_effects(cfg)
     source, cost["collect_s"] = corpus(cfg, out)
     ds = read_factors(source, FactorDataConfig(factors=cfg.factors, observations=cfg.observations,
                                                split_fractions=cfg.split_fractions, seed=cfg.seed))
@@ -292,7 +311,7 @@ def run(cfg: SwmCertifyConfig) -> dict:
                          "split_counts": {s: int(ds.episodes(s).size) for s in ("train", "probe_fit", "probe_test")},
                          "observations": ds.manifest["observations"], "observation_width": int(ds.proprio.shape[-1]),
                          "frame_shape": list(ds.frames.shape[2:])},
-              "factors": rows, "dropped_factors": ds.manifest["dropped_factors"],
+              "factors": rows, "dropped_factors": ds.manifest["dropped_factors"], "factor_effects": effects,
               "certificates": {k: certs[k] for k in ("estimators", "counts", "gate")},
               "training": read_jsonl(out / "lewm" / "metrics.jsonl")[-1:], "xjepa": xjepa,
               "cost_seconds": {k: round(v, 1) for k, v in cost.items()},
@@ -359,6 +378,9 @@ def markdown(result: dict, name: str) -> str:
               "\"no claim\": the gate failed, so the model's number says nothing about what it knows.")]
     if result.get("xjepa"):
         lines += ["", *variants_markdown(result["xjepa"], result["config"]["variants"])]
+    inert = inert_words(result.get("factor_effects") or {})
+    if inert:
+        lines += ["", "Inert factors (pokeworld.swm.factor_effect): " + "; ".join(inert) + "."]
     if result["dropped_factors"]:
         lines += ["", "Dropped factors (not per-episode targets): "
                   + "; ".join(f"{k}: {v}" for k, v in result["dropped_factors"].items()) + "."]

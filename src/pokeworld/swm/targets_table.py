@@ -10,7 +10,8 @@ dots). Reads only records (JSON); trains nothing.
 The verdict (a choice the paper leaves open, docs/design.md): an effect *carries* the factor when its mean over
 seeds is at least :data:`MARGIN` and every seed's is positive. *target*: a target effect carries it and the input
 effect does not; *input*: the input effect carries it and neither target effect does; *both*; *neither*. A factor
-whose gate failed gets no verdict ("no claim").
+whose gate failed gets no verdict ("no claim"), and "(inert)" is added where the record's factor-effect check found
+that the factor changes no observation at all.
 """
 
 from __future__ import annotations
@@ -87,15 +88,17 @@ def verdict(effects: dict[str, dict[str, float]], gate_passed: bool, margin: flo
     return {(True, False): "target", (False, True): "input", (True, True): "both"}.get((target, inp), "neither")
 
 
-def factor_row(env: str, factor: str, row: dict) -> dict:
-    """One (environment, factor) row of the table from a record's factorial summary row."""
+def factor_row(env: str, factor: str, row: dict, inert: bool | None = None) -> dict:
+    """One (environment, factor) row of the table from a record's factorial summary row; ``inert``: the record's
+    factor-effect check found the factor changes no observation (:mod:`pokeworld.swm.factor_effect`)."""
     cells = row["variants"]
     per_seed = {name: effect_per_seed(cells, a, b) for name, (a, b) in EFFECTS.items()}
     return {"env": env, "factor": factor, "certificate": row["certificate"], "threshold": row["threshold"],
             "gate_passed": bool(row["gate_passed"]),
             "variants": {v: {k: cells[v].get(k) for k in ("ridge", "mlp", "untrained")} for v in SWM_VARIANTS},
             "effects_ridge": {k: (float(np.mean(list(v.values()))) if v else None) for k, v in per_seed.items()},
-            "effects_per_seed": per_seed, "verdict": verdict(per_seed, bool(row["gate_passed"]))}
+            "effects_per_seed": per_seed, "inert": inert,
+            "verdict": verdict(per_seed, bool(row["gate_passed"])) + (" (inert)" if inert else "")}
 
 
 def summarise(records: dict[str, dict]) -> dict:
@@ -108,7 +111,8 @@ def summarise(records: dict[str, dict]) -> dict:
         envs.append({"env": env, "record": path, "command": rec.get("command"), "preset": xj.get("preset"),
                      "seeds": xj.get("seeds"), "steps": runs[0].get("steps") if runs else None,
                      "episodes": rec.get("corpus", {}).get("episodes"), "policy": rec.get("config", {}).get("policy")})
-        rows += [factor_row(env, q, r) for q, r in xj["summary"].items()]
+        effects = rec.get("factor_effects") or {}
+        rows += [factor_row(env, q, r, (effects.get(q) or {}).get("inert")) for q, r in xj["summary"].items()]
     certified = [r for r in rows if r["gate_passed"]]
     return {"margin": MARGIN, "environments": envs, "rows": rows,
             "certified": {"factors": len(certified), "environments": len({r["env"] for r in certified})},
