@@ -32,6 +32,8 @@ def test_world_collected_corpus_runs_end_to_end_and_is_reused(tmp_path, capsys):
     md = (out / "swm_certify.md").read_text()
     assert "| factor | certificate (GRU oracle / linear floor / local dynamics) |" in md and "| physics.mass |" in md
     assert (out / "swm_certify.png").stat().st_size > 0
+    assert set(result["factor_effects"]) == {"physics.mass", "physics.stiffness"}
+    assert all("inert" in e and "effect" in e for e in result["factor_effects"].values())
     assert set(result["cost_seconds"]) == {"collect_s", "certify_s", "train_s", "protocol_s", "xjepa_s",
                                            "total_s"}
     capsys.readouterr()
@@ -118,3 +120,14 @@ def test_the_held_policy_collects_actions_held_for_several_steps(tmp_path):
     changes = np.flatnonzero(np.any(first[1:] != first[:-1], axis=-1)) + 1
     runs = np.diff(changes)
     assert len(changes) >= 2 and runs.min() >= 3 and runs.max() <= 5, changes
+
+
+def test_the_factor_effect_check_on_swm_pokeworld():
+    """A goal's radius changes no dynamics (inert); a default-config range of one value is unmeasured, not inert."""
+    from pokeworld.swm.certify_env import variation_names
+    from pokeworld.swm.factor_effect import factor_effects
+
+    variation_names("swm/PokeWorld-v0")  # registers the environment
+    got = factor_effects("swm/PokeWorld-v0", ("goal.radius", "physics.gain"), steps=8, seeds=(0,))
+    assert got["goal.radius"]["inert"] is True and got["goal.radius"]["effect"] == 0
+    assert got["physics.gain"]["inert"] is None and "single value" in got["physics.gain"]["unmeasured"]
