@@ -3,17 +3,21 @@
 stable-worldmodel environments vary physical factors when they are named in ``options={"variation": [...]}``
 (``swm/FingerDMControl-v0``: ``spinner.density``, ``spinner.friction``, ``agent.proximal_density``, ...). The command
 
+0. checks that each factor changes the non-pixel observations at all (:mod:`pokeworld.swm.factor_effect`) and
+   warns about an inert one (kept as a negative control);
 1. collects a corpus with ``swm.World`` and a behaviour policy (swm's ``RandomPolicy``, or actions held for several
    steps: :mod:`pokeworld.swm.behaviour`) under the named variations (HDF5, ``<out>/
    corpus.h5``; reused when collected with the same settings), or takes an existing labelled dataset (``--data``);
 2. reads it into a protocol store (:mod:`pokeworld.swm.factors`: factors constant within episodes are the targets,
    the others are dropped and listed);
 3. certifies every factor from raw non-pixel observations and actions (:mod:`pokeworld.swm.factor_gate`: GRU oracle,
-   linear floor, the gate) before any model is read;
+   linear floor, local dynamics, the gate) before any model is read;
 4. trains a small LeWM with its own objective on the train episodes (:mod:`pokeworld.swm.lewm`, as
    ``swm-certify-lewm`` does) and builds its untrained twin;
 5. runs :func:`pokeworld.protocol.certify_model` on both with those certificates, and writes the factor table and
-   figure (:mod:`pokeworld.swm.factor_report`): ``<out>/swm_certify.{json,md,png}``.
+   figure (:mod:`pokeworld.swm.factor_report`): ``<out>/swm_certify.{json,md,png}``;
+6. with ``--variants``, trains and probes X-JEPA's targets-vs-inputs factorial beside it (:mod:`pokeworld.swm.
+   factorial`); ``pokeworld swm-targets`` puts several environments' records side by side.
 
 DeepMind Control environments need ``dm-control`` and ``mujoco`` (not in the swm extra) and a software GL for
 headless rendering; when ``MUJOCO_GL`` is unset the command sets it to ``osmesa`` (Debian: ``libosmesa6``).
@@ -387,5 +391,5 @@ def markdown(result: dict, name: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-__all__ = ["PRESETS", "SwmCertifyConfig", "collect", "command_line", "corpus", "make_config", "markdown",
-           "policy_words", "run", "variants_markdown", "variation_names"]
+__all__ = ["PRESETS", "SwmCertifyConfig", "check_effects", "check_factor_names", "collect", "command_line", "corpus",
+           "counted", "make_config", "markdown", "policy_words", "run", "variants_markdown", "variation_names"]
