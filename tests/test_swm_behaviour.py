@@ -51,5 +51,7 @@ def test_counted_policy_counts_calls_and_returns_the_actions():
         def get_action(self, obs, **kwargs):
             return obs * 2
 
-    policy, calls = counted(Policy())
-    assert [policy.get_action(i, extra=1) for i in range(3)] == [0, 2, 4] and calls == [3]
+    policy = Policy()
+    with counted(policy) as calls:
+        assert [policy.get_action(i, extra=1) for i in range(3)] == [0, 2, 4] and calls == [3]
+    assert "get_action" not in vars(policy)  # the counting closure (which holds the policy) is gone afterwards

@@ -25,12 +25,14 @@ headless rendering; when ``MUJOCO_GL`` is unset the command sets it to ``osmesa`
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import os
 import shlex
 import sys
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -179,8 +181,10 @@ def variation_names(env_id: str) -> list[str]:
         env.close()
 
 
-def counted(policy: Any) -> tuple[Any, list[int]]:
-    """``policy`` with its ``get_action`` calls counted in the returned one-element list (for progress lines)."""
+@contextlib.contextmanager
+def counted(policy: Any) -> Iterator[list[int]]:
+    """While the block runs, ``policy``'s ``get_action`` calls are counted in the yielded one-element list (for
+    progress lines)."""
     calls, get_action = [0], policy.get_action
 
     def counting(*args: Any, **kwargs: Any) -> Any:
@@ -188,7 +192,10 @@ def counted(policy: Any) -> tuple[Any, list[int]]:
         return get_action(*args, **kwargs)
 
     policy.get_action = counting
-    return policy, calls
+    try:
+        yield calls
+    finally:  # the closure holds the policy, which holds swm's environments: left in place, that cycle keeps their
+        del policy.get_action  # renderers alive until interpreter exit, where freeing them fails loudly
 
 
 def check_factor_names(cfg: SwmCertifyConfig) -> None:
@@ -208,23 +215,29 @@ def collect(cfg: SwmCertifyConfig, path: Path) -> Path:
                       max_episode_steps=cfg.steps, goal_conditioned=False)
     staging = staging_path(path)
     try:
-        policy, calls = counted(make_policy(cfg.policy, cfg.seed, cfg.hold))
+        policy = make_policy(cfg.policy, cfg.seed, cfg.hold)
         world.set_policy(policy)
         writer = swm.data.get_format("hdf5").open_writer(staging, mode="overwrite")
+        with counted(policy) as calls:
+            def status() -> str:  # one policy call steps every environment once
+                return (f"collecting {cfg.env}: about {min(cfg.episodes, calls[0] * cfg.num_envs // cfg.steps)} "
+                        f"of {cfg.episodes} episodes")
 
-        def status() -> str:  # one policy call steps every environment once
-            return (f"collecting {cfg.env}: about {min(cfg.episodes, calls[0] * cfg.num_envs // cfg.steps)} of "
-                    f"{cfg.episodes} episodes")
-
-        with heartbeat("swm-certify", status):  # swm's tqdm bar is off: it floods redirected logs
-            world.collect(writer=writer, episodes=cfg.episodes, seed=cfg.seed,
-                          options={"variation": list(cfg.factors)}, progress=False)
+            with heartbeat("swm-certify", status):  # swm's tqdm bar is off: it floods redirected logs
+                world.collect(writer=writer, episodes=cfg.episodes, seed=cfg.seed,
+                              options={"variation": list(cfg.factors)}, progress=False)
         os.replace(staging, path)  # only a finished collection appears under the final name
         record_owned(path)
     finally:
         world.close()
         remove_own_file(staging)  # our own pid-named staging copy, if the collection failed
     return path
+
+
+def headless_gl() -> None:
+    """Headless DMControl rendering: dm_control reads ``MUJOCO_GL`` once, when it is first imported, so this runs
+    before anything makes an environment."""
+    os.environ.setdefault("MUJOCO_GL", "osmesa")
 
 
 def corpus(cfg: SwmCertifyConfig, out: Path) -> tuple[Path, float]:
@@ -235,7 +248,7 @@ def corpus(cfg: SwmCertifyConfig, out: Path) -> tuple[Path, float]:
         if not Path(cfg.data).exists():
             raise DataError(f"--data {cfg.data} does not exist")
         return Path(cfg.data), 0.0
-    os.environ.setdefault("MUJOCO_GL", "osmesa")  # headless DMControl rendering; read when dm_control loads
+    headless_gl()
     path, key_path = out / CORPUS, out / "corpus.json"
     key = {k: getattr(cfg, k) for k in ("env", "factors", "episodes", "steps", "num_envs", "image_size", "seed")}
     if cfg.policy != "random":  # corpora collected before the option existed keep their key
@@ -256,6 +269,7 @@ def check_effects(cfg: SwmCertifyConfig) -> dict[str, dict]:
     collection; {} with --data (no environment to run)."""
     if cfg.data:
         return {}
+    headless_gl()
     check_factor_names(cfg)  # registers the environments; one line for an unknown id or factor
     effects = factor_effects(cfg.env, tuple(cfg.factors), steps=cfg.steps)
     for line in inert_words(effects):
