@@ -26,23 +26,26 @@ def flat(value: float) -> list[float]:
 TARGET = {"V": flat(0.0), "VF": flat(0.0), "VX": [0.5, 0.4], "VFX": [0.6, 0.5]}
 INPUT = {"V": flat(0.1), "VF": [0.7, 0.6], "VX": flat(0.1), "VFX": [0.7, 0.6]}
 BOTH = {"V": flat(0.0), "VF": flat(0.4), "VX": flat(0.4), "VFX": flat(0.8)}
-NOTHING = {"V": flat(0.1), "VF": flat(0.12), "VX": flat(0.15), "VFX": flat(0.12)}
+NOTHING = {"V": flat(0.05), "VF": flat(0.07), "VX": flat(0.1), "VFX": flat(0.07)}
 SPLIT = {"V": flat(0.0), "VF": flat(0.0), "VX": [0.6, -0.05], "VFX": [0.6, -0.05]}  # one seed only
+VISION = {"V": [0.7, 0.65], "VF": flat(0.72), "VX": flat(0.73), "VFX": flat(0.75)}  # untrained twins at 0
 
 
 def test_verdicts_on_planted_factorials():
-    rec = planted_record("swm/A", {"g": TARGET, "m": INPUT, "b": BOTH, "n": NOTHING, "s": SPLIT, "x": TARGET},
-                         {"g": True, "m": True, "b": True, "n": True, "s": True, "x": False})
+    rec = planted_record("swm/A", {"g": TARGET, "m": INPUT, "b": BOTH, "n": NOTHING, "s": SPLIT, "x": TARGET,
+                                   "v": VISION}, {"g": True, "m": True, "b": True, "n": True, "s": True, "x": False,
+                                                  "v": True})
     summary = T.summarise({"a.json": rec})
     got = {r["factor"]: r["verdict"] for r in summary["rows"]}
-    assert got == {"g": "target", "m": "input", "b": "both", "n": "neither", "s": "neither", "x": "no claim"}
+    assert got == {"g": "target", "m": "input", "b": "both", "n": "neither", "s": "neither", "x": "no claim",
+                   "v": "vision alone"}
     rec["factor_effects"] = {"x": {"inert": True}, "g": {"inert": False}}
     again = {r["factor"]: r["verdict"] for r in T.summarise({"a.json": rec})["rows"]}
     assert again["x"] == "no claim (inert)" and again["g"] == "target"
     g = next(r for r in summary["rows"] if r["factor"] == "g")
     assert g["effects_per_seed"]["target_without_input"] == pytest.approx({"0": 0.5, "1": 0.4})
     assert g["effects_ridge"]["target_with_input"] == pytest.approx(0.55)
-    assert summary["certified"] == {"factors": 5, "environments": 1}
+    assert summary["certified"] == {"factors": 6, "environments": 1}
 
 
 def test_run_writes_the_table_of_two_environments(tmp_path):

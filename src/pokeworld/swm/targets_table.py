@@ -9,7 +9,9 @@ dots). Reads only records (JSON); trains nothing.
 
 The verdict (a choice the paper leaves open, docs/design.md): an effect *carries* the factor when its mean over
 seeds is at least :data:`MARGIN` and every seed's is positive. *target*: a target effect carries it and the input
-effect does not; *input*: the input effect carries it and neither target effect does; *both*; *neither*. A factor
+effect does not; *input*: the input effect carries it and neither target effect does; *both*; where neither role
+of the state matters, *vision alone* when V already holds the factor (its R² over its untrained twin's carries it
+by the same rule: the latent's own forecasting target needs it), else *neither*. A factor
 whose gate failed gets no verdict ("no claim"), and "(inert)" is added where the record's factor-effect check found
 that the factor changes no observation at all.
 """
@@ -79,13 +81,16 @@ def carries(per_seed: dict[str, float], margin: float = MARGIN) -> bool:
     return bool(vals) and float(np.mean(vals)) >= margin and min(vals) > 0
 
 
-def verdict(effects: dict[str, dict[str, float]], gate_passed: bool, margin: float = MARGIN) -> str:
-    """``target``, ``input``, ``both``, ``neither`` or ``no claim`` (see the module)."""
+def verdict(effects: dict[str, dict[str, float]], gate_passed: bool, vision_gain: dict[str, float] | None = None,
+            margin: float = MARGIN) -> str:
+    """``target``, ``input``, ``both``, ``vision alone``, ``neither`` or ``no claim`` (see the module);
+    ``vision_gain``: V's ridge R² over its untrained twin's, per seed."""
     if not gate_passed:
         return "no claim"
     target = any(carries(effects.get(k, {}), margin) for k in ("target_without_input", "target_with_input"))
     inp = carries(effects.get("input_without_target", {}), margin)
-    return {(True, False): "target", (False, True): "input", (True, True): "both"}.get((target, inp), "neither")
+    word = {(True, False): "target", (False, True): "input", (True, True): "both"}.get((target, inp), "neither")
+    return "vision alone" if word == "neither" and carries(vision_gain or {}, margin) else word
 
 
 def factor_row(env: str, factor: str, row: dict, inert: bool | None = None) -> dict:
@@ -93,12 +98,15 @@ def factor_row(env: str, factor: str, row: dict, inert: bool | None = None) -> d
     factor-effect check found the factor changes no observation (:mod:`pokeworld.swm.factor_effect`)."""
     cells = row["variants"]
     per_seed = {name: effect_per_seed(cells, a, b) for name, (a, b) in EFFECTS.items()}
+    vision_gain = {s: float(c["ridge"] - c["untrained"]) for s, c in cells["V"].get("per_seed", {}).items()
+                   if c.get("ridge") is not None and c.get("untrained") is not None}
     return {"env": env, "factor": factor, "certificate": row["certificate"], "threshold": row["threshold"],
             "gate_passed": bool(row["gate_passed"]),
             "variants": {v: {k: cells[v].get(k) for k in ("ridge", "mlp", "untrained")} for v in SWM_VARIANTS},
             "effects_ridge": {k: (float(np.mean(list(v.values()))) if v else None) for k, v in per_seed.items()},
             "effects_per_seed": per_seed, "inert": inert,
-            "verdict": verdict(per_seed, bool(row["gate_passed"])) + (" (inert)" if inert else "")}
+            "vision_gain_per_seed": vision_gain,
+            "verdict": verdict(per_seed, bool(row["gate_passed"]), vision_gain) + (" (inert)" if inert else "")}
 
 
 def summarise(records: dict[str, dict]) -> dict:
