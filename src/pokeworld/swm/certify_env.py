@@ -61,6 +61,7 @@ from .factor_effect import factor_effects, inert_words
 from .factor_gate import KIND, FactorCertifyConfig, certify_factors
 from .factor_report import factor_rows, figure, table_markdown
 from .factors import FactorDataConfig, read_factors
+from .parallel_collect import collect_in_parallel
 from .require import stable_worldmodel
 
 CORPUS = "corpus.h5"
@@ -85,7 +86,11 @@ class SwmCertifyConfig:
     steps: int = 48
     """Steps per collected episode."""
     num_envs: int = 1
-    """Environments World steps side by side."""
+    """Environments World steps side by side (in one process: this batches the policy, not the simulation)."""
+    workers: int = 1
+    """Processes collecting in parallel, each a share of the episodes, merged in order (pokeworld.swm.
+    parallel_collect); 2 uses both cores of a 2-core machine. The corpus depends on it (each worker seeds its own
+    resets), so it is fixed, not the machine's core count."""
     policy: str = "random"
     """Behaviour policy of the collection: random (swm's RandomPolicy, a new action every step) or held (each random
     action held for a random number of steps in --hold, which excites the dynamics; pokeworld.swm.behaviour)."""
@@ -122,7 +127,7 @@ class SwmCertifyConfig:
     def __post_init__(self) -> None:
         if self.lewm_steps < 0:
             raise config_error(f"lewm_steps must be >= 0 (0: the preset's), got {self.lewm_steps}")
-        for name in ("episodes", "steps", "num_envs", "image_size"):
+        for name in ("episodes", "steps", "num_envs", "image_size", "workers"):
             if getattr(self, name) < 1:
                 raise config_error(f"{name} must be >= 1, got {getattr(self, name)}")
         if not self.data and self.steps < self.certificate.window:
@@ -211,6 +216,15 @@ def collect(cfg: SwmCertifyConfig, path: Path) -> Path:
     ``cfg.policy`` (HDF5)."""
     swm = stable_worldmodel()
     check_factor_names(cfg)
+    if cfg.workers > 1 and cfg.episodes > 1:
+        staging = staging_path(path)
+        try:
+            collect_in_parallel(dataclasses.replace(cfg, workers=1), staging, cfg.workers, collect)
+            os.replace(staging, path)  # only a finished, merged collection appears under the final name
+            record_owned(path)
+        finally:
+            remove_own_file(staging)
+        return path
     world = swm.World(cfg.env, num_envs=cfg.num_envs, image_shape=(cfg.image_size, cfg.image_size),
                       max_episode_steps=cfg.steps, goal_conditioned=False)
     staging = staging_path(path)
@@ -253,6 +267,8 @@ def corpus(cfg: SwmCertifyConfig, out: Path) -> tuple[Path, float]:
     key = {k: getattr(cfg, k) for k in ("env", "factors", "episodes", "steps", "num_envs", "image_size", "seed")}
     if cfg.policy != "random":  # corpora collected before the option existed keep their key
         key.update(policy=cfg.policy, hold=cfg.hold)
+    if cfg.workers > 1:  # likewise
+        key.update(workers=cfg.workers)
     key = json.loads(json.dumps(key))
     if path.exists() and read_json_if_present(key_path, "a cached corpus's key (corpus.json)") == key:
         print(f"[swm-certify] reusing {path}")
