@@ -153,7 +153,8 @@ def markdown(summary: dict) -> str:
 
 
 def figure(summary: dict, path: Path) -> Path:
-    """The three effects per certified factor (bars: mean; dots: seeds), the margin dashed."""
+    """The three effects per certified factor and V's gain over its untrained twin (bars: mean; dots: seeds), the
+    margin dashed, the verdict under each factor."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -164,19 +165,21 @@ def figure(summary: dict, path: Path) -> Path:
               "input_without_target": "tab:green"}
     names = {"target_without_input": "target, no input (VX − V)", "target_with_input": "target, with input "
              "(VFX − VF)", "input_without_target": "input, no target (VF − V)"}
-    fig, ax = plt.subplots(figsize=(2.0 * max(len(rows), 1) + 3.5, 3.6))
-    width, x = 0.26, np.arange(len(rows))
-    for i, k in enumerate(EFFECTS):
+    colors["vision"], names["vision"] = "tab:gray", "vision alone (V − its untrained twin)"
+    fig, ax = plt.subplots(figsize=(2.2 * max(len(rows), 1) + 3.5, 3.6))
+    width, x = 0.2, np.arange(len(rows))
+    for i, k in enumerate([*EFFECTS, "vision"]):
         for j, r in enumerate(rows):
-            pos = x[j] + (i - 1) * width
-            ax.bar(pos, r["effects_ridge"][k] or 0.0, width, color=colors[k], label=names[k] if j == 0 else None)
-            seeds = list(r["effects_per_seed"][k].values())
+            pos = x[j] + (i - 1.5) * width
+            seeds = list((r["vision_gain_per_seed"] if k == "vision" else r["effects_per_seed"][k]).values())
+            ax.bar(pos, float(np.mean(seeds)) if seeds else 0.0, width, color=colors[k],
+                   label=names[k] if j == 0 else None)
             ax.plot([pos] * len(seeds), seeds, "k.", ms=4, label="seeds" if i == 0 and j == 0 else None)
     ax.axhline(summary["margin"], color="red", lw=0.8, ls="--", label=f"margin {summary['margin']:.2f}")
     ax.axhline(0, color="black", lw=0.5)
     ax.set_xticks(x, [f"{r['env'].removeprefix('swm/')}\n{r['factor']}\n→ {r['verdict']}" for r in rows],
                   fontsize=7)
-    ax.set_ylabel("ridge R² difference (predictor state)")
+    ax.set_ylabel("ridge R² difference (predictor state)", fontsize=8)
     ax.set_title("Which role of the state puts a certified factor in the latent?", fontsize=9)
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
     fig.tight_layout()
