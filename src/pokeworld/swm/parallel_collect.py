@@ -20,6 +20,7 @@ import dataclasses
 import os
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
@@ -79,8 +80,12 @@ def collect_in_parallel(cfg: Any, path: Path, workers: int, collect: Callable[[A
     cfgs = [dataclasses.replace(cfg, episodes=k, seed=cfg.seed + w * SEED_STRIDE) for w, k in enumerate(counts)]
     try:
         with ProcessPoolExecutor(len(counts), mp_context=get_context("spawn")) as pool:
-            for done in pool.map(collect, cfgs, parts):
-                print(f"[swm-certify] worker part {done.name} collected", flush=True)
+            try:
+                for done in pool.map(collect, cfgs, parts):
+                    print(f"[swm-certify] worker part {done.name} collected", flush=True)
+            except BrokenProcessPool as e:  # a worker killed (memory) or unable to start (a script read from stdin)
+                raise DataError(f"a collection worker died ({e}); collect with --workers 1, or run from a file or "
+                                "the pokeworld command") from None
         n = merge(parts, path)
         if n != cfg.episodes:
             raise DataError(f"the workers collected {n} episodes, not {cfg.episodes}; collect again")
