@@ -25,6 +25,13 @@ from pokeworld.real import rh20t
 from pokeworld.real.fixtures import make_fixture_root, save_dict
 from pokeworld.real.safe_pickle import load_npy_item
 
+
+def replace_dict(path, obj) -> None:
+    """Replace a file of this test's own fixture copy (save_dict writes only new files)."""
+    path.unlink(missing_ok=True)
+    save_dict(path, obj)
+
+
 ROLES = rh20t.CAMERA_ROLES[7]
 FAR, CLOSE = ROLES["far"][0], ROLES["close"][0]
 N_TASKS, SCENES_PER_TASK = 3, 2
@@ -249,7 +256,7 @@ def apply(m: tuple, scene: Path, calib: Path, video: str) -> tuple[str, set[str]
         path = _path(scene, calib, m[1], video)
         if not _regular(path):
             return "same", set()
-        save_dict(path, {FAR: [Payload(scene.parent / MARKER)]})
+        replace_dict(path, {FAR: [Payload(scene.parent / MARKER)]})
         return ("same" if m[1] == "joint" else "defect"), {"unsafe_pickle"}
     raise AssertionError(m)
 
@@ -434,7 +441,7 @@ def _mutate_camera_ts(m: tuple, scene: Path, video: str) -> tuple[str, set[str]]
         obj = {"depth": obj["depth"]}
     else:
         obj["color"] = ts
-    save_dict(path, obj)
+    replace_dict(path, obj)
     return "defect", VIDEO_REASONS
 
 
@@ -502,7 +509,7 @@ def _mutate_calib(variant: str, calib: Path) -> tuple[str, set[str]]:
             for k in mats:
                 mats[k] = np.array(mats[k], np.float64)
                 mats[k][0, 0, 0] = np.nan if variant == "nan_extrinsics" else 1e36
-        save_dict(ext, mats)
+        replace_dict(ext, mats)
     # the calibration matters only when the scene's F/T is camera-frame (then it skips or converts counted)
     return "defect", {"camera_frame_ft", "nan_stream", "overflow_stream"}
 

@@ -21,6 +21,13 @@ from pokeworld.real.fixtures import make_fixture_root, save_dict
 from pokeworld.real.rh20t import video
 from pokeworld.real.safe_pickle import load_npy_item
 
+
+def replace_dict(path, obj) -> None:
+    """Replace a file of this test's own fixture copy (save_dict writes only new files)."""
+    path.unlink(missing_ok=True)
+    save_dict(path, obj)
+
+
 FAR = rh20t.CAMERA_ROLES[7]["far"][0]
 
 
@@ -81,7 +88,7 @@ def _camera_frame_ft(scene: Path) -> None:
     (tr / "force_torque_base.npy").rename(tr / "force_torque.npy")
     cal = scene.parent / "calib" / json.loads((scene / "metadata.json").read_text())["calib"].__str__()
     serials = [*load_npy_item(tr / "force_torque.npy"), *rh20t.IN_HAND_CALIB[7]]
-    save_dict(cal / "extrinsics.npy", {s: np.eye(4)[None] for s in serials})
+    replace_dict(cal / "extrinsics.npy", {s: np.eye(4)[None] for s in serials})
 
 
 # ----------------------------------------------------------------------------------- special files

@@ -21,6 +21,7 @@ linear where exactness under linear interpolation matters, so tests can check co
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -91,12 +92,24 @@ def _frame(level: float) -> np.ndarray:
     return img
 
 
+def fresh(path: Path) -> Path:
+    """``path``, which must not exist yet (not even as a link). Every file these fixtures write is new: they build
+    a corpus in a folder of their own (a test's temporary folder, or :func:`pokeworld.io.atomic_path`'s private
+    folder in :mod:`pokeworld.real.synthetic`), so an existing name means a caller pointed them at someone else's
+    files, and nothing is overwritten or written through a link."""
+    if os.path.lexists(path):
+        raise FileExistsError(f"{path} exists; the RH20T fixtures write only new files into a folder of their own")
+    return path
+
+
 def write_mp4(path: Path, frames: list[np.ndarray], fps: int = 10, options: dict[str, str] | None = None) -> str:
-    """Encode RGB frames with libx264 (falling back to mpeg4); returns the codec used.
+    """Encode RGB frames with libx264 (falling back to mpeg4) into the new file ``path``; returns the codec used.
 
     ``options`` are libx264 encoder options (e.g. ``{"preset": "ultrafast"}``), ignored by the mpeg4 fallback.
     """
     import av
+
+    fresh(path)  # checked once: the fallback codec rewrites what a failed first attempt began
 
     last = None
     for codec in ("libx264", "mpeg4"):
@@ -116,7 +129,10 @@ def write_mp4(path: Path, frames: list[np.ndarray], fps: int = 10, options: dict
 
 
 def save_dict(path: Path, obj) -> None:
-    np.save(path, obj, allow_pickle=True)  # RH20T stores python dicts as 0-d object arrays
+    """Write ``obj`` to the new file ``path`` as RH20T does: python dicts as 0-d object arrays (a write; pokeworld
+    reads such files back only through its restricted loader)."""
+    with open(path, "xb") as fh:  # exclusive create: never an existing file, never through a link
+        np.save(fh, obj, allow_pickle=True)
 
 
 def write_scene(cfg_dir: Path, name: str, k: int, *, cfg: int = 7, duration_s: float = 7.5, video: str = "mp4",
@@ -163,19 +179,20 @@ def write_scene(cfg_dir: Path, name: str, k: int, *, cfg: int = 7, duration_s: f
 
             (cam / "color").mkdir(exist_ok=True)
             for ti, f in zip(ts, frames):
-                cv2.imwrite(str(cam / "color" / f"{int(ti)}.jpg"), f[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, 95])
+                jpg = fresh(cam / "color" / f"{int(ti)}.jpg")
+                cv2.imwrite(str(jpg), f[..., ::-1], [cv2.IMWRITE_JPEG_QUALITY, 95])
         else:
             save_dict(cam / "timestamps.npy", {"color": [int(x) for x in ts], "depth": [int(x) for x in ts]})
             mp4 = cam / "color.mp4"
             if defect == "empty_video" and role == "far":
-                mp4.write_bytes(b"")
+                open(mp4, "xb").close()  # exclusive create, as save_dict
             elif defect == "truncated_video" and role == "far":
                 write_mp4(mp4, frames[: n - 10])
             else:
                 write_mp4(mp4, frames)
                 if defect == "corrupt_video" and role == "far":
-                    raw = mp4.read_bytes()
-                    mp4.write_bytes(raw[: len(raw) * 2 // 5])
+                    with open(mp4, "r+b") as fh:  # the file write_mp4 has just created
+                        fh.truncate(os.fstat(fh.fileno()).st_size * 2 // 5)
     tr = d / "transformed"
     save_dict(tr / "tcp_base.npy", tcp_d)
     if defect != "missing_ft":
@@ -186,7 +203,8 @@ def write_scene(cfg_dir: Path, name: str, k: int, *, cfg: int = 7, duration_s: f
     calib = -1 if defect == "missing_calib" else T0_MS - 86_400_000
     meta = {"calib": calib, "rating": 1 if defect == "low_rating" else rating, "bad_calib_view": [],
             "start_time": int(all_ts.min()), "finish_time": int(all_ts.max())}
-    (d / "metadata.json").write_text(json.dumps(meta))
+    with open(d / "metadata.json", "x") as fh:  # exclusive create, as save_dict
+        fh.write(json.dumps(meta))
     return {"t0_ms": t0, "params": p, "cam_ts": cam_ts, "serials": serials, "video": video}
 
 
@@ -197,7 +215,8 @@ def write_calib(cfg_dir: Path, cfg: int) -> None:
     eye = {roles[r][0]: np.eye(4)[None] for r in ("far", "close")}
     save_dict(c / "extrinsics.npy", eye)
     save_dict(c / "intrinsics.npy", {s: np.eye(3, 4) for s in eye})
-    np.save(c / "tcp.npy", np.array([0.4, -0.1, 0.3, 1.0, 0.0, 0.0, 0.0]))
+    with open(c / "tcp.npy", "xb") as fh:  # exclusive create, as save_dict
+        np.save(fh, np.array([0.4, -0.1, 0.3, 1.0, 0.0, 0.0, 0.0]))
 
 
 def make_fixture_root(root: str | Path, cfg: int = 7, n_tasks: int = 3, scenes_per_task: int = 2,
@@ -232,5 +251,5 @@ def make_fixture_root(root: str | Path, cfg: int = 7, n_tasks: int = 3, scenes_p
     return {"root": root, "cfg_dir": cfg_dir, "good": good, "bad": bad, "repaired": repaired}
 
 
-__all__ = ["make_fixture_root", "write_scene", "signals", "image_level", "force_z", "force_breakpoints",
+__all__ = ["fresh", "make_fixture_root", "write_scene", "signals", "image_level", "force_z", "force_breakpoints",
            "scene_params", "DEFECTS", "EXPECTED_REASON", "FT_OFFSET", "T0_MS"]
