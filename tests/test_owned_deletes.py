@@ -119,3 +119,22 @@ def test_the_writability_check_leaves_the_folder_as_it_was(tmp_path):
     (tmp_path / "mine.txt").write_text("keep")
     check_writable_dir(tmp_path)
     assert [p.name for p in tmp_path.iterdir()] == ["mine.txt"]
+
+
+def test_a_users_folder_named_like_a_temporary_is_left(tmp_path):
+    """Only a private (0700) folder of this user, as temporary_folder makes, is removed under a temporary name."""
+    import warnings
+
+    from pokeworld.io import remove_stale_temporaries, temporary_folder
+
+    user = tmp_path / ".notes.tmp-abcd1234"
+    user.mkdir(mode=0o755)
+    os.chmod(user, 0o755)
+    (user / "draft.txt").write_text("mine")
+    ours = temporary_folder(tmp_path / "results.json")
+    (ours / "results.json").write_text("half")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert remove_stale_temporaries(tmp_path) == 1
+    assert (user / "draft.txt").read_text() == "mine" and not ours.exists()
+    assert any("not a private (0700) folder" in str(w.message) for w in caught)

@@ -291,20 +291,28 @@ def remove_stale_temporaries(folder: str | os.PathLike, name: str | None = None)
             m = _TEMPORARY.fullmatch(e.name)
             if m and (name is None or m.group(1) == name) and (e.is_file(follow_symlinks=False)
                                                                 or e.is_dir(follow_symlinks=False)):
-                _discard(Path(e.path))
-                removed += 1
+                removed += _discard(Path(e.path))
     return removed
 
 
-def _discard(tmp: Path) -> None:
+def _discard(tmp: Path) -> bool:
     """Remove a temporary of ours (a name :data:`_TEMPORARY` matches; any other name is refused): a link there is
-    unlinked, never followed; a folder is emptied entry by entry (:func:`_remove_temporary_tree`)."""
+    unlinked, never followed; a folder is emptied entry by entry (:func:`_remove_temporary_tree`), and only when it is
+    a private folder of this user as :func:`temporary_folder` makes it. Whether anything was removed."""
     if not _TEMPORARY.fullmatch(tmp.name):
         raise ValueError(f"{tmp} is not a pokeworld temporary name; refusing to delete it")
     if tmp.is_symlink() or tmp.is_file():
         tmp.unlink()
-    elif tmp.is_dir():
+        return True
+    if tmp.is_dir():
+        st = os.lstat(tmp)
+        if st.st_uid != os.getuid() or stat.S_IMODE(st.st_mode) & 0o077:  # not what temporary_folder makes
+            warnings.warn(f"left {tmp} in place: named like a pokeworld temporary, but not a private (0700) folder "
+                          "of this user, which is all temporary_folder makes", stacklevel=2)
+            return False
         _remove_temporary_tree(tmp)
+        return True
+    return False
 
 
 def _remove_temporary_tree(folder: Path) -> None:
