@@ -34,7 +34,7 @@ from .evaluate.counterfactual import counterfactual_fit
 from .evaluate.measure import EpisodeLatents, full_precision, position_decoder
 from .evaluate.ranking import agreement
 from .evaluate.state import encode_observations, model_device
-from .io import atomic_path, check_outputs, save_figure, write_json
+from .io import atomic_path, check_outputs, save_figure, save_text, write_json
 from .paper_values import PLANNING
 from .preflight import require_finished_runs
 from .run_store import trained_store
@@ -668,7 +668,7 @@ def figure(planned: dict, out: Path, goal_radius: float, left: str | None = None
 
 def write_outputs(planned: dict, out: Path, goal_radius: float) -> list[Path]:
     """``distances.npz`` (object-goal distance over time per controller, atomically) and the episode figure."""
-    with atomic_path(Path(out) / "distances.npz") as tmp:
+    with atomic_path(Path(out) / "distances.npz") as tmp:  # numpy writes into the output contract's private temporary
         with open(tmp, "wb") as f:
             np.savez_compressed(f, **{k: v["distance"] for k, v in planned["episodes"].items()})
     return figure(planned, Path(out), goal_radius)
@@ -733,7 +733,6 @@ def run(cfg: PlanConfig) -> Path:
                                    "paper": {k: list(v) for k, v in PAPER.items()}})
     write_outputs(planned, out, cfg.goal_radius)
     lines = table_lines(summary)
-    with atomic_path(out / "plan.md") as tmp:
-        tmp.write_text("\n".join(lines) + "\n")
+    save_text(out / "plan.md", "\n".join(lines) + "\n")
     print("\n".join(lines))
     return out

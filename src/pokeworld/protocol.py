@@ -60,7 +60,7 @@ from .evaluate.measure import (
     padded_actions,
     probe_windows,
 )
-from .io import atomic_path, hash_arrays, read_json, read_json_if_present, write_json
+from .io import atomic_path, hash_arrays, read_json, read_json_if_present, save_text, write_json
 
 CERTIFICATES = "a certificate record (certificates.json)"
 
@@ -426,8 +426,7 @@ def certify_model(model: StateFn, data: Union[str, Path, Dataset], out: Union[st
               "provenance": {"pokeworld": __version__, "git": R.git_commit(),
                              "seconds": round(time.time() - t0, 1)}}
     write_json(out / "protocol.json", result)
-    with atomic_path(out / "protocol.md") as tmp:
-        tmp.write_text(markdown(result))
+    save_text(out / "protocol.md", markdown(result))
     figure(result, out / "protocol.png")
     print(f"[protocol] {name}: wrote {out / 'protocol.md'}")
     return result
