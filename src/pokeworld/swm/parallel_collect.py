@@ -3,7 +3,7 @@ the parts are merged, in worker order, into one HDF5 dataset through swm's own w
 
 stable-worldmodel's ``World`` steps its environments one after another in one process (``EnvPool``), so
 ``--num-envs`` batches the policy but not the simulation. Measured on a 2-core machine (120 Pendulum episodes of 48
-steps at 32 px): 113.5 s in one process, 87.8 s with two workers (1.3×; the software renderer, OSMesa's llvmpipe,
+steps at 32 px): 112.8 s in one process, 85.5 s with two workers (1.3×; the software renderer, OSMesa's llvmpipe,
 may already spread one process's rendering over both cores — not measured). ``concurrent.futures``' process pool (an existing
 engine, ``spawn`` so no worker inherits torch's threads) runs ``collect`` once per worker: worker ``w`` collects
 episodes ``w::workers``'s share with its resets seeded from ``seed + w * SEED_STRIDE`` (swm seeds an episode's reset
