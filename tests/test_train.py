@@ -166,10 +166,10 @@ def test_sigreg_pool_and_gnll_variance_options_validate_and_reach_the_loss():
     mk = model_kwargs(make_config("tiny", objective="gnll", gnll_variance="bounded", gnll_logvar_bound=3.0), (4, 7, 2))
     assert (mk["gnll_variance"], mk["gnll_logvar_bound"]) == ("bounded", 3.0)
     for bad, match in ((dict(sigreg_pool="window"), "unknown sigreg_pool"),
-                       (dict(sigreg_rows=768), "applies to sigreg_pool='pooled' only"),
+                       (dict(sigreg_rows=768), "applies to sigreg_pool='pooled' with global latents"),
                        (dict(sigreg_pool="pooled", sigreg_rows=0), "sigreg_rows must be"),
-                       (dict(sigreg_pool="pooled", tokens=True, image_size=32), "tokens=True always pools"),
-                       (dict(sigreg_pool="pooled", objective="recon"), "no SIGReg"),
+                       (dict(sigreg_pool="pooled", sigreg_rows=768, tokens=True, image_size=32), "not tokens=True"),
+                       (dict(sigreg_pool="pooled", sigreg_rows=768, objective="recon"), "not objective='recon'"),
                        (dict(gnll_variance="beta"), "needs objective='gnll'"),
                        (dict(objective="gnll", gnll_variance="student"), "unknown gnll_variance"),
                        (dict(objective="gnll", gnll_variance="beta", gnll_beta=1.5),
