@@ -9,6 +9,7 @@ import torch
 from pokeworld.data import save
 from pokeworld.errors import ConfigError
 from pokeworld.train import PRESETS, TrainConfig, WindowSampler, load_model, make_config, run, synthetic_dataset
+from pokeworld.train.config import FIRST_PAPER_MODEL, REFERENCE_MODEL
 
 
 @pytest.fixture(scope="module")
@@ -25,8 +26,10 @@ def test_presets_and_validation():
     cpu, demo = make_config("cpu"), make_config("demo")
     differ = {f for f in TrainConfig.__dataclass_fields__ if getattr(cpu, f) != getattr(demo, f)}
     assert differ == {"batch_size", "steps", "vec_dim", "ckpt_every", "log_every"}
-    assert demo.vec_dim == make_config("paper").vec_dim
+    # the first paper model's 64-wide encoders (the reference's, the paper preset's now, output 96)
+    assert demo.vec_dim == make_config("paper", **FIRST_PAPER_MODEL).vec_dim == 64
     paper = make_config("paper")
+    assert {k: getattr(paper, k) for k in REFERENCE_MODEL} == REFERENCE_MODEL
     assert (paper.window, paper.horizons, paper.sigreg_weight, paper.sigreg_dirs, paper.lr) == (24, (1, 4, 16), 0.02, 1024, 3e-4)
     assert make_config("cpu").window == 24
     with pytest.raises(ConfigError, match="VFX"):

@@ -298,7 +298,7 @@ PRESETS: dict[str, dict[str, Any]] = {
                  ckpt_every=5, log_every=5, tensorboard=False, progress=False, device="cpu"),
 }
 
-# the demo's model: the cpu preset with the paper's 64-wide proprio/touch encoders, at a quarter of its batch for
+# the demo's model: the cpu preset with the first paper model's 64-wide proprio/touch encoders, at a quarter of its batch for
 # more updates per CPU-second; stiffness enters VFX faster per frame seen (docs/model.md "Learning speed")
 PRESETS["demo"] = {**PRESETS["cpu"], "vec_dim": 64, "batch_size": 8, "steps": 2200, "ckpt_every": 1000,
                    "log_every": 100}
