@@ -36,9 +36,9 @@ def test_one_stacked_step_equals_the_separate_steps_with_the_new_options(kw):
     g = StackedGroup(cfgs, torch.device("cpu"), fast=False, ds=ds)
     step = 3
     batch, dirs, skw = g.sample(cfgs[0].batch_size), g.directions(step), g.step_kw(step)
-    pooled = kw.get("sigreg_pool") == "pooled"
-    assert ("sigreg_row_index" in skw) == pooled
-    if pooled:
+    subsampled = kw.get("sigreg_pool") == "pooled" and "sigreg_rows" in kw  # else every row: nothing to draw
+    assert ("sigreg_row_index" in skw) == subsampled
+    if subsampled:
         rows = skw["sigreg_row_index"]
         assert rows.shape == (3, 32) and not torch.equal(rows[0], rows[1])  # per member, from its own seed
     with torch.no_grad():
