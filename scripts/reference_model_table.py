@@ -43,7 +43,7 @@ OBJECTIVE_AND_MODEL = [
     ("SIGReg precision", "projections under bf16 autocast", "float32, autocast off", "kept ours (no effect on the "
      "statistic's definition; bf16 projections add noise)"),
     ("latent loss weights", "Δ1 / Δ4 / Δ16 = 1 / 0.5 / 0.5, summed", "mean of the three (1/3 each)",
-     "aligned: latent_horizon_weights (1, 0.5, 0.5)"),
+     "aligned: latent_horizon_weights (1, 0.5): 1 at Δ1, 0.5 at every Δ > 1"),
     ("touch loss", "0.5 at Δ1 + 0.25 at Δ4; contact frames × 4 (1 + 3c), mean over frames of the weighted error",
      "mean over Δ1/4/16; contact frames × 4 in a weighted mean (Σ w·e / Σ w)", "aligned: sensor_horizons (1, 4), "
      "sensor_horizon_weights (0.5, 0.25), contact_weighting 'frames'"),

@@ -105,7 +105,7 @@ def compile_modes(monkeypatch):
 #: the objective and model the paper preset trains (train.config.REFERENCE_MODEL) at tiny sizes: its BatchNorm-ended
 #: heads and frame-mean contact weighting under CUDA graphs are what an allocation's map runs
 REFERENCE_FORM = dict(encoder="reference", head_form="reference", sensor_horizons=(1, 4),
-                      latent_horizon_weights=(1.0, 0.5, 0.5), sensor_horizon_weights=(0.5, 0.25),
+                      latent_horizon_weights=(1.0, 0.5), sensor_horizon_weights=(0.5, 0.25),
                       contact_weighting="frames", sigreg_pool="pooled", sigreg_knots=9, sigreg_t_max=5.0, grad_clip=5.0)
 
 

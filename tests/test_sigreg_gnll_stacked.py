@@ -21,7 +21,7 @@ def _dataset():
                                 dict(objective="gnll", gnll_heads="all", gnll_variance="per_head"),
                                 dict(objective="gnll", gnll_variance="beta", gnll_beta=1.0),
                                 dict(encoder="reference", head_form="reference", sensor_horizons=(1, 4),
-                                     latent_horizon_weights=(1.0, 0.5, 0.5), sensor_horizon_weights=(0.5, 0.25),
+                                     latent_horizon_weights=(1.0, 0.5), sensor_horizon_weights=(0.5, 0.25),
                                      contact_weighting="frames", sigreg_pool="pooled", sigreg_knots=9,
                                      sigreg_t_max=5.0)])
 def test_one_stacked_step_equals_the_separate_steps_with_the_new_options(kw):

@@ -94,7 +94,7 @@ def _assert_same_run(a, b, rtol=1e-4, atol=1e-5):
 
 #: the paper preset's objective and model (the released reference's; train.config.REFERENCE_MODEL) at tiny sizes
 REFERENCE_FORM = dict(encoder="reference", head_form="reference", sensor_horizons=(1, 4),
-                      latent_horizon_weights=(1.0, 0.5, 0.5), sensor_horizon_weights=(0.5, 0.25),
+                      latent_horizon_weights=(1.0, 0.5), sensor_horizon_weights=(0.5, 0.25),
                       contact_weighting="frames", sigreg_pool="pooled", sigreg_knots=9, sigreg_t_max=5.0, grad_clip=5.0)
 
 

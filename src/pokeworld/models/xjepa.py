@@ -282,15 +282,15 @@ CONTACT_WEIGHTINGS = ("normalised", "frames")
 """How the touch term's contact weights enter (``XJEPA.loss(contact_weighting=...)``)."""
 
 
-def combine_horizons(losses: list[torch.Tensor], valid: list[int], horizons: tuple[int, ...],
-                     weights: tuple[float, ...] = ()) -> torch.Tensor:
-    """One term from the per-horizon ``losses`` (one per horizon in ``valid``, a subset of ``horizons``): the mean
-    when ``weights`` is empty, else Σ weights[horizons.index(d)] · loss_d (the reference's 1 / 0.5 / 0.5)."""
+def combine_horizons(losses: list[torch.Tensor], valid: list[int], weights: tuple[float, ...] = ()) -> torch.Tensor:
+    """One term from the per-horizon ``losses`` (one per horizon in ``valid``): their mean when ``weights`` is empty,
+    else Σ w_d · loss_d with ``weights`` = (w at Δ = 1, w at every Δ > 1) — the reference's rule (latent 1 / 0.5,
+    proprio and touch 0.5 / 0.25), which reads the same for any set of horizons."""
     if not weights:
         return torch.stack(losses).mean()
-    if len(weights) != len(horizons):
-        raise ValueError(f"{len(weights)} horizon weights for the {len(horizons)} horizons {horizons}")
-    return sum(float(weights[horizons.index(d)]) * l_d for d, l_d in zip(valid, losses))
+    if len(weights) != 2:
+        raise ValueError(f"horizon weights are (w at Δ = 1, w at Δ > 1), got {len(weights)} numbers")
+    return sum(float(weights[0] if d == 1 else weights[1]) * l_d for d, l_d in zip(valid, losses))
 
 
 def _horizon_weights(w: torch.Tensor | None):
@@ -334,8 +334,8 @@ class XJEPA(nn.Module):
         if not horizons or horizons[0] < 1:
             raise ConfigError(f"horizons must be positive integers, got {horizons}")
         sensor_horizons = tuple(sorted(int(d) for d in sensor_horizons))
-        if not set(sensor_horizons) <= set(horizons):
-            raise ConfigError(f"sensor_horizons {sensor_horizons} must be among the horizons {horizons}")
+        if sensor_horizons and not set(sensor_horizons) & set(horizons):
+            raise ConfigError(f"sensor_horizons {sensor_horizons} share no horizon with {horizons}")
         if tokens and objective != "latent":
             raise ConfigError("the token variant supports objective='latent' only")
         if gnll_heads not in GNLL_HEADS:
@@ -361,8 +361,9 @@ class XJEPA(nn.Module):
         per_head = objective == "gnll" and gnll_variance == "per_head"
         lv_out = 2 if objective == "gnll" and not per_head else 1
         self.variant, self.horizons, self.latent_dim, self.width = variant, horizons, latent_dim, width
-        # the proprio / touch heads' horizons (empty: the latent heads' own)
-        self.sensor_horizons = sensor_horizons or horizons
+        # the proprio / touch heads' horizons: those of the latent heads listed in sensor_horizons (empty: all), so a
+        # single-horizon run of a preset with sensor heads at (1, 4) is single-horizon throughout
+        self.sensor_horizons = tuple(d for d in horizons if d in sensor_horizons) if sensor_horizons else horizons
         self.objective, self.tokens, self.image_size = objective, tokens, image_size
         self.contact_channel, self.recon_positions = contact_channel, recon_positions
         self.dims = {"proprio": proprio_dim, "touch": touch_dim}
@@ -704,10 +705,10 @@ class XJEPA(nn.Module):
                 ``latent_precision``).
             sigreg_t_max: the Epps–Pulley integral's half-range [0, t_max] (``sigreg_knots`` trapezoid knots on it;
                 the integrand is even, so this is the integral over [−t_max, t_max]).
-            latent_horizon_weights: weight of each latent (or recon) horizon's term, in the order of
-                ``self.horizons``, summed; empty: the mean over the horizons.
-            sensor_horizon_weights: the same for the proprio / touch heads (order of ``self.sensor_horizons``),
-                each modality's sum then times ``proprio_weight`` / ``touch_weight``; empty: their mean.
+            latent_horizon_weights: (w at Δ = 1, w at every Δ > 1) of the latent (or recon) horizons' terms, summed
+                (:func:`combine_horizons`); empty: the mean over the horizons.
+            sensor_horizon_weights: the same for the proprio / touch heads, each modality's sum then times
+                ``proprio_weight`` / ``touch_weight``; empty: their mean.
             contact_weighting: how the touch term's contact weights enter (:data:`CONTACT_WEIGHTINGS`):
                 'normalised' — a weighted mean Σ w·e / Σ w (contact frames gain share, the term's scale stays
                 that of an MSE); 'frames' — Σ w·e / N, the mean over frames of the weighted error (the reference's;
@@ -812,7 +813,7 @@ class XJEPA(nn.Module):
                 l_d = masked_mse(self.predict(h, actions, d)[:, :L - d], z_mean[:, d:], at_latent(d))
             terms[f"pred_{d}"] = l_d
             losses.append(l_d)
-        return combine_horizons(losses, valid, self.horizons, weights)
+        return combine_horizons(losses, valid, weights)
 
     def _latent_terms(self, z, h, actions, valid, at_latent, gnll_beta, terms, weights=()) -> torch.Tensor:
         """The latent Δ-heads' terms (MSE, or Gaussian NLL for ``gnll``; combined over horizons by
@@ -836,7 +837,7 @@ class XJEPA(nn.Module):
             terms["latent_precision"] = torch.stack(precisions).mean()
         if beta_weights:
             terms["latent_weight"] = torch.stack(beta_weights).mean()
-        return combine_horizons(losses, valid, self.horizons, weights)
+        return combine_horizons(losses, valid, weights)
 
     def _recon_terms(self, frames, h, actions, valid, gw, at, terms, weights=()) -> torch.Tensor:
         """The reconstruction control's pixel terms (combined over horizons by :func:`combine_horizons`)."""
@@ -855,7 +856,7 @@ class XJEPA(nn.Module):
                 l_d = masked_mse(rec.flatten(2), img[:, pos + d].flatten(2), at(d, pos))
             terms[f"recon_{d}"] = l_d
             losses.append(l_d)
-        return combine_horizons(losses, valid, self.horizons, weights)
+        return combine_horizons(losses, valid, weights)
 
     def _modal_term(self, m, batch, h, actions, at, touch_contact_weight, gnll_beta, weights=(),
                     contact_weighting="normalised") -> torch.Tensor:
@@ -880,4 +881,4 @@ class XJEPA(nn.Module):
             else:
                 term = self._nll(pred[:, :L - d], logvar[:, :L - d], target[:, d:], weight, gnll_beta)
             losses.append(term if scale is None else term * scale)
-        return combine_horizons(losses, valid, self.sensor_horizons, weights)
+        return combine_horizons(losses, valid, weights)

@@ -126,14 +126,14 @@ class TrainConfig:
     action embedding) for Δ > 1, the state alone at Δ = 1 (Linear for the latent, a 96-wide MLP for proprio /
     touch), latent heads ending in BatchNorm1d (``head_layers`` is then unused)."""
     sensor_horizons: tuple[int, ...] = ()
-    """Horizons of the proprio / touch heads, a subset of ``horizons``; empty = all of them. Reference: (1, 4)
-    (no Δ = 16 sensor heads)."""
+    """Horizons of the proprio / touch heads: those of ``horizons`` listed here (empty = all of them). Reference:
+    (1, 4), no Δ = 16 sensor heads; a single-horizon run (``horizons`` (1,)) then has Δ = 1 sensor heads only."""
     latent_horizon_weights: tuple[float, ...] = ()
-    """Weights of the latent (or recon) horizons' terms, one per ``horizons`` entry, summed; empty = their mean.
-    Reference: (1, 0.5, 0.5) for Δ = 1 / 4 / 16."""
+    """(weight at Δ = 1, weight at every Δ > 1) of the latent (or recon) horizons' terms, summed; empty = their
+    mean. Reference: (1, 0.5), i.e. Δ 1 / 4 / 16 = 1 / 0.5 / 0.5 (the same rule at any horizons)."""
     sensor_horizon_weights: tuple[float, ...] = ()
-    """Weights of the proprio / touch horizons' terms, one per ``sensor_horizons`` entry, summed (then times
-    ``proprio_weight`` / ``touch_weight``); empty = their mean. Reference: (0.5, 0.25) for Δ = 1 / 4."""
+    """(weight at Δ = 1, weight at every Δ > 1) of the proprio / touch horizons' terms, summed (then times
+    ``proprio_weight`` / ``touch_weight``); empty = their mean. Reference: (0.5, 0.25)."""
     contact_weighting: str = "normalised"
     """How ``touch_contact_weight`` enters the touch term: 'normalised' — a weighted mean Σ w·e / Σ w (contact
     frames gain share; the term keeps an MSE's scale); 'frames' (the reference's) — the mean over frames of the
@@ -279,7 +279,7 @@ class TrainConfig:
 #: leaves open; the ``paper`` preset's overrides (docs/model.md "Aligned with the released reference").
 REFERENCE_MODEL: dict[str, Any] = dict(
     encoder="reference", fuse_dim=192, vec_dim=96, head_form="reference", sensor_horizons=(1, 4),
-    latent_horizon_weights=(1.0, 0.5, 0.5), sensor_horizon_weights=(0.5, 0.25), contact_weighting="frames",
+    latent_horizon_weights=(1.0, 0.5), sensor_horizon_weights=(0.5, 0.25), contact_weighting="frames",
     sigreg_pool="pooled", sigreg_knots=9, sigreg_t_max=5.0, grad_clip=5.0)
 #: Overrides that give the ``paper`` preset this project's first objective and model (the field defaults), with
 #: which the first paper-budget runs were trained: ``make_config("paper", **FIRST_PAPER_MODEL)``.
@@ -399,13 +399,13 @@ def check_model_form(cfg: TrainConfig) -> None:
     if cfg.fuse_dim != 192 and cfg.encoder != "reference":
         raise ConfigError(f"fuse_dim={cfg.fuse_dim} applies to encoder='reference' only")
     hs, sensor = tuple(cfg.horizons), tuple(cfg.sensor_horizons)
-    if not set(sensor) <= set(hs) or len(set(sensor)) != len(sensor):
-        raise ConfigError(f"sensor_horizons {sensor!r:.80} must be distinct horizons among {hs!r:.80}")
-    for name, over in (("latent_horizon_weights", hs), ("sensor_horizon_weights", sensor or hs)):
+    if len(set(sensor)) != len(sensor) or (sensor and not set(sensor) & set(hs)):
+        raise ConfigError(f"sensor_horizons {sensor!r:.80} must be distinct and share a horizon with {hs!r:.80}")
+    for name in ("latent_horizon_weights", "sensor_horizon_weights"):
         n = len(getattr(cfg, name))
-        if n not in (0, len(over)):
-            raise ConfigError(f"{name} lists {n} weights for the {len(over)} horizons {over!r:.80}: give one per "
-                              "horizon, or none for their mean")
+        if n not in (0, 2):
+            raise ConfigError(f"{name} lists {n} weights: give two (the weight at Δ = 1, the weight at every "
+                              "Δ > 1), or none for the mean over the horizons")
 
 def use_fast_path(cfg: TrainConfig, dev: torch.device) -> bool:
     """Whether ``cfg.fast`` selects the fast path on ``dev`` ('auto': CUDA only)."""
