@@ -7,6 +7,7 @@ import pytest
 import torch
 
 from pokeworld import reference_values as R
+from pokeworld.errors import ConfigError
 from pokeworld.losses import sigreg
 from pokeworld.models import VARIANTS, XJEPA
 from pokeworld.models.xjepa import ReferenceDeltaHead, combine_horizons
@@ -94,8 +95,14 @@ def test_paper_loss_weights_sum_the_horizons_as_the_reference_does():
     # a single-horizon run of the paper preset is single-horizon for every target
     single = XJEPA(**model_kwargs(make_config("tiny", horizons=(1,), sensor_horizons=(1, 4)), DIMS))
     assert single.sensor_horizons == (1,) and set(single.modal_heads["touch"]) == {"1"}
-    with pytest.raises(Exception, match="give two"):
-        make_config("tiny", latent_horizon_weights=(1.0, 0.5, 0.5))
+    for bad, match in ((dict(latent_horizon_weights=(1.0, 0.5, 0.5)), "give two"),
+                       (dict(head_form="reference", head_layers=2), "applies to head_form='mlp' only"),
+                       (dict(fuse_dim=64), "applies to encoder='reference' only"),
+                       (dict(encoder="resnet"), "unknown encoder"),
+                       (dict(contact_weighting="sum"), "unknown contact_weighting"),
+                       (dict(sensor_horizons=(4,), horizons=(1,)), "share a horizon")):
+        with pytest.raises(ConfigError, match=match):
+            make_config("tiny", **bad)
 
 
 @pytest.mark.parametrize("contact, ratio", [(1.0, 4.0), (0.0, 1.0)])

@@ -8,7 +8,7 @@
   LayerNorm: it would pin embeddings to a shell and fight SIGReg's isotropic
   Gaussian target.
 
-Two forms (:data:`ENCODERS`, docs/model.md "Encoder and heads: two forms"):
+Two forms (:data:`ENCODERS`, docs/model.md "Aligned with the released reference"):
 
 * ``reference`` — the authors' released encoder (``exp/e003_motion/model.py``): 3×3 stride-2 convolutions
   with GELU and no normalisation, the flattened map through a ``fuse_dim``-wide (192) bottleneck, proprio /

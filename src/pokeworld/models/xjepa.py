@@ -183,7 +183,7 @@ class DeltaHead(nn.Module):
 
 
 HEAD_FORMS = ("mlp", "reference")
-"""Forms of the direct Δ heads (``XJEPA(head_form=...)``, docs/model.md "Encoder and heads: two forms"): 'mlp' —
+"""Forms of the direct Δ heads (``XJEPA(head_form=...)``, docs/model.md "Aligned with the released reference"): 'mlp' —
 :class:`DeltaHead` everywhere; 'reference' — :class:`ReferenceDeltaHead`, the released reference's heads."""
 
 REFERENCE_ACTION_DIM, REFERENCE_SENSOR_HIDDEN = 128, 96

@@ -114,7 +114,7 @@ class TrainConfig:
     """Output width of the proprio and touch MLP encoders (also their hidden width with ``encoder='groupnorm'``;
     64 hidden with 'reference'). The reference's: 96."""
     encoder: str = "groupnorm"
-    """Per-frame encoder form (docs/model.md "Encoder and heads: two forms"): 'groupnorm' — 4×4 stride-2
+    """Per-frame encoder form (docs/model.md "Aligned with the released reference"): 'groupnorm' — 4×4 stride-2
     convolutions with GroupNorm, one Linear from the flattened map and the vector features to the latent;
     'reference' (the ``paper`` preset) — the authors' released encoder: 3×3 stride-2 convolutions without
     normalisation, a ``fuse_dim``-wide GELU bottleneck after the flattened map, and a fusion MLP."""
@@ -398,6 +398,9 @@ def check_model_form(cfg: TrainConfig) -> None:
             raise ConfigError(f"unknown {name} {getattr(cfg, name)!r}; choose one of {list(allowed)}")
     if cfg.fuse_dim != 192 and cfg.encoder != "reference":
         raise ConfigError(f"fuse_dim={cfg.fuse_dim} applies to encoder='reference' only")
+    if cfg.head_layers != 1 and cfg.head_form == "reference":
+        raise ConfigError(f"head_layers={cfg.head_layers} applies to head_form='mlp' only (the reference's heads are "
+                          "linear in the state)")
     hs, sensor = tuple(cfg.horizons), tuple(cfg.sensor_horizons)
     if len(set(sensor)) != len(sensor) or (sensor and not set(sensor) & set(hs)):
         raise ConfigError(f"sensor_horizons {sensor!r:.80} must be distinct and share a horizon with {hs!r:.80}")
