@@ -5,7 +5,8 @@
 # run as soon as it is measured:
 #   1. device.json: the GPU (nvidia-smi name, driver), torch, CUDA, the UTC date, the commit (ALLOC_COMMIT);
 #   2. a smoke check of at most a minute: the two tests of tests/test_cuda.py on the map's path (the CUDA-graph
-#      default trains and resumes; a GPU-trained run is measured), skipped on a CPU;
+#      default trains and resumes in the paper preset's objective and model; a GPU-trained run is measured),
+#      skipped on a CPU;
 #   3. the runs of VARIANTS one at a time (pokeworld.experiments.allocation_run), each started only when its
 #      predicted time fits what is left, measured with ridge probes and packed into OUT before the next starts;
 #      the checkpoint of the run training is packed too, every ALLOC_SNAPSHOT_S seconds, so a kill at any moment
@@ -75,10 +76,11 @@ print(json.dumps(write_device(sys.argv[1])))' "$OUT/device.json" || exit 3
 cp "$OUT/device.json" "$WORK/map/device.json"  # the records take it along
 
 if [ "$TESTS" = smoke ]; then
-  # the map's path on the GPU: CUDA-graph training with its resume, and the measurement of a GPU-trained run
+  # the map's path on the GPU: CUDA-graph training with its resume in the paper preset's objective and model (the
+  # released reference's form), and the measurement of a GPU-trained run
   log "smoke check: tests/test_cuda.py, the map's path (at most $TESTS_MAX_S s)"
   timeout "$TESTS_MAX_S" "$PY" -m pytest -q -p no:cacheprovider tests/test_cuda.py \
-    -k "cuda_default_trains_as_eager_and_resumes or gpu_trained_run_is_measured" 2>&1 | tail -n 5
+    -k "(cuda_default_trains_as_eager_and_resumes and reference) or gpu_trained_run_is_measured" 2>&1 | tail -n 5
   log "smoke check exit status ${PIPESTATUS[0]}"
 elif [ "$TESTS" = full ]; then
   log "CUDA tests (at most $TESTS_MAX_S s) -> cuda_tests.log"

@@ -214,14 +214,32 @@ def test_what_does_not_fit_is_left_out_and_named_never_what_came_back(tmp_path):
 # ---------------------------------------------------------------------- the plan
 
 
-def _allocation(tmp_path, name, finished, checkpoints, git="abc1234") -> allocations.Allocation:
+def _allocation(tmp_path, name, finished, checkpoints, git="abc1234", map_config=None,
+                **config) -> allocations.Allocation:
     root = tmp_path / name
     for run in {*finished, *checkpoints}:
         variant, _, seed = run.partition("-s")
         (root / "runs" / run).mkdir(parents=True)
-        (root / "runs" / run / "config.json").write_text(json.dumps({"variant": variant, "seed": int(seed)}))
-    return allocations.Allocation(name, root, {"git": git}, {}, "0" * 64, {"finished": finished},
+        (root / "runs" / run / "config.json").write_text(json.dumps({"variant": variant, "seed": int(seed), **config}))
+    return allocations.Allocation(name, root, {"git": git}, map_config or {}, "0" * 64, {"finished": finished},
                                   checkpoints=checkpoints)
+
+
+def test_the_plan_and_the_merge_keep_the_first_paper_model_apart_from_the_aligned_one(tmp_path):
+    """The paper preset now trains the released reference's objective and model under the same run names: a plan on
+    allocations of the first model would skip runs the preset has not trained, and a merge would mix the two."""
+    from pokeworld.train.config import REFERENCE_MODEL
+
+    aligned = {k: list(v) if isinstance(v, tuple) else v for k, v in REFERENCE_MODEL.items()}
+    paper = {"preset": "paper"}
+    first = _allocation(tmp_path, "first", ["VFX-s0"], {}, map_config=paper)  # configs from before the fields
+    now = _allocation(tmp_path, "now", ["VF-s0"], {"V-s0": 100}, map_config=paper, **aligned)
+    with pytest.raises(ConfigError, match="encoder.*start the next allocation afresh"):
+        allocations.plan([first])
+    with pytest.raises(ConfigError, match="another objective or model than first.*head_form"):
+        allocations.plan([first, now])
+    p = allocations.plan([now])
+    assert p["finished"] == ["VF@0"] and p["queue"][0] == "V@0"
 
 
 def test_the_plan_resumes_checkpoints_first_then_follows_the_priority(tmp_path):

@@ -102,8 +102,16 @@ def compile_modes(monkeypatch):
     return seen
 
 
-def test_the_cuda_default_trains_as_eager_and_resumes(data_dir, tmp_path, compile_modes):
-    kw = dict(data=data_dir, variant="VFX", **DEFAULT)
+#: the objective and model the paper preset trains (train.config.REFERENCE_MODEL) at tiny sizes: its BatchNorm-ended
+#: heads and frame-mean contact weighting under CUDA graphs are what an allocation's map runs
+REFERENCE_FORM = dict(encoder="reference", head_form="reference", sensor_horizons=(1, 4),
+                      latent_horizon_weights=(1.0, 0.5), sensor_horizon_weights=(0.5, 0.25),
+                      contact_weighting="frames", sigreg_pool="pooled", sigreg_knots=9, sigreg_t_max=5.0, grad_clip=5.0)
+
+
+@pytest.mark.parametrize("form", [{}, REFERENCE_FORM], ids=["first", "reference"])
+def test_the_cuda_default_trains_as_eager_and_resumes(data_dir, tmp_path, compile_modes, form):
+    kw = dict(data=data_dir, variant="VFX", **DEFAULT, **form)
     cfg = train.make_config("tiny", out=str(tmp_path / "graphs"), **kw)
     assert train.compile_mode_for(cfg, torch.device("cuda")) == "reduce-overhead"
     graphs = train.run(cfg)
@@ -117,11 +125,13 @@ def test_the_cuda_default_trains_as_eager_and_resumes(data_dir, tmp_path, compil
     assert json.loads((resumed / "config.json").read_text())["compile"] == "auto"
 
 
-def test_the_cuda_default_trains_stacked_groups_as_eager_and_resumes(data_dir, tmp_path, compile_modes):
+@pytest.mark.parametrize("form", [{}, REFERENCE_FORM], ids=["first", "reference"])
+def test_the_cuda_default_trains_stacked_groups_as_eager_and_resumes(data_dir, tmp_path, compile_modes, form):
     members = [dict(variant="VFX", seed=0), dict(variant="V", seed=1)]
 
     def cfgs(name, **extra):
-        return [train.make_config("tiny", data=data_dir, out=str(tmp_path / f"{name}{i}"), **DEFAULT, **m, **extra)
+        return [train.make_config("tiny", data=data_dir, out=str(tmp_path / f"{name}{i}"), **DEFAULT, **m, **form,
+                                  **extra)
                 for i, m in enumerate(members)]
 
     graphs = train_stacked.run(cfgs("g"))

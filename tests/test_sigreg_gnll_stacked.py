@@ -19,7 +19,11 @@ def _dataset():
 
 @pytest.mark.parametrize("kw", [dict(sigreg_pool="pooled", sigreg_rows=32),
                                 dict(objective="gnll", gnll_heads="all", gnll_variance="per_head"),
-                                dict(objective="gnll", gnll_variance="beta", gnll_beta=1.0)])
+                                dict(objective="gnll", gnll_variance="beta", gnll_beta=1.0),
+                                dict(encoder="reference", head_form="reference", sensor_horizons=(1, 4),
+                                     latent_horizon_weights=(1.0, 0.5), sensor_horizon_weights=(0.5, 0.25),
+                                     contact_weighting="frames", sigreg_pool="pooled", sigreg_knots=9,
+                                     sigreg_t_max=5.0)])
 def test_one_stacked_step_equals_the_separate_steps_with_the_new_options(kw):
     """Each member's pooled-SIGReg row subset is its separate run's (drawn on the host from its own seed and
     the step; inside vmap the loss has no per-member seed), and per-head log-variances stack like any
@@ -32,9 +36,9 @@ def test_one_stacked_step_equals_the_separate_steps_with_the_new_options(kw):
     g = StackedGroup(cfgs, torch.device("cpu"), fast=False, ds=ds)
     step = 3
     batch, dirs, skw = g.sample(cfgs[0].batch_size), g.directions(step), g.step_kw(step)
-    pooled = kw.get("sigreg_pool") == "pooled"
-    assert ("sigreg_row_index" in skw) == pooled
-    if pooled:
+    subsampled = kw.get("sigreg_pool") == "pooled" and "sigreg_rows" in kw  # else every row: nothing to draw
+    assert ("sigreg_row_index" in skw) == subsampled
+    if subsampled:
         rows = skw["sigreg_row_index"]
         assert rows.shape == (3, 32) and not torch.equal(rows[0], rows[1])  # per member, from its own seed
     with torch.no_grad():

@@ -9,6 +9,7 @@ import torch
 from pokeworld.data import save
 from pokeworld.errors import ConfigError
 from pokeworld.train import PRESETS, TrainConfig, WindowSampler, load_model, make_config, run, synthetic_dataset
+from pokeworld.train.config import FIRST_PAPER_MODEL, REFERENCE_MODEL
 
 
 @pytest.fixture(scope="module")
@@ -25,8 +26,10 @@ def test_presets_and_validation():
     cpu, demo = make_config("cpu"), make_config("demo")
     differ = {f for f in TrainConfig.__dataclass_fields__ if getattr(cpu, f) != getattr(demo, f)}
     assert differ == {"batch_size", "steps", "vec_dim", "ckpt_every", "log_every"}
-    assert demo.vec_dim == make_config("paper").vec_dim
+    # the first paper model's 64-wide encoders (the reference's, the paper preset's now, output 96)
+    assert demo.vec_dim == make_config("paper", **FIRST_PAPER_MODEL).vec_dim == 64
     paper = make_config("paper")
+    assert {k: getattr(paper, k) for k in REFERENCE_MODEL} == REFERENCE_MODEL
     assert (paper.window, paper.horizons, paper.sigreg_weight, paper.sigreg_dirs, paper.lr) == (24, (1, 4, 16), 0.02, 1024, 3e-4)
     assert make_config("cpu").window == 24
     with pytest.raises(ConfigError, match="VFX"):
@@ -166,10 +169,10 @@ def test_sigreg_pool_and_gnll_variance_options_validate_and_reach_the_loss():
     mk = model_kwargs(make_config("tiny", objective="gnll", gnll_variance="bounded", gnll_logvar_bound=3.0), (4, 7, 2))
     assert (mk["gnll_variance"], mk["gnll_logvar_bound"]) == ("bounded", 3.0)
     for bad, match in ((dict(sigreg_pool="window"), "unknown sigreg_pool"),
-                       (dict(sigreg_rows=768), "applies to sigreg_pool='pooled' only"),
+                       (dict(sigreg_rows=768), "applies to sigreg_pool='pooled' with global latents"),
                        (dict(sigreg_pool="pooled", sigreg_rows=0), "sigreg_rows must be"),
-                       (dict(sigreg_pool="pooled", tokens=True, image_size=32), "tokens=True always pools"),
-                       (dict(sigreg_pool="pooled", objective="recon"), "no SIGReg"),
+                       (dict(sigreg_pool="pooled", sigreg_rows=768, tokens=True, image_size=32), "not tokens=True"),
+                       (dict(sigreg_pool="pooled", sigreg_rows=768, objective="recon"), "not objective='recon'"),
                        (dict(gnll_variance="beta"), "needs objective='gnll'"),
                        (dict(objective="gnll", gnll_variance="student"), "unknown gnll_variance"),
                        (dict(objective="gnll", gnll_variance="beta", gnll_beta=1.5),

@@ -92,12 +92,21 @@ def _assert_same_run(a, b, rtol=1e-4, atol=1e-5):
     assert moved > 20
 
 
-def test_one_stacked_step_equals_the_separate_steps():
-    """Same windows, same loss and the same gradients on the same batch (the issue's numerics check)."""
+#: the paper preset's objective and model (the released reference's; train.config.REFERENCE_MODEL) at tiny sizes
+REFERENCE_FORM = dict(encoder="reference", head_form="reference", sensor_horizons=(1, 4),
+                      latent_horizon_weights=(1.0, 0.5), sensor_horizon_weights=(0.5, 0.25),
+                      contact_weighting="frames", sigreg_pool="pooled", sigreg_knots=9, sigreg_t_max=5.0, grad_clip=5.0)
+
+
+@pytest.mark.parametrize("form", [{}, REFERENCE_FORM], ids=["first", "reference"])
+def test_one_stacked_step_equals_the_separate_steps(form):
+    """Same windows, same loss and the same gradients on the same batch (the issue's numerics check); the V
+    member embeds into VFX under either encoder form (the reference's fusion MLP reads the vision bottleneck first,
+    so V's fusion weights are a leading slice of VFX's)."""
     from pokeworld.train.stacked import StackedGroup
 
     ds = _dataset()
-    cfgs = _cfgs("unused", Path("/nonexistent"))
+    cfgs = _cfgs("unused", Path("/nonexistent"), **form)
     g = StackedGroup(cfgs, torch.device("cpu"), fast=False, ds=ds)
     assert g.super_variant == "VFX" and set(g.member_kw) == {"sigreg_weight", "proprio_weight", "touch_weight"}
     batch, dirs = g.sample(cfgs[0].batch_size), g.directions(3)

@@ -113,7 +113,8 @@ PRESET_COSTS: dict[str, str] = {
     "tiny": "seconds; smoke runs and the unit tests (too small for meaningful numbers)",
     "cpu": ("2 CPU cores; ≈ 0.26 s/step on one core, ≈ 20 min per 4,000-step model with two side by side "
             "(the default)"),
-    "paper": ("GPU; the paper's sizes: on one H100 0.041 s/step eager (fast path) ≈ 14 min per 20k-step model, "
+    "paper": ("GPU; the paper's sizes with the released reference's objective and model; timed with the first "
+              "model: on one H100 0.041 s/step eager (fast path) ≈ 14 min per 20k-step model, "
               "0.030 compiled in the default mode; on an H200 0.0104 with CUDA graphs (the default on CUDA); "
               "stacked, 0.027 s per model-step for six eager models in one process"),
     "demo": ("train only: the cpu model with 64-wide proprio/touch encoders at batch 8, 2,200 steps, "

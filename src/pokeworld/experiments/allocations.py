@@ -9,7 +9,9 @@ progress.json and device.json again) and the finished runs' weights and the unfi
 (:func:`merge_allocations`), and ``--plan`` prints the next allocation's queue (:func:`plan`):
 
 * every allocation must have trained on the same corpus (the seeded paper corpus: its manifest's content hash) with
-  the same map-wide settings (:data:`AGREE`); otherwise the merge is refused with one line;
+  the same map-wide settings (:data:`AGREE`) and the same objective and model (:func:`model_form`: the first paper
+  model and the one aligned with the released reference share run names); otherwise the merge is refused with one
+  line, and ``--plan`` refuses allocations whose runs are not of the model the preset trains now;
 * an allocation contributes its finished runs only (progress.json): a run its time budget cut short is named, not
   counted;
 * each returned weight file and checkpoint is checked (its sha256, a weights-only load, its tensors against the
@@ -287,10 +289,53 @@ def allocation_record(a: Allocation, certificates: dict) -> dict:
 # ---------------------------------------------------------------------- the merge
 
 
+def model_form(a: Allocation) -> dict:
+    """The objective-and-model fields (those of ``train.config.REFERENCE_MODEL``) the allocation's runs trained with,
+    from its first run config (one preset per allocation; a field a config predates reads its default, the value it
+    had then); {} when no run config came back."""
+    from ..train.config import REFERENCE_MODEL, field_defaults
+
+    for path in sorted((a.root / "runs").glob("*/config.json")):
+        cfg, defaults = read_json(path, "a run config"), field_defaults()
+        return {k: json_value(cfg.get(k, defaults[k])) for k in REFERENCE_MODEL}
+    return {}
+
+
+def json_value(v):
+    """A config value as config.json holds it (tuples as lists)."""
+    return [json_value(x) for x in v] if isinstance(v, (list, tuple)) else v
+
+
+def check_model_form(allocs: list[Allocation]) -> None:
+    """ConfigError (one line) unless the allocations' runs trained the objective and model the map's training preset
+    trains now (:func:`model_form`): a plan built on runs of another model would skip runs the preset has not
+    trained."""
+    from ..train.config import PRESETS as TRAIN_PRESETS, REFERENCE_MODEL, field_defaults
+
+    mc = allocs[0].map_config
+    preset = mc.get("train_preset") or mc.get("preset")
+    if preset not in TRAIN_PRESETS:  # a record that names no training preset has nothing to compare with
+        return
+    now = {k: json_value({**field_defaults(), **TRAIN_PRESETS[preset]}[k]) for k in REFERENCE_MODEL}
+    for a in allocs:
+        form = model_form(a)
+        diff = {k: (v, now[k]) for k, v in form.items() if v != now[k]}
+        if diff:
+            raise ConfigError(f"{a.source} trained another objective or model than the {preset!r} preset trains now "
+                              f"(then, now): {diff}; start the next allocation afresh (no ALLOC_RESUME), docs/model.md "
+                              "\"GPU allocations\"")
+
+
 def check_agreement(allocs: list[Allocation]) -> None:
-    """ConfigError (one line) unless every allocation trained on the first one's corpus with its map settings."""
+    """ConfigError (one line) unless every allocation trained on the first one's corpus with its map settings and
+    its objective and model."""
     first = allocs[0]
     for a in allocs[1:]:
+        forms = model_form(first), model_form(a)
+        if all(forms) and forms[0] != forms[1]:
+            diff = {k: (forms[0][k], forms[1][k]) for k in forms[0] if forms[0][k] != forms[1][k]}
+            raise ConfigError(f"{a.source} trained another objective or model than {first.source} (first, this): "
+                              f"{diff}; allocations merge only when their runs are the same model")
         if a.corpus_sha256 != first.corpus_sha256:
             raise ConfigError(f"{a.source} trained on corpus {a.corpus_sha256[:12]}, {first.source} on "
                               f"{first.corpus_sha256[:12]}: allocations merge only when they share the seeded corpus")
@@ -424,8 +469,10 @@ def plan(allocs: list[Allocation]) -> dict:
     """The next allocation's queue from what ``allocs`` returned (:func:`.allocation_queue.order_queue`): runs any
     of them finished are skipped, runs with a returned checkpoint come first (the furthest checkpoint of each, and
     the folder holding it, which the next allocation is given as ALLOC_RESUME), then :data:`.allocation_queue.PRIORITY`.
-    ConfigError when the allocations do not share a corpus and map settings (:func:`check_agreement`)."""
+    ConfigError when the allocations do not share a corpus, map settings and model (:func:`check_agreement`), or trained
+    another model than the preset trains now (:func:`check_model_form`)."""
     check_agreement(allocs)
+    check_model_form(allocs)
     finished: set[tuple[str, int]] = set()
     ckpts: dict[tuple[str, int], tuple[int, str]] = {}
     for a in allocs:

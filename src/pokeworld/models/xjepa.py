@@ -48,7 +48,7 @@ from ..losses import (
     sigreg,
     sigreg_rows_of,
 )
-from .encoders import FusedEncoder
+from .encoders import ENCODERS, FusedEncoder
 from .predictor import CausalPredictor, KVCache
 
 #: variant name -> (input modalities, target modalities). "latent" is the visual/fused latent target.
@@ -95,14 +95,14 @@ MODEL_INT_BOUNDS: dict[str, tuple[int, int]] = {
     "proprio_dim": (0, 4096), "touch_dim": (0, 4096), "action_dim": (1, 4096), "image_size": (16, 4096),
     "latent_dim": (1, 65536), "width": (1, 65536), "depth": (1, 64), "heads": (1, 1024), "max_len": (1, 65536),
     "vec_dim": (1, 65536), "contact_channel": (0, 4095), "recon_positions": (1, 65536), "belief_dim": (1, 65536),
-    "head_layers": (1, 16)}
+    "head_layers": (1, 16), "fuse_dim": (1, 65536)}
 MODEL_BOOL_KWARGS = ("tokens", "sysid", "pool", "motion_channel")
-MODEL_STR_KWARGS = ("variant", "objective", "gnll_heads", "gnll_variance")
+MODEL_STR_KWARGS = ("variant", "objective", "gnll_heads", "gnll_variance", "encoder", "head_form")
 MODEL_FLOAT_KWARGS = {"dropout": (0.0, 1.0), "gnll_logvar_bound": (0.0, 1e6)}
 MAX_CHANNEL, MAX_HORIZONS = 65536, 64
 #: Every kwarg :class:`XJEPA` takes.
 MODEL_KWARGS = frozenset({*MODEL_INT_BOUNDS, *MODEL_BOOL_KWARGS, *MODEL_STR_KWARGS, *MODEL_FLOAT_KWARGS, "channels",
-                          "horizons"})
+                          "horizons", "sensor_horizons"})
 
 
 def _shown(value: Any) -> str:
@@ -139,8 +139,8 @@ def check_model_kwargs(kwargs: Any) -> dict[str, Any]:
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not least <= value <= greatest:
                 raise ConfigError(f"model kwarg {name}={_shown(value)} must be a number in [{least}, {greatest}]")
             out[name] = float(value)
-        elif name in ("channels", "horizons"):
-            size = (4, 4) if name == "channels" else (1, MAX_HORIZONS)
+        elif name in ("channels", "horizons", "sensor_horizons"):
+            size = {"channels": (4, 4), "horizons": (1, MAX_HORIZONS), "sensor_horizons": (0, MAX_HORIZONS)}[name]
             if not isinstance(value, (list, tuple)) or not size[0] <= len(value) <= size[1]:
                 raise ConfigError(f"model kwarg {name}={_shown(value)} must list {size[0]}..{size[1]} integers")
             top = MAX_CHANNEL if name == "channels" else MODEL_INT_BOUNDS["max_len"][1]
@@ -180,6 +180,53 @@ class DeltaHead(nn.Module):
 
     def forward(self, h: torch.Tensor, a: torch.Tensor) -> torch.Tensor:
         return self.net(torch.cat([h, a], -1) if a.shape[-1] else h)
+
+
+HEAD_FORMS = ("mlp", "reference")
+"""Forms of the direct Δ heads (``XJEPA(head_form=...)``, docs/model.md "Aligned with the released reference"): 'mlp' —
+:class:`DeltaHead` everywhere; 'reference' — :class:`ReferenceDeltaHead`, the released reference's heads."""
+
+REFERENCE_ACTION_DIM, REFERENCE_SENSOR_HIDDEN = 128, 96
+"""The reference heads' action-window embedding width and its Δ = 1 proprio / touch MLP's hidden width."""
+
+
+class ReferenceDeltaHead(nn.Module):
+    """A direct Δ-step head in the released reference's form (``exp/e003_motion/model.py``).
+
+    Δ > 1: ``Linear([h, GELU(Linear(actions t..t+Δ−1))])`` — linear in the trunk state, the action window
+    embedded to 128; Δ = 1: the state alone (the trunk at t has already read the action after observation t),
+    through one Linear for a latent head or a ``width -> 96 -> out`` GELU MLP for a proprio / touch head. A latent
+    head ends in BatchNorm1d over its first ``bn_features`` outputs (its mean: a Gaussian-NLL head's
+    log-variance half is left as it is); 0 = none (proprio / touch heads)."""
+
+    def __init__(self, width: int, act_in: int, out_dim: int, delta: int, sensor: bool, bn_features: int = 0):
+        super().__init__()
+        self.act = None
+        if delta > 1:
+            self.act = nn.Sequential(nn.Linear(act_in, REFERENCE_ACTION_DIM), nn.GELU())
+            self.out = nn.Linear(width + REFERENCE_ACTION_DIM, out_dim)
+        elif sensor:
+            self.out = nn.Sequential(nn.Linear(width, REFERENCE_SENSOR_HIDDEN), nn.GELU(),
+                                     nn.Linear(REFERENCE_SENSOR_HIDDEN, out_dim))
+        else:
+            self.out = nn.Linear(width, out_dim)
+        self.bn = nn.BatchNorm1d(bn_features) if bn_features else None
+
+    def forward(self, h: torch.Tensor, a: torch.Tensor) -> torch.Tensor:
+        y = self.out(h if self.act is None else torch.cat([h, self.act(a)], -1))
+        if self.bn is None:
+            return y
+        k = self.bn.num_features
+        mean = self.bn(y[..., :k].reshape(-1, k)).reshape(*y.shape[:-1], k)
+        return mean if y.shape[-1] == k else torch.cat([mean, y[..., k:]], -1)
+
+
+def delta_head(form: str, width: int, delta: int, action_dim: int, out_dim: int, layers: int, sensor: bool,
+               bn_features: int = 0) -> nn.Module:
+    """The direct Δ head of ``form`` (:data:`HEAD_FORMS`); ``bn_features`` applies to the reference form only."""
+    if form == "reference":
+        return ReferenceDeltaHead(width, delta * action_dim, out_dim, delta, sensor, bn_features)
+    return DeltaHead(width, delta * action_dim, out_dim, layers=layers)
 
 
 class Decoder(nn.Module):
@@ -231,6 +278,21 @@ class BeliefModule(nn.Module):
         return self.prior(h).chunk(2, -1)
 
 
+CONTACT_WEIGHTINGS = ("normalised", "frames")
+"""How the touch term's contact weights enter (``XJEPA.loss(contact_weighting=...)``)."""
+
+
+def combine_horizons(losses: list[torch.Tensor], valid: list[int], weights: tuple[float, ...] = ()) -> torch.Tensor:
+    """One term from the per-horizon ``losses`` (one per horizon in ``valid``): their mean when ``weights`` is empty,
+    else Σ w_d · loss_d with ``weights`` = (w at Δ = 1, w at every Δ > 1) — the reference's rule (latent 1 / 0.5,
+    proprio and touch 0.5 / 0.25), which reads the same for any set of horizons."""
+    if not weights:
+        return torch.stack(losses).mean()
+    if len(weights) != 2:
+        raise ValueError(f"horizon weights are (w at Δ = 1, w at Δ > 1), got {len(weights)} numbers")
+    return sum(float(weights[0] if d == 1 else weights[1]) * l_d for d, l_d in zip(valid, losses))
+
+
 def _horizon_weights(w: torch.Tensor | None):
     """``at(d, pos=None)``: the (B, L) target-frame weights ``w`` read at horizon d (at window positions ``pos``);
     None when there are no weights."""
@@ -258,14 +320,22 @@ class XJEPA(nn.Module):
                  sysid: bool = False, max_len: int = 128, vec_dim: int = 64, contact_channel: int = 6,
                  recon_positions: int = 8, pool: bool = False, belief_dim: int = 8, motion_channel: bool = True,
                  gnll_heads: str = "latent", gnll_variance: str = DEFAULT_GNLL_VARIANCE, gnll_logvar_bound: float = 2.0,
-                 head_layers: int = 1):
+                 head_layers: int = 1, encoder: str = "groupnorm", fuse_dim: int = 192, head_form: str = "mlp",
+                 sensor_horizons: tuple[int, ...] = ()):
         super().__init__()
         check_variant(variant)
+        if encoder not in ENCODERS:
+            raise ConfigError(f"unknown encoder {encoder!r}; choose one of {list(ENCODERS)}")
+        if head_form not in HEAD_FORMS:
+            raise ConfigError(f"unknown head_form {head_form!r}; choose one of {list(HEAD_FORMS)}")
         if objective not in OBJECTIVES:
             raise ConfigError(f"unknown objective {objective!r}; choose one of {list(OBJECTIVES)}")
         horizons = tuple(sorted(int(d) for d in horizons))
         if not horizons or horizons[0] < 1:
             raise ConfigError(f"horizons must be positive integers, got {horizons}")
+        sensor_horizons = tuple(sorted(int(d) for d in sensor_horizons))
+        if sensor_horizons and not set(sensor_horizons) & set(horizons):
+            raise ConfigError(f"sensor_horizons {sensor_horizons} share no horizon with {horizons}")
         if tokens and objective != "latent":
             raise ConfigError("the token variant supports objective='latent' only")
         if gnll_heads not in GNLL_HEADS:
@@ -281,7 +351,8 @@ class XJEPA(nn.Module):
             heads=heads, dropout=dropout, horizons=horizons, objective=objective, tokens=tokens, sysid=sysid,
             max_len=max_len, vec_dim=vec_dim, contact_channel=contact_channel, recon_positions=recon_positions,
             pool=pool, belief_dim=belief_dim, motion_channel=motion_channel, gnll_heads=gnll_heads,
-            gnll_variance=gnll_variance, gnll_logvar_bound=gnll_logvar_bound, head_layers=head_layers)
+            gnll_variance=gnll_variance, gnll_logvar_bound=gnll_logvar_bound, head_layers=head_layers,
+            encoder=encoder, fuse_dim=fuse_dim, head_form=head_form, sensor_horizons=sensor_horizons)
         self.motion_channel = motion_channel
         self.modal_gnll = objective == "gnll" and gnll_heads == "all"  # proprio/touch heads output (mean, log σ²)
         self.gnll_variance, self.gnll_logvar_bound = gnll_variance, float(gnll_logvar_bound)
@@ -290,6 +361,9 @@ class XJEPA(nn.Module):
         per_head = objective == "gnll" and gnll_variance == "per_head"
         lv_out = 2 if objective == "gnll" and not per_head else 1
         self.variant, self.horizons, self.latent_dim, self.width = variant, horizons, latent_dim, width
+        # the proprio / touch heads' horizons: those of the latent heads listed in sensor_horizons (empty: all), so a
+        # single-horizon run of a preset with sensor heads at (1, 4) is single-horizon throughout
+        self.sensor_horizons = tuple(d for d in horizons if d in sensor_horizons) if sensor_horizons else horizons
         self.objective, self.tokens, self.image_size = objective, tokens, image_size
         self.contact_channel, self.recon_positions = contact_channel, recon_positions
         self.dims = {"proprio": proprio_dim, "touch": touch_dim}
@@ -301,29 +375,30 @@ class XJEPA(nn.Module):
 
         self.encoder = FusedEncoder(image_size, tuple(channels), proprio_dim, touch_dim,
                                     "proprio" in self.inputs, "touch" in self.inputs, latent_dim, vec_dim, tokens,
-                                    pool=pool)
+                                    pool=pool, style=encoder, fuse_dim=fuse_dim)
         self.num_tokens = self.encoder.num_tokens if tokens else 1
         self.predictor = CausalPredictor(latent_dim, action_dim, width, depth, heads, dropout, max_len,
                                          self.num_tokens)
-        self.latent_heads = nn.ModuleDict({str(d): DeltaHead(width, d * action_dim, latent_dim * lv_out,
-                                                                     layers=head_layers)
+        self.latent_heads = nn.ModuleDict({str(d): delta_head(head_form, width, d, action_dim, latent_dim * lv_out,
+                                                              head_layers, sensor=False, bn_features=latent_dim)
                                            for d in horizons})
         self.modal_heads = nn.ModuleDict()
         for m in ("proprio", "touch"):
             if m in self.targets:
                 self.modal_heads[m] = nn.ModuleDict(
-                    {str(d): DeltaHead(width, d * action_dim, self.dims[m] * (lv_out if self.modal_gnll else 1),
-                              layers=head_layers)
-                     for d in horizons})
+                    {str(d): delta_head(head_form, width, d, action_dim,
+                                        self.dims[m] * (lv_out if self.modal_gnll else 1), head_layers, sensor=True)
+                     for d in self.sensor_horizons})
         self.latent_logvar = self.modal_logvar = None
         if per_head:  # log σ² = 0 at init: the NLL starts as ½·MSE, near where the free heads' initial outputs sit
             self.latent_logvar = nn.ParameterDict({str(d): nn.Parameter(torch.zeros(())) for d in horizons})
             if self.modal_gnll:
                 self.modal_logvar = nn.ModuleDict({m: nn.ParameterDict({str(d): nn.Parameter(torch.zeros(()))
-                                                                        for d in horizons})
+                                                                        for d in self.sensor_horizons})
                                                    for m in self.modal_heads})
-        self.sysid_head = (nn.Sequential(nn.Linear(width, width), nn.GELU(), nn.Linear(width, len(SYSID_PARAMS)))
-                           if sysid else None)
+        sid_hidden = REFERENCE_SENSOR_HIDDEN if head_form == "reference" else width  # the reference's head_sid: 96
+        self.sysid_head = (nn.Sequential(nn.Linear(width, sid_hidden), nn.GELU(),
+                                         nn.Linear(sid_hidden, len(SYSID_PARAMS))) if sysid else None)
         self.belief = (BeliefModule(latent_dim, action_dim, width, belief_dim) if objective == "belief" else None)
         if objective == "recon":
             self.decoder = Decoder(tuple(channels), image_size)
@@ -509,9 +584,10 @@ class XJEPA(nn.Module):
                  return_logvar: bool = False):
         """Cross-modal forecast of ``modality`` ('touch' / 'proprio') at t+Δ: (B, L, Dm), raw units by default.
         With ``return_logvar`` also its log-variance in normalised units (``gnll_heads='all'``; None otherwise)."""
-        self._check_delta(delta)
         if modality not in self.modal_heads:
             raise ValueError(f"variant {self.variant} has no {modality!r} forecasting head")
+        if delta not in self.sensor_horizons:
+            raise ValueError(f"no direct {modality} head for delta={delta}; this model has {self.sensor_horizons}")
         y = self._head_out(h, actions, delta, self.modal_heads[modality][str(delta)])
         logvar = None
         if self.modal_gnll:
@@ -595,7 +671,9 @@ class XJEPA(nn.Module):
              sysid_weight: float = 0.5, glide_loss_weight: float = 1.0, belief_kl_weight: float = 0.01,
              motion_loss_weight: float = 0.0, sigreg_directions: torch.Tensor | None = None,
              sigreg_pool: str = "step", sigreg_rows: int = 4096, sigreg_row_index: torch.Tensor | None = None,
-             gnll_beta: float = 0.5, sigreg_reference_rows: int = 0) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+             gnll_beta: float = 0.5, sigreg_reference_rows: int = 0, sigreg_t_max: float = 3.0,
+             latent_horizon_weights: tuple[float, ...] = (), sensor_horizon_weights: tuple[float, ...] = (),
+             contact_weighting: str = "normalised") -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """Training loss on a batch of windows.
 
         Args:
@@ -625,6 +703,16 @@ class XJEPA(nn.Module):
             gnll_beta: β of ``gnll_variance='beta'`` (β-NLL); the effective weight on latent errors is then also
                 reported as ``latent_weight`` (mean e^{(β−1)s}; the other variants' weight is
                 ``latent_precision``).
+            sigreg_t_max: the Epps–Pulley integral's half-range [0, t_max] (``sigreg_knots`` trapezoid knots on it;
+                the integrand is even, so this is the integral over [−t_max, t_max]).
+            latent_horizon_weights: (w at Δ = 1, w at every Δ > 1) of the latent (or recon) horizons' terms, summed
+                (:func:`combine_horizons`); empty: the mean over the horizons.
+            sensor_horizon_weights: the same for the proprio / touch heads, each modality's sum then times
+                ``proprio_weight`` / ``touch_weight``; empty: their mean.
+            contact_weighting: how the touch term's contact weights enter (:data:`CONTACT_WEIGHTINGS`):
+                'normalised' — a weighted mean Σ w·e / Σ w (contact frames gain share, the term's scale stays
+                that of an MSE); 'frames' — Σ w·e / N, the mean over frames of the weighted error (the reference's;
+                the weight also scales the term up by the mean weight).
         Returns:
             (total loss, {term name: detached scalar}).
         """
@@ -645,11 +733,12 @@ class XJEPA(nn.Module):
         at = _horizon_weights(gw)  # target-frame weights of horizon d (at window positions ``pos``)
         at_latent = _horizon_weights(lw)
         if self.tokens:
-            total = total + self._token_terms(z, hs, h, actions, valid, at_latent, terms)
+            total = total + self._token_terms(z, hs, h, actions, valid, at_latent, terms, latent_horizon_weights)
             terms["sigreg"] = sigreg(z.reshape(-1, z.shape[-1]), token_dirs, sigreg_seed, sigreg_knots,
-                                     max_rows=token_rows, directions=sigreg_directions)
+                                     max_rows=token_rows, directions=sigreg_directions, t_max=sigreg_t_max)
         elif self.objective in ("latent", "gnll", "belief"):
-            total = total + self._latent_terms(z, h, actions, valid, at_latent, gnll_beta, terms)
+            total = total + self._latent_terms(z, h, actions, valid, at_latent, gnll_beta, terms,
+                                               latent_horizon_weights)
             # 'step': per time step over the batch (LeWM), then averaged over time and directions; 'pooled': one
             # statistic over the batch × time rows (subsampled), so its N — and the statistic's excess over the
             # null under any departure from N(0, I) — is L times the per-step one (docs/design.md)
@@ -657,14 +746,15 @@ class XJEPA(nn.Module):
                                      max_rows=sigreg_rows if sigreg_pool == "pooled" else None,
                                      directions=sigreg_directions,
                                      rows=sigreg_row_index if sigreg_pool == "pooled" else None,
-                                     reference_rows=sigreg_reference_rows)
+                                     reference_rows=sigreg_reference_rows, t_max=sigreg_t_max)
         else:  # recon: shared decoder on per-horizon adapters; SIGReg omitted (pixels anchor the latent)
-            total = total + self._recon_terms(frames, h, actions, valid, gw, at, terms)
+            total = total + self._recon_terms(frames, h, actions, valid, gw, at, terms, latent_horizon_weights)
         if "sigreg" in terms:
             total = total + sigreg_weight * terms["sigreg"]
         for m, w in (("proprio", proprio_weight), ("touch", touch_weight)):
             if m in self.modal_heads:
-                terms[m] = self._modal_term(m, batch, h, actions, valid, at, touch_contact_weight, gnll_beta)
+                terms[m] = self._modal_term(m, batch, h, actions, at, touch_contact_weight, gnll_beta,
+                                            sensor_horizon_weights, contact_weighting)
                 total = total + w * terms[m]
         if self.sysid_head is not None:
             if "params" not in batch:
@@ -706,8 +796,8 @@ class XJEPA(nn.Module):
             lw = mw if gw is None else gw * mw
         return gw, lw
 
-    def _token_terms(self, z, hs, h, actions, valid, at_latent, terms) -> torch.Tensor:
-        """The token variant's prediction terms (mean over horizons)."""
+    def _token_terms(self, z, hs, h, actions, valid, at_latent, terms, weights=()) -> torch.Tensor:
+        """The token variant's prediction terms (combined over horizons by :func:`combine_horizons`)."""
         # the paper's token variant keeps the shared Δ ∈ {1, 4, 16} heads and adds dense prediction: Δ = 1 is
         # predicted per token, spatially aligned; the longer horizons predict the token-mean latent from the
         # token-mean state, as the global model does
@@ -723,12 +813,13 @@ class XJEPA(nn.Module):
                 l_d = masked_mse(self.predict(h, actions, d)[:, :L - d], z_mean[:, d:], at_latent(d))
             terms[f"pred_{d}"] = l_d
             losses.append(l_d)
-        return torch.stack(losses).mean()
+        return combine_horizons(losses, valid, weights)
 
-    def _latent_terms(self, z, h, actions, valid, at_latent, gnll_beta, terms) -> torch.Tensor:
-        """The latent Δ-heads' terms (MSE, or Gaussian NLL for ``gnll``; mean over horizons)."""
+    def _latent_terms(self, z, h, actions, valid, at_latent, gnll_beta, terms, weights=()) -> torch.Tensor:
+        """The latent Δ-heads' terms (MSE, or Gaussian NLL for ``gnll``; combined over horizons by
+        :func:`combine_horizons`)."""
         L = z.shape[1]
-        losses, precisions, weights = [], [], []
+        losses, precisions, beta_weights = [], [], []
         for d in valid:
             mean, logvar = self.predict(h, actions, d, return_logvar=True)
             if self.objective == "gnll":
@@ -737,19 +828,19 @@ class XJEPA(nn.Module):
                 # (β-NLL multiplies it by sg(e^{βs}); that product is reported as latent_weight)
                 precisions.append(nll_precision(logvar.detach()).mean())
                 if self.gnll_variance == "beta":
-                    weights.append(beta_nll_weight(logvar.detach(), gnll_beta).mean())
+                    beta_weights.append(beta_nll_weight(logvar.detach(), gnll_beta).mean())
             else:
                 l_d = masked_mse(mean[:, :L - d], z[:, d:], at_latent(d))
             terms[f"pred_{d}"] = l_d
             losses.append(l_d)
         if precisions:
             terms["latent_precision"] = torch.stack(precisions).mean()
-        if weights:
-            terms["latent_weight"] = torch.stack(weights).mean()
-        return torch.stack(losses).mean()
+        if beta_weights:
+            terms["latent_weight"] = torch.stack(beta_weights).mean()
+        return combine_horizons(losses, valid, weights)
 
-    def _recon_terms(self, frames, h, actions, valid, gw, at, terms) -> torch.Tensor:
-        """The reconstruction control's pixel terms (mean over horizons)."""
+    def _recon_terms(self, frames, h, actions, valid, gw, at, terms, weights=()) -> torch.Tensor:
+        """The reconstruction control's pixel terms (combined over horizons by :func:`combine_horizons`)."""
         L = frames.shape[1]
         img = area_downsample(frames, self.image_size).float() / 255.0
         losses = []
@@ -765,22 +856,29 @@ class XJEPA(nn.Module):
                 l_d = masked_mse(rec.flatten(2), img[:, pos + d].flatten(2), at(d, pos))
             terms[f"recon_{d}"] = l_d
             losses.append(l_d)
-        return torch.stack(losses).mean()
+        return combine_horizons(losses, valid, weights)
 
-    def _modal_term(self, m, batch, h, actions, valid, at, touch_contact_weight, gnll_beta) -> torch.Tensor:
-        """The proprio or touch forecasting term (mean over horizons; contact frames weighted for touch)."""
+    def _modal_term(self, m, batch, h, actions, at, touch_contact_weight, gnll_beta, weights=(),
+                    contact_weighting="normalised") -> torch.Tensor:
+        """The proprio or touch forecasting term over the sensor horizons (combined by :func:`combine_horizons`;
+        contact frames weighted for touch, per ``contact_weighting``)."""
         L = h.shape[1]
         target = self.norm(m, batch[m])
+        valid = [d for d in self.sensor_horizons if d < L]
         losses = []
         for d in valid:
             pred, logvar = self.forecast(h, actions, d, m, raw=False, return_logvar=True)
-            weight = at(d)
+            weight, scale = at(d), None
             if m == "touch" and 0 <= self.contact_channel < batch[m].shape[-1]:
                 contact = batch[m][:, d:, self.contact_channel] > 0.5
                 cw = 1.0 + (touch_contact_weight - 1.0) * contact.float()
+                if contact_weighting == "frames":
+                    # Σ cw·g·e / Σ g instead of Σ cw·g·e / Σ cw·g: the weighted mean times Σ cw·g / Σ g (data only)
+                    scale = cw.mean() if weight is None else (cw * weight).sum() / weight.sum().clamp_min(1e-8)
                 weight = cw if weight is None else cw * weight  # the two reweightings compose
             if logvar is None:
-                losses.append(masked_mse(pred[:, :L - d], target[:, d:], weight))
+                term = masked_mse(pred[:, :L - d], target[:, d:], weight)
             else:
-                losses.append(self._nll(pred[:, :L - d], logvar[:, :L - d], target[:, d:], weight, gnll_beta))
-        return torch.stack(losses).mean()
+                term = self._nll(pred[:, :L - d], logvar[:, :L - d], target[:, d:], weight, gnll_beta)
+            losses.append(term if scale is None else term * scale)
+        return combine_horizons(losses, valid, weights)

@@ -15,8 +15,11 @@ from ..config import FRACTION, SEED, Limit, check_fields, from_preset, positive,
 from ..devices import pick_device
 from ..errors import ConfigError
 from ..losses import SIGREG_POOLS
+from ..models.encoders import ENCODERS
 from ..models.xjepa import (
+    CONTACT_WEIGHTINGS,
     GNLL_HEADS,
+    HEAD_FORMS,
     MAX_HORIZONS,
     OBJECTIVES,
     VALUES_BEFORE_THE_FIELD,
@@ -30,8 +33,10 @@ from ..rundir import read_run_config
 class TrainConfig:
     """Train one X-JEPA variant (paper §3, App. B).
 
-    The field defaults are the ``paper`` preset (App. B sizes; needs a GPU). :func:`make_config` and the
-    ``pokeworld train`` command start from the ``cpu`` preset instead; see :data:`PRESETS` for what each costs.
+    The field defaults are the App. B sizes with this project's first objective and model (the ``paper`` preset
+    before it was aligned with the authors' released code, :data:`FIRST_PAPER_MODEL`); the ``paper`` preset
+    overrides them with the reference's objective and model (:data:`REFERENCE_MODEL`). :func:`make_config` and the
+    ``pokeworld train`` command start from the ``cpu`` preset; see :data:`PRESETS` for what each costs.
     """
 
     variant: str = "VFX"
@@ -106,7 +111,33 @@ class TrainConfig:
     dropout: float = 0.1
     """Dropout in the predictor."""
     vec_dim: int = 64
-    """Hidden/output width of the proprio and touch MLP encoders."""
+    """Output width of the proprio and touch MLP encoders (also their hidden width with ``encoder='groupnorm'``;
+    64 hidden with 'reference'). The reference's: 96."""
+    encoder: str = "groupnorm"
+    """Per-frame encoder form (docs/model.md "Aligned with the released reference"): 'groupnorm' — 4×4 stride-2
+    convolutions with GroupNorm, one Linear from the flattened map and the vector features to the latent;
+    'reference' (the ``paper`` preset) — the authors' released encoder: 3×3 stride-2 convolutions without
+    normalisation, a ``fuse_dim``-wide GELU bottleneck after the flattened map, and a fusion MLP."""
+    fuse_dim: int = 192
+    """encoder='reference': width of the vision bottleneck and of the fusion MLP's hidden layer (reference: 192)."""
+    head_form: str = "mlp"
+    """Direct Δ-head form: 'mlp' — MLP([h_t, actions t..t+Δ−1]) with ``head_layers`` hidden layers ``width``
+    wide; 'reference' (the ``paper`` preset) — the released heads: linear in [h_t, GELU(Linear(actions))] (128-wide
+    action embedding) for Δ > 1, the state alone at Δ = 1 (Linear for the latent, a 96-wide MLP for proprio /
+    touch), latent heads ending in BatchNorm1d (``head_layers`` is then unused)."""
+    sensor_horizons: tuple[int, ...] = ()
+    """Horizons of the proprio / touch heads: those of ``horizons`` listed here (empty = all of them). Reference:
+    (1, 4), no Δ = 16 sensor heads; a single-horizon run (``horizons`` (1,)) then has Δ = 1 sensor heads only."""
+    latent_horizon_weights: tuple[float, ...] = ()
+    """(weight at Δ = 1, weight at every Δ > 1) of the latent (or recon) horizons' terms, summed; empty = their
+    mean. Reference: (1, 0.5), i.e. Δ 1 / 4 / 16 = 1 / 0.5 / 0.5 (the same rule at any horizons)."""
+    sensor_horizon_weights: tuple[float, ...] = ()
+    """(weight at Δ = 1, weight at every Δ > 1) of the proprio / touch horizons' terms, summed (then times
+    ``proprio_weight`` / ``touch_weight``); empty = their mean. Reference: (0.5, 0.25)."""
+    contact_weighting: str = "normalised"
+    """How ``touch_contact_weight`` enters the touch term: 'normalised' — a weighted mean Σ w·e / Σ w (contact
+    frames gain share; the term keeps an MSE's scale); 'frames' (the reference's) — the mean over frames of the
+    weighted error Σ w·e / N, so the weight also scales the whole term by its mean (≈ 2 at 1/3 contact frames)."""
     pool: bool = False
     """Average the CNN's last feature map over space instead of flattening it (position then has
     to be learned into the channels; tests whether a latent can discard visible state)."""
@@ -115,7 +146,11 @@ class TrainConfig:
     sigreg_dirs: int = 1024
     """Random unit directions per step for SIGReg (resampled every step)."""
     sigreg_knots: int = 17
-    """Trapezoid knots on [0, 3] for the Epps–Pulley integral."""
+    """Trapezoid knots on [0, ``sigreg_t_max``] for the Epps–Pulley integral (the integrand is even: the
+    integral over [−t_max, t_max] is twice this one)."""
+    sigreg_t_max: float = 3.0
+    """Upper end of the Epps–Pulley integral's half-range. The reference integrates over [−5, 5] with 17
+    trapezoid knots, which is exactly t_max 5 with 9 knots here (the ``paper`` preset)."""
     sigreg_pool: str = "step"
     """Rows of one SIGReg statistic (global-latent models; docs/design.md "SIGReg: per-step or pooled rows"):
     'step' (the runs so far, LeWM's reading) — per time step over the batch's rows, averaged over the window;
@@ -167,7 +202,7 @@ class TrainConfig:
     weight_decay: float = 0.05
     """AdamW weight decay."""
     grad_clip: float = 1.0
-    """Global gradient-norm clip (0 = off)."""
+    """Global gradient-norm clip (0 = off). Reference (the ``paper`` preset): 5."""
     device: str = "auto"
     """'auto' (cuda if available, else cpu), 'cpu', 'cuda' or 'cuda:N'."""
     amp: bool = True
@@ -218,6 +253,8 @@ class TrainConfig:
               "channels": Limit(1, 65536), "latent_dim": Limit(1, 65536), "width": Limit(1, 65536),
               "depth": Limit(1, 64), "heads": Limit(1, 1024), "dropout": Limit(0, 1), "vec_dim": Limit(1, 65536),
               "sigreg_weight": Limit(0, 1e6), "sigreg_dirs": Limit(1, 2**20), "sigreg_knots": Limit(2, 10**4),
+              "sigreg_t_max": positive(100.0), "fuse_dim": Limit(1, 65536), "sensor_horizons": Limit(1, 4095),
+              "latent_horizon_weights": Limit(0, 1e6), "sensor_horizon_weights": Limit(0, 1e6),
               "program_aligned_share": FRACTION, "sigreg_reference_rows": Limit(0, 2**31),
               "sigreg_rows": Limit(1, 2**24), "token_rows": Limit(1, 2**24), "token_dirs": Limit(1, 2**20),
               "touch_contact_weight": Limit(0, 1e6), "contact_channel": Limit(0, 4095),
@@ -232,13 +269,27 @@ class TrainConfig:
         self.compile = legacy_compile(self.compile)
 
 #: Field overrides per preset (costs as in ``cli.PRESET_COSTS``).
-#: ``paper`` = App. B; needs a GPU: on one H100 0.041 s/step on the fast path (≈ 14 min per 20k-step model), 0.030
+#: ``paper`` = App. B with the released reference's objective and model (:data:`REFERENCE_MODEL`); needs a GPU
+#: (the timings are the first model's, :data:`FIRST_PAPER_MODEL`): on one H100 0.041 s/step on the fast path (≈ 14 min per 20k-step model), 0.030
 #: compiled, 0.027 s per model-step for six models stacked (docs/model.md "Fast path", "Several models").
 #: ``cpu``: 32×32 frames, narrower CNN/predictor, batch 32, 256 SIGReg directions, 4,000 steps (stiffness
 #: enters the VFX latent only after ~2,000 steps at this size, docs/model.md); ≈ 0.26 s/step on one
 #: core, ≈ 20 min per model with two models side by side on 2 cores. ``tiny``: unit tests, seconds.
+#: The objective and model of the authors' released code (``exp/e003_motion``: model.py, train.py) that App. B
+#: leaves open; the ``paper`` preset's overrides (docs/model.md "Aligned with the released reference").
+REFERENCE_MODEL: dict[str, Any] = dict(
+    encoder="reference", fuse_dim=192, vec_dim=96, head_form="reference", sensor_horizons=(1, 4),
+    latent_horizon_weights=(1.0, 0.5), sensor_horizon_weights=(0.5, 0.25), contact_weighting="frames",
+    sigreg_pool="pooled", sigreg_knots=9, sigreg_t_max=5.0, grad_clip=5.0)
+#: Overrides that give the ``paper`` preset this project's first objective and model (the field defaults), with
+#: which the first paper-budget runs were trained: ``make_config("paper", **FIRST_PAPER_MODEL)``.
+FIRST_PAPER_MODEL: dict[str, Any] = dict(
+    encoder="groupnorm", fuse_dim=192, vec_dim=64, head_form="mlp", sensor_horizons=(), latent_horizon_weights=(),
+    sensor_horizon_weights=(), contact_weighting="normalised", sigreg_pool="step", sigreg_knots=17, sigreg_t_max=3.0,
+    grad_clip=1.0)
+
 PRESETS: dict[str, dict[str, Any]] = {
-    "paper": {},
+    "paper": dict(REFERENCE_MODEL),
     "cpu": dict(image_size=32, channels=(16, 32, 64, 64), width=128, depth=2, heads=4, vec_dim=32,
                 batch_size=32, steps=4000, warmup=100, lr=1e-3, sigreg_dirs=256, token_rows=1024,
                 token_dirs=128, ckpt_every=500, log_every=50),
@@ -247,7 +298,7 @@ PRESETS: dict[str, dict[str, Any]] = {
                  ckpt_every=5, log_every=5, tensorboard=False, progress=False, device="cpu"),
 }
 
-# the demo's model: the cpu preset with the paper's 64-wide proprio/touch encoders, at a quarter of its batch for
+# the demo's model: the cpu preset with the first paper model's 64-wide proprio/touch encoders, at a quarter of its batch for
 # more updates per CPU-second; stiffness enters VFX faster per frame seen (docs/model.md "Learning speed")
 PRESETS["demo"] = {**PRESETS["cpu"], "vec_dim": 64, "batch_size": 8, "steps": 2200, "ckpt_every": 1000,
                    "log_every": 100}
@@ -323,14 +374,12 @@ def validate(cfg: TrainConfig) -> None:
     # 'default' is what every config written before 'auto' existed holds, compiled or not
     if cfg.compile == "off" and cfg.compile_mode not in ("auto", "default"):
         raise ConfigError(f"compile_mode={cfg.compile_mode!r} applies to a compiled run; --compile off trains eagerly")
-    if cfg.sigreg_pool != "step":
-        if cfg.tokens:
-            raise ConfigError("sigreg_pool applies to global latents; tokens=True always pools token rows "
-                              "(token_rows)")
-        if cfg.objective == "recon":
-            raise ConfigError("objective='recon' has no SIGReg to pool")
-    elif cfg.sigreg_rows != 4096:
-        raise ConfigError(f"sigreg_rows={cfg.sigreg_rows} applies to sigreg_pool='pooled' only")
+    # a token run always pools its token rows (token_rows) and a recon run has no SIGReg: either reading of the
+    # global-latent pool leaves them as they are (the paper preset's 'pooled' reaches them through the map's
+    # controls), but a row budget they would ignore is refused
+    if cfg.sigreg_rows != 4096 and (cfg.sigreg_pool != "pooled" or cfg.tokens or cfg.objective == "recon"):
+        raise ConfigError(f"sigreg_rows={cfg.sigreg_rows} applies to sigreg_pool='pooled' with global latents "
+                          "and a SIGReg (not tokens=True, not objective='recon') only")
     if cfg.image_size % 16 or cfg.image_size < 16:
         raise ConfigError(f"image_size must be a multiple of 16 (4 stride-2 stages), got {cfg.image_size}")
     if len(cfg.channels) != 4:
@@ -339,6 +388,27 @@ def validate(cfg: TrainConfig) -> None:
         raise ConfigError("motion_loss_weight weights latent targets; objective='recon' has none")
     if cfg.fast not in ("auto", "on", "off"):
         raise ConfigError(f"fast must be 'auto', 'on' or 'off', got {cfg.fast!r}")
+    check_model_form(cfg)
+
+def check_model_form(cfg: TrainConfig) -> None:
+    """ConfigError unless the encoder / head forms, the sensor horizons and the per-horizon weights fit together
+    (each weight tuple empty or one weight per horizon it weights)."""
+    for name, allowed in (("encoder", ENCODERS), ("head_form", HEAD_FORMS), ("contact_weighting", CONTACT_WEIGHTINGS)):
+        if getattr(cfg, name) not in allowed:
+            raise ConfigError(f"unknown {name} {getattr(cfg, name)!r}; choose one of {list(allowed)}")
+    if cfg.fuse_dim != 192 and cfg.encoder != "reference":
+        raise ConfigError(f"fuse_dim={cfg.fuse_dim} applies to encoder='reference' only")
+    if cfg.head_layers != 1 and cfg.head_form == "reference":
+        raise ConfigError(f"head_layers={cfg.head_layers} applies to head_form='mlp' only (the reference's heads are "
+                          "linear in the state)")
+    hs, sensor = tuple(cfg.horizons), tuple(cfg.sensor_horizons)
+    if len(set(sensor)) != len(sensor) or (sensor and not set(sensor) & set(hs)):
+        raise ConfigError(f"sensor_horizons {sensor!r:.80} must be distinct and share a horizon with {hs!r:.80}")
+    for name in ("latent_horizon_weights", "sensor_horizon_weights"):
+        n = len(getattr(cfg, name))
+        if n not in (0, 2):
+            raise ConfigError(f"{name} lists {n} weights: give two (the weight at Δ = 1, the weight at every "
+                              "Δ > 1), or none for the mean over the horizons")
 
 def use_fast_path(cfg: TrainConfig, dev: torch.device) -> bool:
     """Whether ``cfg.fast`` selects the fast path on ``dev`` ('auto': CUDA only)."""
@@ -403,6 +473,6 @@ def resolve_device(cfg: TrainConfig, local_rank: int = 0) -> torch.device:
     return pick_device(cfg.device, local_rank)
 
 
-__all__ = ["TrainConfig", "PRESETS", "RESUMABLE_FIELDS", "RETIRED_FIELDS", "COMPILE_SETTINGS", "COMPILE_MODES",
+__all__ = ["TrainConfig", "PRESETS", "REFERENCE_MODEL", "FIRST_PAPER_MODEL", "check_model_form", "RESUMABLE_FIELDS", "RETIRED_FIELDS", "COMPILE_SETTINGS", "COMPILE_MODES",
            "field_defaults", "make_config", "validate", "use_fast_path", "compile_mode_for", "legacy_compile",
            "check_existing", "auto_threads", "resolve_device", "compile_status"]

@@ -64,7 +64,9 @@ def loss_kwargs(cfg: TrainConfig) -> dict[str, Any]:
                 proprio_weight=cfg.proprio_weight, touch_weight=cfg.touch_weight, sysid_weight=cfg.sysid_weight,
                 glide_loss_weight=cfg.glide_loss_weight, belief_kl_weight=cfg.belief_kl_weight,
                 motion_loss_weight=cfg.motion_loss_weight, sigreg_pool=cfg.sigreg_pool, sigreg_rows=cfg.sigreg_rows,
-                gnll_beta=cfg.gnll_beta, sigreg_reference_rows=cfg.sigreg_reference_rows)
+                gnll_beta=cfg.gnll_beta, sigreg_reference_rows=cfg.sigreg_reference_rows, sigreg_t_max=cfg.sigreg_t_max,
+                latent_horizon_weights=tuple(cfg.latent_horizon_weights),
+                sensor_horizon_weights=tuple(cfg.sensor_horizon_weights), contact_weighting=cfg.contact_weighting)
 
 def train_step(model: torch.nn.Module, opt: torch.optim.Optimizer, cfg: TrainConfig, batch: dict, step: int,
                dev: torch.device, loss_kw: dict[str, Any], amp: bool = False, fast: bool = False,
@@ -96,7 +98,8 @@ def model_kwargs(cfg: TrainConfig, dims: tuple[int, int, int]) -> dict[str, Any]
                 sysid=cfg.sysid_weight > 0, max_len=max(128, cfg.window), vec_dim=cfg.vec_dim,
                 contact_channel=cfg.contact_channel, pool=cfg.pool, belief_dim=cfg.belief_dim,
                 motion_channel=cfg.motion_channel, gnll_heads=cfg.gnll_heads, gnll_variance=cfg.gnll_variance,
-                gnll_logvar_bound=cfg.gnll_logvar_bound, head_layers=cfg.head_layers)
+                gnll_logvar_bound=cfg.gnll_logvar_bound, head_layers=cfg.head_layers, encoder=cfg.encoder,
+                fuse_dim=cfg.fuse_dim, head_form=cfg.head_form, sensor_horizons=tuple(cfg.sensor_horizons))
 
 def lr_lambda(step: int, warmup: int, total: int) -> float:
     """Linear warm-up to 1, then cosine decay to 0 at ``total``."""
