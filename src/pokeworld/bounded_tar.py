@@ -222,5 +222,6 @@ def extract(path: Path, dest: Path, bounds: TarBounds = TarBounds(), compressed:
     return files
 
 
-__all__ = ["TarBounds", "scan", "extract", "check_header", "header_size", "checksum_ok", "chunks", "write_new", "pax_size",
+__all__ = ["TarBounds", "scan", "extract", "check_header", "header_size", "checksum_ok", "chunks", "write_new",
+           "pax_size",
            "PAX_KEYS"]

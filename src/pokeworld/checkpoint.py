@@ -88,28 +88,30 @@ def check_records(fh, path: Path) -> None:
                                   "stored as they are, so this one was crafted or damaged: refused before reading")
 
 
-def tensors_in(obj: Any, depth: int = 0):
-    """Every tensor in a loaded checkpoint (dicts, lists and tuples walked; at most 64 levels deep)."""
+def tensors_in(obj: Any, where: str = "", depth: int = 0):
+    """(key path, tensor) of every tensor in a loaded checkpoint (dicts, lists and tuples walked; at most 64 levels
+    deep)."""
     if isinstance(obj, torch.Tensor):
-        yield obj
+        yield where, obj
     elif depth < 64 and isinstance(obj, dict):
-        for v in obj.values():
-            yield from tensors_in(v, depth + 1)
+        for k, v in obj.items():
+            yield from tensors_in(v, f"{where}.{str(k)[:60]}" if where else str(k)[:60], depth + 1)
     elif depth < 64 and isinstance(obj, (list, tuple)):
-        for v in obj:
-            yield from tensors_in(v, depth + 1)
+        for i, v in enumerate(obj):
+            yield from tensors_in(v, f"{where}[{i}]", depth + 1)
 
 
 def check_tensors(ck: Any, path: Path) -> None:
     """Every tensor of ``ck`` against its storage, before anything converts or copies it: no more elements than
     its storage holds, no zero stride on a dimension of more than one element (a view that repeats one stored
     number: converting it would allocate its whole declared size)."""
-    for t in tensors_in(ck):
+    for where, t in tensors_in(ck):
         if t.numel() > 1 and (any(s == 0 and n > 1 for s, n in zip(t.stride(), t.shape))
                               or t.numel() * t.element_size() > t.untyped_storage().nbytes()):
-            raise CheckpointError(f"checkpoint {path} holds a tensor of shape {list(t.shape)[:6]} that repeats its "
-                                  f"{t.untyped_storage().nbytes()} stored bytes (stride {list(t.stride())[:6]}); "
-                                  "torch.save writes no such view: the checkpoint was crafted, refused")
+            raise CheckpointError(f"checkpoint {path}: {where} declares {t.numel()} elements but stores "
+                                  f"{t.untyped_storage().nbytes()} bytes, repeating them (shape "
+                                  f"{list(t.shape)[:6]}, stride {list(t.stride())[:6]}); torch.save writes no such "
+                                  "view: the checkpoint was crafted, refused")
 
 
 def file_kind(mode: int) -> str:
@@ -172,4 +174,5 @@ def set_rng_state(st: dict[str, Any]) -> None:
         torch.cuda.set_rng_state_all(st["cuda"])
 
 
-__all__ = ["CheckpointError", "MAX_RECORDS", "check_records", "check_tensors", "tensors_in", "save", "load", "file_kind", "first_line", "rng_state", "set_rng_state"]
+__all__ = ["CheckpointError", "MAX_RECORDS", "check_records", "check_tensors", "tensors_in", "save", "load",
+           "file_kind", "first_line", "rng_state", "set_rng_state"]

@@ -418,5 +418,6 @@ class Snapshots:
 
 __all__ = ["RECORDS", "PARTS", "INDEX", "COMPACT_MIN_ELEMENTS", "MEMBER", "ReturnLimits", "stream_budget", "compact",
            "expand", "compact_bytes", "member_name", "tar_size", "tar_bytes", "part_path", "split_bytes",
-           "write_parts", "join_parts", "Member", "MAX_MEMBERS", "read_stream", "load_member", "check_return_folder", "Packer",
+           "write_parts", "join_parts", "Member", "MAX_MEMBERS", "read_stream", "load_member",
+           "check_return_folder", "Packer",
            "Snapshots"]

@@ -222,7 +222,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--started", type=float, default=0.0, help="unix time the allocation started (default: now)")
     ap.add_argument("--resume", nargs="*", type=Path, default=[], help="folders earlier allocations returned")
     ap.add_argument("--resume-list", default="", help="the same as one shell-quoted list (ALLOC_RESUME as "
-                                                      "merge_allocations.py --plan prints it: a folder may hold spaces)")
+                                                      "merge_allocations.py --plan prints it)")
     ap.add_argument("--snapshot-s", type=float, default=30.0, help="seconds between checkpoint snapshots")
     ap.add_argument("--prior-s-per-step", type=float, default=0.0, help="s/step before one is measured")
     ap.add_argument("--prior-overhead-s", type=float, default=-1.0, help="seconds per run beside its steps")

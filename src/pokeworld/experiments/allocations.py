@@ -611,7 +611,9 @@ def main(argv: list[str] | None = None) -> int:
 
 
 __all__ = ["DEVICE_FILE", "AGREE", "Allocation", "device_record", "commit", "gpu_name", "write_device", "read_json",
-           "unpack", "open_allocation", "check_progress", "check_step", "restore_returned", "training_facts", "run_key", "plan", "plan_lines",
-           "export_plan", "export_targets", "export_runs", "output_paths", "write_merged", "allocation_record", "check_agreement", "read_certificates",
+           "unpack", "open_allocation", "check_progress", "check_step", "restore_returned", "training_facts",
+           "run_key", "plan", "plan_lines",
+           "export_plan", "export_targets", "export_runs", "output_paths", "write_merged",
+           "allocation_record", "check_agreement", "read_certificates",
            "ridge_difference", "merge_allocations", "allocation_summary", "allocation_lines", "run_lines", "markdown",
            "main"]

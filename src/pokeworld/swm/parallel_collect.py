@@ -11,8 +11,8 @@ with the base seed plus its index, so the workers' reset seeds never overlap), a
 same way. The merged corpus is therefore a different (equally valid) sample from a one-process collection with the
 same seed, which is why the worker count is part of the corpus cache key.
 
-Part files are our own (``part-<w>.h5``), in a private folder beside the corpus that :func:`pokeworld.io.temporary_folder`
-creates (exclusively, mode 0700, a random name: nobody can predict it or plant a link in it, where swm's writer
+Part files are our own (``part-<w>.h5``), in a private folder beside the corpus that
+:func:`pokeworld.io.temporary_folder` creates (exclusively, mode 0700, a random name: nobody can predict it or plant a link in it, where swm's writer
 would follow one), read back with h5py (no pickle, only the writer's top-level datasets, episode index checked) and
 removed with the folder after the merge or a failure; a killed run leaves the folder under a name the next run's
 stale-temporary cleanup recognises.

@@ -82,8 +82,9 @@ def check_mapping(value: object, path: str | Path, where: str) -> dict:
 
 def check_number(value: object, path: str | Path, where: str, optional: bool = True) -> None:
     """A JSON number (None allowed when ``optional``: an R² that was not computed); never a string or bool."""
-    if (value is None and optional) or (isinstance(value, (int, float)) and not isinstance(value, bool)):
-        return
+    if (value is None and optional) or (isinstance(value, float) or (isinstance(value, int) and not
+                                                                     isinstance(value, bool) and abs(value) < 2**63)):
+        return  # a float (NaN prints as nan) or an integer a float holds: never a 400-digit one
     raise malformed(path, where, f"a number ({str(value)[:40]!r})")
 
 

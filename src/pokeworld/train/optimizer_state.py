@@ -25,6 +25,10 @@ NUMBERS = ("lr", "eps", "weight_decay", "initial_lr")
 """A parameter group's numeric settings (load_state_dict takes them from the checkpoint)."""
 
 
+def unfit(path: Path | str, text: str) -> CheckpointError:
+    return CheckpointError(f"{path} does not fit this run: {text}")
+
+
 def optimizer_params(model: torch.nn.Module) -> list[list[torch.Tensor]]:
     """The model's parameters in :func:`.step.make_optimizer`'s groups (with decay, without), in its order."""
     named = dict(model.named_parameters())
@@ -39,25 +43,25 @@ def check_optimizer_fits(model: torch.nn.Module, state: Any, path: Path | str) -
     groups = optimizer_params(model)
     if not (isinstance(state, dict) and isinstance(state.get("state"), dict)
             and isinstance(state.get("param_groups"), list)):
-        raise CheckpointError(f"{path}: its 'optimizer' is not an optimizer state (a 'state' mapping and "
+        raise unfit(path, f"its 'optimizer' is not an optimizer state (a 'state' mapping and "
                               "'param_groups' list); the checkpoint is damaged or was edited")
     saved = state["param_groups"]
     sizes = [len(g.get("params", ())) if isinstance(g, dict) and isinstance(g.get("params"), list) else None
              for g in saved]
     if sizes != [len(g) for g in groups]:
-        raise CheckpointError(f"{path}: its optimizer has parameter groups of sizes {sizes[:4]}, the model "
+        raise unfit(path, f"its optimizer has parameter groups of sizes {sizes[:4]}, the model "
                               f"{[len(g) for g in groups]}; the checkpoint is from another model or was edited")
     by_index = {}
     for g, params in zip(saved, groups):
         check_group(g, path)
         if not all(isinstance(i, int) and not isinstance(i, bool) for i in g["params"]):
-            raise CheckpointError(f"{path}: its optimizer's parameter indices are not integers; it is damaged")
+            raise unfit(path, f"its optimizer's parameter indices are not integers; it is damaged")
         by_index.update(zip(g["params"], params))
     for index, entry in state["state"].items():
         if index not in by_index or not isinstance(entry, dict):
-            raise CheckpointError(f"{path}: its optimizer holds a state for parameter {str(index)[:20]!r}, which "
+            raise unfit(path, f"its optimizer holds a state for parameter {str(index)[:20]!r}, which "
                                   "its groups do not list; the checkpoint is damaged or was edited")
-        check_entry(entry, by_index[index], f"{path}: optimizer state of parameter {index}")
+        check_entry(entry, by_index[index], f"{path} does not fit this run: optimizer state of parameter {index}")
 
 
 def check_group(group: dict, path: Path | str) -> None:
@@ -67,12 +71,12 @@ def check_group(group: dict, path: Path | str) -> None:
         if isinstance(value, torch.Tensor) and value.numel() == 1:
             value = value.item()
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
-            raise CheckpointError(f"{path}: its optimizer's {key} is {str(value)[:40]!r}, not a finite number ≥ 0; "
+            raise unfit(path, f"its optimizer's {key} is {str(value)[:40]!r}, not a finite number ≥ 0; "
                                   "the checkpoint is damaged or was edited")
     betas = group.get("betas", (0.9, 0.999))
     if not (isinstance(betas, (list, tuple)) and len(betas) == 2
             and all(isinstance(b, (int, float)) and not isinstance(b, bool) and 0 <= b < 1 for b in betas)):
-        raise CheckpointError(f"{path}: its optimizer's betas are {str(betas)[:40]!r}, not two numbers in [0, 1); "
+        raise unfit(path, f"its optimizer's betas are {str(betas)[:40]!r}, not two numbers in [0, 1); "
                               "the checkpoint is damaged or was edited")
 
 
@@ -103,4 +107,4 @@ def check_entry(entry: dict, param: torch.Tensor, where: str) -> None:
                                   "checkpoint is damaged: resume from an earlier one or restart it")
 
 
-__all__ = ["MOMENTS", "NUMBERS", "optimizer_params", "check_optimizer_fits", "check_group", "check_entry"]
+__all__ = ["MOMENTS", "NUMBERS", "optimizer_params", "check_optimizer_fits", "check_group", "check_entry", "unfit"]
