@@ -306,3 +306,54 @@ def test_resume_folders_with_spaces_survive_the_shell_script(tmp_path):
     assert split_folder_list(folder_list(folders)) == folders
     assert split_folder_list("/plain/one /plain/two") == ["/plain/one", "/plain/two"]
     assert shlex.split(f"ALLOC_RESUME={shlex.quote(folder_list(folders))}")[0] == f"ALLOC_RESUME={folder_list(folders)}"
+
+
+# ---------------------------------------------------------------------- staging of swm-certify --workers
+
+
+def test_worker_parts_lie_in_a_private_folder_never_under_a_predictable_name(tmp_path, monkeypatch):
+    """collect_in_parallel's part files (swm's writer opens them following links) are created inside a private
+    0700 folder with a random name, removed afterwards; a link planted at the old predictable name is never
+    written through. The pool and the merge are stand-ins (stable_worldmodel is not needed)."""
+    import dataclasses
+    import stat
+
+    from pokeworld.swm import parallel_collect as PC
+
+    @dataclasses.dataclass
+    class Share:
+        episodes: int = 4
+        seed: int = 0
+
+    class InProcess:
+        def __init__(self, *a, **k):
+            pass
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            return False
+
+        def map(self, fn, *its):
+            return map(fn, *its)
+
+    seen = []
+
+    def collect(cfg, part: Path) -> Path:
+        folder = part.parent
+        seen.append((folder, stat.S_IMODE(folder.stat().st_mode)))
+        part.write_bytes(b"episodes")
+        return part
+
+    victim = tmp_path / "victim"
+    victim.write_text("someone else's file")
+    corpus = tmp_path / "corpus.h5"
+    os.symlink(victim, tmp_path / f"corpus.part-0-{os.getpid()}.h5")  # the name the parts used to have
+    monkeypatch.setattr(PC, "ProcessPoolExecutor", InProcess)
+    monkeypatch.setattr(PC, "merge", lambda parts, path: (path.write_bytes(b"merged"), 4)[1])
+    PC.collect_in_parallel(Share(), corpus, 2, collect)
+    assert victim.read_text() == "someone else's file" and corpus.read_bytes() == b"merged"
+    assert len(seen) == 2 and all(f.parent == tmp_path and f.name.startswith(".corpus.h5.tmp-") and mode == 0o700
+                                  for f, mode in seen)
+    assert not seen[0][0].exists()  # the private folder and its parts are gone
