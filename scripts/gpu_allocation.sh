@@ -25,8 +25,9 @@
 # Environment (all optional):
 #   ALLOC_MODE           train (default) or bench (full CUDA tests and the benchmark, no training)
 #   ALLOC_COMMIT         the commit this copy of the repository is (the device copy has no .git); into device.json
-#   ALLOC_RESUME         folders earlier allocations returned (space-separated): their checkpoints are resumed and
-#                        the runs they finished skipped (merge_allocations.py --plan prints which to give)
+#   ALLOC_RESUME         folders earlier allocations returned (space-separated, a folder with spaces quoted as in a
+#                        shell): their checkpoints are resumed and the runs they finished skipped
+#                        (merge_allocations.py --plan prints which to give, quoted)
 #   ALLOC_BUDGET_MIN     minutes for the whole script, its start to its last pack (default 8.5)
 #   ALLOC_RESERVE_MIN    minutes kept at the end for the last pack; training stops there (default 0.5)
 #   ALLOC_PRESET         map preset (default paper; tiny checks the script on a CPU in seconds)
@@ -104,8 +105,9 @@ else
   [ ${#RUNS[@]} -gt 0 ] && args+=(--runs "${RUNS[@]}")
   [ -n "${ALLOC_S_PER_STEP:-}" ] && args+=(--prior-s-per-step "$ALLOC_S_PER_STEP")
   [ -n "${ALLOC_OVERHEAD_S:-}" ] && args+=(--prior-overhead-s "$ALLOC_OVERHEAD_S")
-  # shellcheck disable=SC2086  # ALLOC_RESUME is a list of folders
-  [ -n "${ALLOC_RESUME:-}" ] && args+=(--resume $ALLOC_RESUME)
+  # ALLOC_RESUME is a shell-quoted list of folders (as merge_allocations.py --plan prints it): passed as one word
+  # and split by Python's shlex, never by this shell's word splitting or expansion
+  [ -n "${ALLOC_RESUME:-}" ] && args+=(--resume-list "$ALLOC_RESUME")
   log "training: preset $PRESET, runs ${RUNS[*]:-(the default queue)}, budget $BUDGET_MIN min"
   "$PY" -m pokeworld.experiments.allocation_run "${args[@]}"
   RC=$?

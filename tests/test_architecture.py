@@ -116,6 +116,7 @@ WRITE_ALLOWED = {
     ("pokeworld.real.synthetic", "_write_metadata"): "called inside write_scene's atomic_path",
     ("pokeworld.real.synthetic", "write_calib"): "inside its own atomic_path",
     ("pokeworld.experiments.allocation_pack", "compact_bytes"): "serialises into memory (BytesIO), no file",
+    ("pokeworld.swm.targets_table", "figure_png"): "renders into memory (BytesIO) before any output is written",
 }
 READ_ALLOWED = {
     ("pokeworld.config", "to_dict"): "a JSON round trip of a config in memory, no file",

@@ -14,6 +14,7 @@ import os
 import pickle
 import random
 import stat
+import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -53,10 +54,64 @@ def load(path: str | os.PathLike, map_location: str | torch.device = "cpu") -> d
         raise CheckpointError(f"checkpoint {path} is {file_kind(mode)}, not a regular file; remove it "
                               "(pokeworld reads checkpoints from regular files only)")
     with os.fdopen(fd, "rb") as fh:
+        check_records(fh, path)
+        fh.seek(0)
         ck = _load_weights(fh, path, map_location)
     if not isinstance(ck, dict):
         raise CheckpointError(f"checkpoint {path} holds a {type(ck).__name__}, expected a dict")
+    check_tensors(ck, path)
     return ck
+
+
+MAX_RECORDS = 100_000
+"""Most records a checkpoint's zip may hold (one per tensor storage, plus a few: a paper checkpoint holds ~500)."""
+
+
+def check_records(fh, path: Path) -> None:
+    """Refuse, before ``torch.load`` reads anything, a checkpoint that is not the zip ``torch.save`` writes: every
+    record stored uncompressed (torch never compresses; a DEFLATE record can inflate a megabyte into a gigabyte),
+    its stored size its size, inside the file, at most :data:`MAX_RECORDS` records."""
+    size = os.fstat(fh.fileno()).st_size
+    try:
+        with zipfile.ZipFile(fh) as zf:
+            infos = zf.infolist()
+    except (zipfile.BadZipFile, OSError, ValueError, EOFError) as e:
+        raise CheckpointError(f"cannot read checkpoint {path} ({first_line(e)}); it is damaged or not a torch "
+                              "checkpoint (torch.save writes a zip archive)") from None
+    if len(infos) > MAX_RECORDS:
+        raise CheckpointError(f"checkpoint {path} holds {len(infos)} records, more than {MAX_RECORDS}; refused")
+    for info in infos:
+        if info.compress_type != zipfile.ZIP_STORED or info.compress_size != info.file_size \
+                or info.header_offset + info.file_size > size:
+            raise CheckpointError(f"checkpoint {path}: record {info.filename[:80]!r} is compressed or declares "
+                                  f"{info.file_size} bytes in a {size}-byte file; torch.save writes records "
+                                  "stored as they are, so this one was crafted or damaged: refused before reading")
+
+
+def tensors_in(obj: Any, where: str = "", depth: int = 0):
+    """(key path, tensor) of every tensor in a loaded checkpoint (dicts, lists and tuples walked; at most 64 levels
+    deep)."""
+    if isinstance(obj, torch.Tensor):
+        yield where, obj
+    elif depth < 64 and isinstance(obj, dict):
+        for k, v in obj.items():
+            yield from tensors_in(v, f"{where}.{str(k)[:60]}" if where else str(k)[:60], depth + 1)
+    elif depth < 64 and isinstance(obj, (list, tuple)):
+        for i, v in enumerate(obj):
+            yield from tensors_in(v, f"{where}[{i}]", depth + 1)
+
+
+def check_tensors(ck: Any, path: Path) -> None:
+    """Every tensor of ``ck`` against its storage, before anything converts or copies it: no more elements than
+    its storage holds, no zero stride on a dimension of more than one element (a view that repeats one stored
+    number: converting it would allocate its whole declared size)."""
+    for where, t in tensors_in(ck):
+        if t.numel() > 1 and (any(s == 0 and n > 1 for s, n in zip(t.stride(), t.shape))
+                              or t.numel() * t.element_size() > t.untyped_storage().nbytes()):
+            raise CheckpointError(f"checkpoint {path}: {where} declares {t.numel()} elements but stores "
+                                  f"{t.untyped_storage().nbytes()} bytes, repeating them (shape "
+                                  f"{list(t.shape)[:6]}, stride {list(t.stride())[:6]}); torch.save writes no such "
+                                  "view: the checkpoint was crafted, refused")
 
 
 def file_kind(mode: int) -> str:
@@ -119,4 +174,5 @@ def set_rng_state(st: dict[str, Any]) -> None:
         torch.cuda.set_rng_state_all(st["cuda"])
 
 
-__all__ = ["CheckpointError", "save", "load", "file_kind", "first_line", "rng_state", "set_rng_state"]
+__all__ = ["CheckpointError", "MAX_RECORDS", "check_records", "check_tensors", "tensors_in", "save", "load",
+           "file_kind", "first_line", "rng_state", "set_rng_state"]

@@ -244,6 +244,26 @@ def check_replaceable(path: str | os.PathLike) -> None:
                       "away or choose another output folder")
 
 
+def check_apart(inputs, outputs) -> None:
+    """Raise ConfigError when a command's output would replace or write into one of its own inputs: an output
+    that is an input (the same resolved path, or the same file through another name: a hard link, a link), lies
+    inside an input folder, or is a folder holding an input. Ownership records say who wrote a file, not which
+    command may replace it, so a record pokeworld wrote is protected from the command reading it; checked on
+    the paths before anything is read or written."""
+    ins = [(Path(i), Path(i).resolve()) for i in inputs if i is not None]
+    for o in (Path(o) for o in outputs if o is not None):
+        ro = o.resolve()
+        for i, ri in ins:
+            try:
+                same = ro == ri or (os.path.exists(o) and os.path.exists(i) and os.path.samefile(o, i))
+            except OSError:
+                same = False
+            if same or ri in ro.parents or ro in ri.parents:
+                how = "is" if same else ("lies inside" if ri in ro.parents else "holds")
+                raise ConfigError(f"the output {o} {how} the input {i}: a command never replaces or writes into "
+                                  "what it reads; choose another output path")
+
+
 def adopt_legacy(folder: str | os.PathLike, names) -> list[str]:
     """Record ``names`` (the regular files among them that are there) as pokeworld's in ``folder`` when it has no
     ownership record at all: for a folder its format's owner has verified as one pokeworld wrote before records
@@ -293,6 +313,12 @@ def remove_stale_temporaries(folder: str | os.PathLike, name: str | None = None)
                                                                 or e.is_dir(follow_symlinks=False)):
                 removed += _discard(Path(e.path))
     return removed
+
+
+def remove_temporary(tmp: str | os.PathLike) -> bool:
+    """Remove one private temporary folder this process made with :func:`temporary_folder` (and what it holds,
+    no link followed); whether anything was removed."""
+    return _discard(Path(tmp))
 
 
 def _discard(tmp: Path) -> bool:
@@ -622,6 +648,9 @@ def read_jsonl(path: str | os.PathLike, what: str = "a JSON-lines record", max_b
         return []
     out = []
     for i, line in enumerate(read_regular_bytes(path, what, max_bytes).splitlines()):
+        if len(line) > MAX_JSON_BYTES:  # parsing costs ~25x a line's size: the same bound as a whole record's
+            raise DataError(f"{path} line {i + 1} is {len(line)} bytes; a line of {what} may be at most "
+                            f"{MAX_JSON_BYTES} bytes; restore it or write it again")
         if line.strip():
             row = parse_json(line, path, f"{what} (line {i + 1})")
             if not isinstance(row, dict):

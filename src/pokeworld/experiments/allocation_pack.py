@@ -225,23 +225,33 @@ class Member:
     data: bytes
 
 
+MAX_MEMBERS = 256
+"""Most entries read from the parts (a paper allocation's are at most six: five final weights and a checkpoint)."""
+
+
 def read_stream(folder: Path, limits: ReturnLimits = ReturnLimits()) -> list[Member]:
-    """The members of the parts in ``folder`` whose bytes match the sha256 their name carries, in order. Nothing
-    is extracted by its name (each member is read into memory and checked; only regular files are read). A tail
-    that a kill cut short or mixed with an older write ends the reading: what came before stands."""
+    """The members of the parts in ``folder`` whose bytes match the sha256 their name carries, in order, each
+    (run, kind) once. Nothing is extracted by its name (each member is read into memory and checked; only regular
+    files are read). A tail that a kill cut short or mixed with an older write ends the reading, and so do a
+    second member of a (run, kind) already read (an older write's) and more than :data:`MAX_MEMBERS` entries:
+    what came before stands."""
     data = join_parts(folder, limits)
     if not data:
         return []
     found: list[Member] = []
+    seen: set[tuple[str, str]] = set()
     try:
         with tarfile.open(fileobj=io.BytesIO(data), mode="r:") as tar:
-            for info in tar:
+            for n, info in enumerate(tar):
                 m = MEMBER.fullmatch(info.name)
+                if n >= MAX_MEMBERS or (m and (m.group(1), m.group(2)) in seen):
+                    break
                 if not (info.isreg() and m and info.size <= len(data)):
                     continue
                 body = tar.extractfile(info).read()
                 if len(body) == info.size and hashlib.sha256(body).hexdigest()[:16] == m.group(3):
                     found.append(Member(m.group(1), m.group(2), body))
+                    seen.add((m.group(1), m.group(2)))
     except (tarfile.TarError, EOFError, OSError):
         pass  # the damaged tail of an interrupted write
     return found
@@ -408,5 +418,6 @@ class Snapshots:
 
 __all__ = ["RECORDS", "PARTS", "INDEX", "COMPACT_MIN_ELEMENTS", "MEMBER", "ReturnLimits", "stream_budget", "compact",
            "expand", "compact_bytes", "member_name", "tar_size", "tar_bytes", "part_path", "split_bytes",
-           "write_parts", "join_parts", "Member", "read_stream", "load_member", "check_return_folder", "Packer",
+           "write_parts", "join_parts", "Member", "MAX_MEMBERS", "read_stream", "load_member",
+           "check_return_folder", "Packer",
            "Snapshots"]

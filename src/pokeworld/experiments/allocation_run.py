@@ -29,10 +29,10 @@ from .. import checkpoint, clock
 from ..config import to_dict
 from ..errors import PokeworldError
 from ..io import read_regular_bytes, save_bytes, write_json
-from ..rundir import last_logged_step, read_metrics
+from ..rundir import last_logged_step, load_resume_checkpoint, read_metrics
 from . import allocations, stages
 from .allocation_pack import Packer, ReturnLimits, Snapshots
-from .allocation_queue import PRIORITY, order_queue, parse_token, token
+from .allocation_queue import PRIORITY, order_queue, parse_token, split_folder_list, token
 from .config import MapConfig
 from .map import RunHooks, run as run_map
 from .presets import make_config
@@ -76,7 +76,7 @@ def checkpoint_step(run: Path) -> int:
     """The step an unfinished run resumes from: its ckpt.pt's (0 without one)."""
     if not (run / "ckpt.pt").exists():
         return 0
-    return int(checkpoint.load(run / "ckpt.pt").get("step", 0))
+    return load_resume_checkpoint(run / "ckpt.pt")["step"]  # an integer ≥ 0, or one CheckpointError line
 
 
 class AllocationHooks(RunHooks):
@@ -221,11 +221,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--reserve-min", type=float, default=0.5, help="minutes kept at the end for the last pack")
     ap.add_argument("--started", type=float, default=0.0, help="unix time the allocation started (default: now)")
     ap.add_argument("--resume", nargs="*", type=Path, default=[], help="folders earlier allocations returned")
+    ap.add_argument("--resume-list", default="", help="the same as one shell-quoted list (ALLOC_RESUME as "
+                                                      "merge_allocations.py --plan prints it)")
     ap.add_argument("--snapshot-s", type=float, default=30.0, help="seconds between checkpoint snapshots")
     ap.add_argument("--prior-s-per-step", type=float, default=0.0, help="s/step before one is measured")
     ap.add_argument("--prior-overhead-s", type=float, default=-1.0, help="seconds per run beside its steps")
     a = ap.parse_args(argv)
     try:
+        a.resume = [*a.resume, *map(Path, split_folder_list(a.resume_list))]
         return allocate(a)
     except PokeworldError as e:
         raise SystemExit(f"error: {e}") from None

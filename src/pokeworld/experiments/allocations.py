@@ -30,23 +30,26 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import re
 import platform
 import shutil
 import statistics
 import subprocess
 import sys
-import tarfile
 import tempfile
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 
 from .. import __version__, checkpoint, paper_values as P
+from ..bounded_tar import TarBounds, extract
 from ..config import from_dict
 from ..errors import ConfigError, PokeworldError
 from ..evaluate.tables import fmt, git_commit, probe
 from ..io import (
+    check_apart,
     check_regular_file,
+    check_replaceable,
     read_json as io_read_json,
     read_jsonl,
     read_regular_bytes,
@@ -55,9 +58,10 @@ from ..io import (
     write_json,
 )
 from ..rundir import model_from_checkpoint
+from ..train.optimizer_state import check_optimizer_fits
 from . import merge, report, stages
 from .allocation_pack import COMPACT_MIN_ELEMENTS, INDEX, RECORDS, load_member, read_stream
-from .allocation_queue import PRIORITY, order_queue, parse_token, token
+from .allocation_queue import PRIORITY, checked_key, folder_list, order_queue, parse_token, run_word, shell_line
 from .config import VARIANT_ORDER, MapConfig
 from .factorial import FACTORIAL
 from .runs import spec_measure_path
@@ -71,9 +75,11 @@ AGREE = ("preset", "train_preset", "train_steps", "train_batch_size", "num_episo
          "measure_max_windows", "measure_kinds")
 MAX_PACK_BYTES = 64 << 20
 """Largest pack read (a device machine returns files of at most 16 MiB)."""
-MAX_UNPACKED_BYTES = 512 << 20
-"""Largest total size of a pack's files once unpacked (an allocation's records are a few MiB)."""
-MAX_JSON_BYTES = 64 << 20
+PACK_BOUNDS = TarBounds(members=4096, member_bytes=64 << 20, total_bytes=128 << 20)
+"""What a map pack may unpack to (an allocation's records are a few dozen files, a few MiB): checked on its
+headers before anything is read or written (:mod:`pokeworld.bounded_tar`)."""
+RUN_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]{0,199}")
+"""A run's name as a record may give it (a folder under runs/)."""
 
 
 def device_record() -> dict:
@@ -143,28 +149,19 @@ class Allocation:
 
 def read_json(path: Path, what: str) -> dict:
     """A JSON object from a regular file (:func:`pokeworld.io.read_json`); one ConfigError line otherwise."""
-    return io_read_json(path, what, dict, MAX_JSON_BYTES, error=ConfigError)
+    return io_read_json(path, what, dict, error=ConfigError)  # io's bound: parsing costs ~25x a file's size
 
 
 def unpack(pack: Path, scratch: Path) -> Path:
-    """A map pack unpacked into a new folder under ``scratch``: regular files and folders only, nothing outside it
-    (tarfile's 'data' filter), at most :data:`MAX_UNPACKED_BYTES` in all."""
+    """A map pack unpacked into a new folder under ``scratch``: its headers checked first against
+    :data:`PACK_BOUNDS` (sizes, entry count, types; nothing read beyond them), then regular files and folders only,
+    nothing outside the folder, no name twice (:func:`pokeworld.bounded_tar.extract`)."""
     try:
         check_regular_file(pack, "a map pack", MAX_PACK_BYTES)
     except PokeworldError as e:
         raise ConfigError(str(e)) from None
     dest = Path(tempfile.mkdtemp(prefix="allocation-", dir=scratch))
-    try:
-        with tarfile.open(pack, "r:gz") as tar:
-            members = tar.getmembers()
-            odd = [m.name for m in members if not (m.isfile() or m.isdir())]
-            if odd:
-                raise ConfigError(f"{pack} holds entries that are neither files nor folders: {odd[:3]}")
-            if sum(m.size for m in members) > MAX_UNPACKED_BYTES:
-                raise ConfigError(f"{pack} unpacks to more than {MAX_UNPACKED_BYTES >> 20} MiB; not a map pack")
-            tar.extractall(dest, members=members, filter="data")
-    except (tarfile.TarError, OSError, EOFError) as e:
-        raise ConfigError(f"{pack} is not a map pack pokeworld wrote ({e})") from None
+    extract(pack, dest, PACK_BOUNDS, what="a map pack")
     return dest
 
 
@@ -197,10 +194,43 @@ def open_allocation(path: str | os.PathLike, scratch: Path) -> Allocation:
         raise ConfigError(f"{path}: its corpus manifest records no content hash")
     a = Allocation(str(path), root, read_json(device_path, "a device record"),
                    read_json(root / "map_config.json", "a map config"), manifest["content_sha256"],
-                   read_json(root / "progress.json", "a map's progress record"))
+                   check_progress(read_json(root / "progress.json", "a map's progress record"),
+                                  root / "progress.json"))
     if returned is not None:
         restore_returned(a, returned, scratch)
     return a
+
+
+def check_progress(prog: dict, path: Path) -> dict:
+    """``prog`` when its fields are what the map writes: ``finished`` and ``pending`` lists of run names,
+    ``partial`` a mapping of run name to a step (an integer ≥ 0), ``elapsed_min`` a finite number or absent;
+    ConfigError naming ``path`` and the field otherwise."""
+    def names(value: object, field: str) -> None:
+        if not isinstance(value, list) or not all(isinstance(n, str) and RUN_NAME.fullmatch(n) for n in value):
+            raise ConfigError(f"{path}: {field!r} is not a list of run names ({str(value)[:60]}); the record is "
+                              "damaged or was edited")
+
+    names(prog.get("finished", []), "finished")
+    names(prog.get("pending", []), "pending")
+    partial = prog.get("partial", {})
+    if not isinstance(partial, dict):
+        raise ConfigError(f"{path}: 'partial' is not a mapping of run names to steps; the record is damaged")
+    names(list(partial), "partial")
+    for name, step in partial.items():
+        check_step(step, f"{path}: the step of partial run {name}")
+    elapsed = prog.get("elapsed_min")
+    if elapsed is not None and (isinstance(elapsed, bool) or not isinstance(elapsed, (int, float))
+                                or not math.isfinite(elapsed)):
+        raise ConfigError(f"{path}: 'elapsed_min' is {str(elapsed)[:40]!r}, not a number; the record is damaged")
+    return prog
+
+
+def check_step(step: object, where: str) -> int:
+    """``step`` when it is an integer ≥ 0 (not a string, float or bool); ConfigError naming ``where`` otherwise."""
+    if isinstance(step, bool) or not isinstance(step, int) or step < 0:
+        raise ConfigError(f"{where} is {str(step)[:40]!r}, not an integer step ≥ 0; the record is damaged or was "
+                          "edited")
+    return step
 
 
 def restore_returned(a: Allocation, folder: Path, scratch: Path) -> None:
@@ -216,10 +246,14 @@ def restore_returned(a: Allocation, folder: Path, scratch: Path) -> None:
         if (m.kind == "final") != (m.run in finished) or (m.kind == "final" and not (run / "config.json").exists()):
             continue  # records of another state of the map than the parts (a kill between the two writes)
         ck = load_member(m, scratch)
+        what = Path(f"{folder}: the returned {m.kind} of {m.run}")
         try:
-            model_from_checkpoint(ck, Path(f"{folder}: the returned {m.kind} of {m.run}"))
+            model = model_from_checkpoint(ck, what)
+            if m.kind == "ckpt":  # resumed by the next allocation: its optimizer is checked like its model
+                check_optimizer_fits(model, ck.get("optimizer"), what)
         except PokeworldError as e:
             raise ConfigError(str(e)) from None
+        step = check_step(ck.get("step", 0), f"{what}: its step")
         if not (run / "config.json").exists():
             # the parts are written before the records: a kill between the two returns a checkpoint whose run the
             # records do not list yet, and the checkpoint carries the run's config itself
@@ -231,7 +265,7 @@ def restore_returned(a: Allocation, folder: Path, scratch: Path) -> None:
         if m.kind == "final":
             a.weights[m.run] = "returned"
         else:
-            a.checkpoints[m.run] = int(ck.get("step", 0))
+            a.checkpoints[m.run] = step
     for name in sorted(finished - set(a.weights)):
         a.weights[name] = index.get("left_out", {}).get(name, "not returned")
 
@@ -246,10 +280,13 @@ def training_facts(a: Allocation, name: str) -> dict:
     metrics = run / "metrics.jsonl"
     if metrics.exists():
         try:
-            rows = read_jsonl(metrics, "a metrics log", MAX_JSON_BYTES)
+            rows = read_jsonl(metrics, "a metrics log")
         except PokeworldError as e:
             raise ConfigError(f"{metrics} is not a metrics log pokeworld wrote ({e})") from None
-    rates = [r["steps_per_s"] for r in rows if isinstance(r.get("steps_per_s"), (int, float)) and r["steps_per_s"] > 0]
+    for i, r in enumerate(rows):
+        check_step(r.get("step", 0), f"{metrics} line {i + 1}: 'step'")
+    rates = [r["steps_per_s"] for r in rows if isinstance(r.get("steps_per_s"), (int, float))
+             and not isinstance(r["steps_per_s"], bool) and math.isfinite(r["steps_per_s"]) and r["steps_per_s"] > 0]
     return {"source": a.source, "device": a.device.get("device"), "date": a.device.get("date"),
             "torch": a.device.get("torch"), "steps": cfg.get("steps"),
             "steps_trained": max((r.get("step", 0) for r in rows), default=0),
@@ -460,9 +497,11 @@ def markdown(merged: dict) -> str:
 
 
 def run_key(a: Allocation, name: str) -> tuple[str, int]:
-    """(variant, seed) of run ``name`` of ``a``, from its config.json."""
-    cfg = read_json(a.root / "runs" / name / "config.json", "a run config")
-    return str(cfg.get("variant")), int(cfg.get("seed", 0))
+    """(variant, seed) of run ``name`` of ``a``, from its config.json: a known variant and an integer seed
+    (:func:`.allocation_queue.checked_key`), else one ConfigError line naming the file."""
+    path = a.root / "runs" / name / "config.json"
+    cfg = read_json(path, "a run config")
+    return checked_key(cfg.get("variant"), cfg.get("seed", 0), str(path))
 
 
 def plan(allocs: list[Allocation]) -> dict:
@@ -485,51 +524,87 @@ def plan(allocs: list[Allocation]) -> dict:
     requested = [parse_token(t) for t in PRIORITY]
     requested += [k for k in resumable if k not in requested]  # a checkpoint outside the priority list resumes too
     queue = order_queue(requested, finished, set(resumable))
-    return {"queue": [token(k) for k in queue], "finished": sorted(token(k) for k in finished),
-            "resume": {token(k): {"step": step, "from": src} for k, (step, src) in resumable.items()},
+    return {"queue": [run_word(k) for k in queue], "finished": sorted(run_word(k) for k in finished),
+            "resume": {run_word(k): {"step": step, "from": src} for k, (step, src) in resumable.items()},
             "resume_from": sorted({src for _, src in resumable.values()}),
             "commits": sorted({str(a.device.get("git", "?")) for a in allocs})}
 
 
 def plan_lines(p: dict, commit: str) -> list[str]:
-    """The plan in words, ending with the next allocation's command."""
-    resume = " ".join(f"{t} (step {r['step']}, {r['from']})" for t, r in p["resume"].items())
-    env = f"ALLOC_COMMIT={commit}" + (f" ALLOC_RESUME=\"{' '.join(p['resume_from'])}\"" if p["resume_from"] else "")
-    return [f"[plan] earlier allocations ran commits {', '.join(p['commits'])}; finished: "
+    """The plan in words, ending with the next allocation's command: its run words checked
+    (:func:`.allocation_queue.run_word`) and every word quoted for the shell (:func:`.allocation_queue.shell_line`),
+    the folders to resume as one quoted ALLOC_RESUME list (:func:`.allocation_queue.folder_list`)."""
+    queue = [run_word(parse_token(t)) for t in p["queue"]]
+    resume = " ".join(f"{t} (step {r['step']}, {r['from']!r})" for t, r in p["resume"].items())
+    env = {"ALLOC_COMMIT": commit, **({"ALLOC_RESUME": folder_list(p["resume_from"])} if p["resume_from"] else {})}
+    return [f"[plan] earlier allocations ran commits {', '.join(map(repr, p['commits']))}; finished: "
             f"{' '.join(p['finished']) or 'none'}; checkpoints to resume: {resume or 'none'}",
-            f"[plan] next allocation, in this order: {' '.join(p['queue']) or 'nothing left'}",
-            f"{env} bash scripts/gpu_allocation.sh OUT {' '.join(p['queue'])}"]
+            f"[plan] next allocation, in this order: {' '.join(queue) or 'nothing left'}",
+            shell_line(["bash", "scripts/gpu_allocation.sh", "OUT", *queue], env)]
+
+
+EXPORTED = ("config.json", "metrics.jsonl", "final.pt", "measure.json")
+"""A returned run's files written under --runs-out (beside a DONE that says where the weights came from)."""
+
+
+def export_plan(allocs: list[Allocation], merged: dict, dest: Path) -> dict[str, tuple[Allocation, list[str]]]:
+    """Run name -> (the allocation it is kept from, the files of :data:`EXPORTED` it has) for every run of
+    ``merged`` whose weights came back, as :func:`export_runs` writes them under ``dest``."""
+    by_source = {a.source: a for a in allocs}
+    plan_: dict[str, tuple[Allocation, list[str]]] = {}
+    for name, run in sorted(merged["runs"].items()):
+        a = by_source.get(run.get("allocation", {}).get("source"))
+        if a is not None and a.weights.get(name) == "returned":
+            plan_[name] = (a, [f for f in EXPORTED if (a.root / "runs" / name / f).exists()])
+    return plan_
+
+
+def export_targets(plan_: dict[str, tuple[Allocation, list[str]]], dest: Path) -> list[Path]:
+    """Every file :func:`export_runs` would write under ``dest``."""
+    return [dest / name / f for name, (_, files) in plan_.items() for f in (*files, "DONE")]
 
 
 def export_runs(allocs: list[Allocation], merged: dict, dest: Path) -> list[str]:
     """Every run of ``merged`` whose weights came back from the allocation it was kept from, as a run folder under
     ``dest`` (config.json, metrics.jsonl, the device's measure.json, final.pt in float32 and DONE), so that the CPU
     side can probe it (``pokeworld probe --run-dir DEST/NAME --data CORPUS``, on the same seeded corpus);
-    returns their names."""
-    by_source = {a.source: a for a in allocs}
-    names = []
-    for name, run in sorted(merged["runs"].items()):
-        a = by_source.get(run.get("allocation", {}).get("source"))
-        if a is None or a.weights.get(name) != "returned":
-            continue
+    returns their names. Every file is checked (:func:`pokeworld.io.check_replaceable`) before the first is
+    written, so a user's run folder under ``dest`` is refused whole, never half-replaced."""
+    plan_ = export_plan(allocs, merged, dest)
+    for path in export_targets(plan_, dest):
+        check_replaceable(path)
+    for name, (a, files) in plan_.items():
         src, out = a.root / "runs" / name, dest / name
-        for f in ("config.json", "metrics.jsonl", "final.pt", "measure.json"):
-            if (src / f).exists():
-                save_bytes(out / f, read_regular_bytes(src / f, f"a returned run's {f}", MAX_PACK_BYTES << 2))
+        for f in files:
+            save_bytes(out / f, read_regular_bytes(src / f, f"a returned run's {f}", MAX_PACK_BYTES << 2))
         save_text(out / "DONE", f"finished (weights returned from {a.source}: float32 tensors of at least "
                                  f"{COMPACT_MIN_ELEMENTS} elements rounded to bfloat16)\n")
-        names.append(name)
-    return names
+    return list(plan_)
+
+
+def output_paths(a: argparse.Namespace) -> list[Path]:
+    """The files (and the --runs-out folder) the merge writes, as ``a`` asks."""
+    outs = [a.out, a.markdown, a.runs_out]
+    if not a.no_figure:
+        fig = a.figure or a.out.with_suffix(".png")
+        outs += [fig.parent / f"{fig.stem}.png", fig.parent / f"{fig.stem}.pdf"]
+    return [p for p in outs if p is not None]
 
 
 # ---------------------------------------------------------------------- the command line
 
 
 def write_merged(a: argparse.Namespace, allocs: list[Allocation], words: list[str]) -> dict:
-    """Merge ``allocs`` and write the record, its report and its figure as ``a`` asks."""
+    """Merge ``allocs`` and write the record, its report, its figure and the returned runs as ``a`` asks: every
+    one of those files checked before the first is written (all or, refused, none)."""
     cert = read_certificates(a.certificates, allocs[0].corpus_sha256) if a.certificates else None
     merged = merge_allocations(allocs, cert, a.tol,
                                command=" ".join(["python scripts/merge_allocations.py", *map(str, words)]))
+    files = [p for p in output_paths(a) if p != a.runs_out]
+    if a.runs_out:
+        files += export_targets(export_plan(allocs, merged, a.runs_out), a.runs_out)
+    for path in files:
+        check_replaceable(path)
     write_json(a.out, merged)
     if a.markdown:
         save_text(a.markdown, markdown(merged))
@@ -565,6 +640,8 @@ def main(argv: list[str] | None = None) -> int:
     if not a.plan and a.out is None:
         ap.error("--out is required (or --plan)")
     try:
+        if not a.plan:  # before anything is read: no output may be, or lie inside, an input
+            check_apart([*a.allocations, a.certificates], output_paths(a))
         with tempfile.TemporaryDirectory(prefix="pokeworld-allocations-") as scratch:
             allocs = [open_allocation(p, Path(scratch)) for p in a.allocations]
             if a.plan:
@@ -581,7 +658,9 @@ def main(argv: list[str] | None = None) -> int:
 
 
 __all__ = ["DEVICE_FILE", "AGREE", "Allocation", "device_record", "commit", "gpu_name", "write_device", "read_json",
-           "unpack", "open_allocation", "restore_returned", "training_facts", "run_key", "plan", "plan_lines",
-           "export_runs", "write_merged", "allocation_record", "check_agreement", "read_certificates",
+           "unpack", "open_allocation", "check_progress", "check_step", "restore_returned", "training_facts",
+           "run_key", "plan", "plan_lines",
+           "export_plan", "export_targets", "export_runs", "output_paths", "write_merged",
+           "allocation_record", "check_agreement", "read_certificates",
            "ridge_difference", "merge_allocations", "allocation_summary", "allocation_lines", "run_lines", "markdown",
            "main"]

@@ -48,9 +48,6 @@ from ..io import (
     hash_arrays,
     read_json_if_present,
     read_jsonl,
-    record_owned,
-    remove_own_file,
-    staging_path,
     write_json,
 )
 from ..progress import heartbeat
@@ -216,35 +213,30 @@ def collect(cfg: SwmCertifyConfig, path: Path) -> Path:
     ``cfg.policy`` (HDF5)."""
     swm = stable_worldmodel()
     check_factor_names(cfg)
+    # staged inside a private folder (atomic_path: created exclusively, mode 0700, a random name): swm's writer opens
+    # its file following links, and a predictable staging name beside the corpus could be planted; only a finished
+    # collection is renamed to the final name, and a failed one's folder is removed
     if cfg.workers > 1 and cfg.episodes > 1:
-        staging = staging_path(path)
-        try:
+        with atomic_path(path) as staging:
             collect_in_parallel(dataclasses.replace(cfg, workers=1), staging, cfg.workers, collect)
-            os.replace(staging, path)  # only a finished, merged collection appears under the final name
-            record_owned(path)
-        finally:
-            remove_own_file(staging)
         return path
     world = swm.World(cfg.env, num_envs=cfg.num_envs, image_shape=(cfg.image_size, cfg.image_size),
                       max_episode_steps=cfg.steps, goal_conditioned=False)
-    staging = staging_path(path)
     try:
-        policy = make_policy(cfg.policy, cfg.seed, cfg.hold)
-        world.set_policy(policy)
-        writer = swm.data.get_format("hdf5").open_writer(staging, mode="overwrite")
-        with counted(policy) as calls:
-            def status() -> str:  # one policy call steps every environment once
-                return (f"collecting {cfg.env}: about {min(cfg.episodes, calls[0] * cfg.num_envs // cfg.steps)} "
-                        f"of {cfg.episodes} episodes")
+        with atomic_path(path) as staging:
+            policy = make_policy(cfg.policy, cfg.seed, cfg.hold)
+            world.set_policy(policy)
+            writer = swm.data.get_format("hdf5").open_writer(staging, mode="overwrite")
+            with counted(policy) as calls:
+                def status() -> str:  # one policy call steps every environment once
+                    return (f"collecting {cfg.env}: about {min(cfg.episodes, calls[0] * cfg.num_envs // cfg.steps)}"
+                            f" of {cfg.episodes} episodes")
 
-            with heartbeat("swm-certify", status):  # swm's tqdm bar is off: it floods redirected logs
-                world.collect(writer=writer, episodes=cfg.episodes, seed=cfg.seed,
-                              options={"variation": list(cfg.factors)}, progress=False)
-        os.replace(staging, path)  # only a finished collection appears under the final name
-        record_owned(path)
+                with heartbeat("swm-certify", status):  # swm's tqdm bar is off: it floods redirected logs
+                    world.collect(writer=writer, episodes=cfg.episodes, seed=cfg.seed,
+                                  options={"variation": list(cfg.factors)}, progress=False)
     finally:
         world.close()
-        remove_own_file(staging)  # our own pid-named staging copy, if the collection failed
     return path
 
 

@@ -11,14 +11,16 @@ with the base seed plus its index, so the workers' reset seeds never overlap), a
 same way. The merged corpus is therefore a different (equally valid) sample from a one-process collection with the
 same seed, which is why the worker count is part of the corpus cache key.
 
-Part files are our own (``<corpus>.part-<w>-<pid>.h5`` beside the corpus), read back with h5py (no pickle, only the
-writer's top-level datasets, episode index checked) and deleted after the merge or a failure.
+Part files are our own (``part-<w>.h5``), in a private folder beside the corpus that
+:func:`pokeworld.io.temporary_folder` creates (exclusively, mode 0700, a random name: nobody can predict it or plant a link in it, where swm's writer
+would follow one), read back with h5py (no pickle, only the writer's top-level datasets, episode index checked) and
+removed with the folder after the merge or a failure; a killed run leaves the folder under a name the next run's
+stale-temporary cleanup recognises.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import os
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
@@ -29,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import DataError
-from ..io import remove_own_file
+from ..io import remove_temporary, temporary_folder
 
 SEED_STRIDE = 1_000_003
 """Seed offset between workers (larger than any episode count, so reset seeds never overlap)."""
@@ -41,8 +43,9 @@ def shares(episodes: int, workers: int) -> list[int]:
     return [episodes // workers + (1 if w < episodes % workers else 0) for w in range(workers)]
 
 
-def part_path(path: Path, w: int) -> Path:
-    return path.with_name(f"{path.stem}.part-{w}-{os.getpid()}{path.suffix}")
+def part_path(folder: Path, w: int, suffix: str = ".h5") -> Path:
+    """Worker ``w``'s part file in the private ``folder`` (:func:`pokeworld.io.temporary_folder`)."""
+    return folder / f"part-{w}{suffix}"
 
 
 def read_episodes(part: Path) -> list[dict[str, np.ndarray]]:
@@ -77,7 +80,8 @@ def collect_in_parallel(cfg: Any, path: Path, workers: int, collect: Callable[[A
     parts into ``path`` (``collect`` must be importable by name: it runs in the workers; ``cfg`` a dataclass with
     ``episodes`` and ``seed``, which each worker's share replaces)."""
     counts = shares(cfg.episodes, workers)
-    parts = [part_path(path, w) for w in range(len(counts))]
+    private = temporary_folder(path)
+    parts = [part_path(private, w, path.suffix) for w in range(len(counts))]
     cfgs = [dataclasses.replace(cfg, episodes=k, seed=cfg.seed + w * SEED_STRIDE) for w, k in enumerate(counts)]
     try:
         with ProcessPoolExecutor(len(counts), mp_context=get_context("spawn")) as pool:
@@ -91,8 +95,7 @@ def collect_in_parallel(cfg: Any, path: Path, workers: int, collect: Callable[[A
         if n != cfg.episodes:
             raise DataError(f"the workers collected {n} episodes, not {cfg.episodes}; collect again")
     finally:
-        for part in parts:
-            remove_own_file(part)
+        remove_temporary(private)  # the parts and anything a killed worker left in the private folder
     return path
 
 

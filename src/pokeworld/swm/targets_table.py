@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import ConfigError, DataError
-from ..io import atomic_path, check_replaceable, read_json, save_text, write_json
+from ..io import check_apart, check_replaceable, read_json, save_bytes, save_text, write_json
 from .factor_report import fmt
 from .factorial import STATE_ROLE, SWM_VARIANTS
 
@@ -65,7 +65,60 @@ def load_factorial(path: str | Path) -> dict:
     if missing:
         raise DataError(f"{path}: the factorial lacks variants {missing}; rerun swm-certify with --variants "
                         f"{' '.join(SWM_VARIANTS)} (finished variants are reused)")
+    check_record_fields(rec, path)
     return rec
+
+
+def malformed(path: str | Path, where: str, what: str) -> DataError:
+    return DataError(f"{path}: {where} is not {what}; the record is damaged or was edited: pass the swm_certify.json "
+                     "that pokeworld swm-certify wrote")
+
+
+def check_mapping(value: object, path: str | Path, where: str) -> dict:
+    if not isinstance(value, dict):
+        raise malformed(path, where, f"a mapping (it is a JSON {type(value).__name__})")
+    return value
+
+
+def check_number(value: object, path: str | Path, where: str, optional: bool = True) -> None:
+    """A JSON number (None allowed when ``optional``: an R² that was not computed); never a string or bool."""
+    if (value is None and optional) or (isinstance(value, float) or (isinstance(value, int) and not
+                                                                     isinstance(value, bool) and abs(value) < 2**63)):
+        return  # a float (NaN prints as nan) or an integer a float holds: never a 400-digit one
+    raise malformed(path, where, f"a number ({str(value)[:40]!r})")
+
+
+def check_record_fields(rec: dict, path: str | Path) -> None:
+    """Every field :func:`summarise` reads, of the type swm-certify writes (mappings, numbers or null, a bool
+    gate, a string environment), each summary row with its variants and their per-seed R²; one DataError line
+    naming the record and the field otherwise."""
+    if not isinstance(rec.get("env", ""), (str, type(None))):
+        raise malformed(path, "'env'", "a string")
+    for key in ("corpus", "config", "factor_effects"):
+        if rec.get(key) is not None:
+            check_mapping(rec[key], path, repr(key))
+    for q, effect in (rec.get("factor_effects") or {}).items():
+        if effect is not None:
+            check_mapping(effect, path, f"factor_effects[{q!r}]")
+    for v, seeds in rec["xjepa"]["variants"].items():
+        for seed, run in check_mapping(seeds, path, f"xjepa.variants.{str(v)[:20]}").items():
+            check_mapping(run, path, f"xjepa.variants.{str(v)[:20]}[{str(seed)[:20]!r}]")
+    for q, row in check_mapping(rec["xjepa"]["summary"], path, "xjepa.summary").items():
+        where = f"xjepa.summary[{str(q)[:40]!r}]"
+        row = check_mapping(row, path, where)
+        check_number(row.get("certificate"), path, f"{where}.certificate")
+        check_number(row.get("threshold"), path, f"{where}.threshold")
+        if not isinstance(row.get("gate_passed"), bool):
+            raise malformed(path, f"{where}.gate_passed", "true or false")
+        variants = check_mapping(row.get("variants"), path, f"{where}.variants")
+        for v in SWM_VARIANTS:
+            cell = check_mapping(variants.get(v), path, f"{where}.variants.{v}")
+            for k in ("ridge", "mlp", "untrained"):
+                check_number(cell.get(k), path, f"{where}.variants.{v}.{k}")
+            for seed, r in check_mapping(cell.get("per_seed", {}), path, f"{where}.variants.{v}.per_seed").items():
+                r = check_mapping(r, path, f"{where}.variants.{v}.per_seed[{str(seed)[:20]!r}]")
+                for k in ("ridge", "untrained"):
+                    check_number(r.get(k), path, f"{where}.variants.{v}.per_seed[{str(seed)[:20]!r}].{k}")
 
 
 def effect_per_seed(cells: dict[str, dict], a: str, b: str) -> dict[str, float]:
@@ -118,7 +171,8 @@ def summarise(records: dict[str, dict]) -> dict:
         runs = [r for per in xj["variants"].values() for r in per.values()]
         envs.append({"env": env, "record": path, "command": rec.get("command"), "preset": xj.get("preset"),
                      "seeds": xj.get("seeds"), "steps": runs[0].get("steps") if runs else None,
-                     "episodes": rec.get("corpus", {}).get("episodes"), "policy": rec.get("config", {}).get("policy")})
+                     "episodes": (rec.get("corpus") or {}).get("episodes"),
+                     "policy": (rec.get("config") or {}).get("policy")})
         effects = rec.get("factor_effects") or {}
         rows += [factor_row(env, q, r, (effects.get(q) or {}).get("inert")) for q, r in xj["summary"].items()]
     certified = [r for r in rows if r["gate_passed"]]
@@ -152,15 +206,30 @@ def markdown(summary: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def figure(summary: dict, path: Path) -> Path:
+MAX_FIGURE_FACTORS = 24
+"""Most certified factors the figure draws (its width grows with them; a record of 1,500 factors would ask for a
+figure of gigabytes): the first ones in table order, the rest named as left out. The JSON and markdown hold all."""
+LABEL_CHARS = 28
+"""Longest environment or factor name in a figure label (a longer one is cut, marked with …)."""
+
+
+def short(text: str, n: int = LABEL_CHARS) -> str:
+    return text if len(text) <= n else text[:n - 1] + "…"
+
+
+def figure_png(summary: dict) -> tuple[bytes, int]:
     """The three effects per certified factor and V's gain over its untrained twin (bars: mean; dots: seeds), the
-    margin dashed, the verdict under each factor."""
+    margin dashed, the verdict under each factor, as PNG bytes (nothing written), and how many certified factors
+    were left out (beyond :data:`MAX_FIGURE_FACTORS`; the title says so)."""
+    import io
+
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    rows = [r for r in summary["rows"] if r["gate_passed"]]
+    certified = [r for r in summary["rows"] if r["gate_passed"]]
+    rows, left_out = certified[:MAX_FIGURE_FACTORS], max(len(certified) - MAX_FIGURE_FACTORS, 0)
     colors = {"target_without_input": "tab:orange", "target_with_input": "tab:blue",
               "input_without_target": "tab:green"}
     names = {"target_without_input": "target, no input (VX − V)", "target_with_input": "target, with input "
@@ -177,35 +246,56 @@ def figure(summary: dict, path: Path) -> Path:
             ax.plot([pos] * len(seeds), seeds, "k.", ms=4, label="seeds" if i == 0 and j == 0 else None)
     ax.axhline(summary["margin"], color="red", lw=0.8, ls="--", label=f"margin {summary['margin']:.2f}")
     ax.axhline(0, color="black", lw=0.5)
-    ax.set_xticks(x, [f"{r['env'].removeprefix('swm/')}\n{r['factor']}\n→ {r['verdict']}" for r in rows],
-                  fontsize=7)
+    ax.set_xticks(x, [f"{short(str(r['env']).removeprefix('swm/'))}\n{short(str(r['factor']))}\n→ {r['verdict']}"
+                      for r in rows], fontsize=7)
     ax.set_ylabel("ridge R² difference (predictor state)", fontsize=8)
-    ax.set_title("Which role of the state puts a certified factor in the latent?", fontsize=9)
+    ax.set_title("Which role of the state puts a certified factor in the latent?"
+                 + (f"\n(the first {len(rows)} of {len(certified)} certified factors; the rest are in the table)"
+                    if left_out else ""), fontsize=9)
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=150, format="png")
-    plt.close(fig)
+    buf = io.BytesIO()
+    try:
+        fig.savefig(buf, dpi=150, format="png")
+    finally:
+        plt.close(fig)
+    return buf.getvalue(), left_out
+
+
+def figure(summary: dict, path: Path) -> Path:
+    """:func:`figure_png` written to ``path``."""
+    save_bytes(path, figure_png(summary)[0])
     return path
 
 
 def run(cfg: TargetsConfig) -> Path:
     """Read the records, write PREFIX.{json,md,png} (:func:`summarise`'s summary in the JSON); return the table's
-    path."""
+    path. No output may be one of the records (:func:`pokeworld.io.check_apart`), and all three are made (the
+    figure rendered in memory) and checked before the first is written: all or none."""
     if not cfg.records:
         raise ConfigError("--records is empty: pass one swm_certify.json per environment")
-    summary = summarise({str(p): load_factorial(p) for p in cfg.records})
     paths = {ext: Path(f"{cfg.out}.{ext}") for ext in ("json", "md", "png")}
+    check_apart(cfg.records, paths.values())
+    summary = summarise({str(p): load_factorial(p) for p in cfg.records})
     for p in paths.values():  # all three refused before any is written (never a half-replaced set)
         check_replaceable(p)
+    png, left_out = figure_png(summary)
+    table = markdown(summary)
+    if left_out:
+        summary["figure_left_out"] = left_out
+        table += (f"\nThe figure shows the first {MAX_FIGURE_FACTORS} certified factors; {left_out} more are in "
+                  "the table only.\n")
     write_json(paths["json"], summary)
-    save_text(paths["md"], markdown(summary))
-    figure(summary, paths["png"])
+    save_text(paths["md"], table)
+    save_bytes(paths["png"], png)
     for r in summary["rows"]:
         print(f"[swm-targets] {r['env']} {r['factor']}: {r['verdict']}")
-    print(f"[swm-targets] wrote {paths['json']}, {paths['md']}, {paths['png']}")
+    print(f"[swm-targets] wrote {paths['json']}, {paths['md']}, {paths['png']}"
+          + (f" (the figure leaves out {left_out} certified factors beyond the first {MAX_FIGURE_FACTORS})"
+             if left_out else ""))
     return paths["md"]
 
 
-__all__ = ["EFFECTS", "MARGIN", "TargetsConfig", "carries", "effect_per_seed", "factor_row", "figure",
+__all__ = ["EFFECTS", "MARGIN", "MAX_FIGURE_FACTORS", "TargetsConfig", "carries", "check_record_fields",
+           "effect_per_seed", "factor_row", "figure", "figure_png",
            "load_factorial", "make_config", "markdown", "run", "summarise", "verdict"]

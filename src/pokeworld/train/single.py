@@ -51,6 +51,7 @@ from .config import (
     validate,
 )
 from .loop import LoopSchedule, Progress, past, run_loop
+from .optimizer_state import check_optimizer_fits
 from .sampler import WindowSampler, data_stats
 from .step import loss_kwargs, lr_lambda, make_optimizer, model_kwargs, train_step
 
@@ -144,6 +145,7 @@ class _SingleRun:
             return 0
         ck = load_resume_checkpoint(ckpt_path)
         check_state_fits(self.model, ck["model"], ckpt_path)
+        check_optimizer_fits(self.model, ck["optimizer"], ckpt_path)
         with restoring(ckpt_path):
             self.model.load_state_dict(ck["model"])
             self.opt.load_state_dict(ck["optimizer"])

@@ -86,6 +86,7 @@ from .config import (
     validate,
 )
 from .loop import LoopSchedule, Progress, past, run_loop
+from .optimizer_state import check_optimizer_fits
 from .sampler import WindowSampler, data_stats
 from .step import (
     decay_split,
@@ -523,6 +524,7 @@ class _StackedRun:
             cks = [load_resume_checkpoint(out / "ckpt.pt") for out in outs]
             for member, ck, out in zip(g.members, cks, outs):
                 check_state_fits(member, ck["model"], out / "ckpt.pt")
+                check_optimizer_fits(member, ck["optimizer"], out / "ckpt.pt")
             with restoring(outs[0] / "ckpt.pt"):
                 g.load(cks)
                 checkpoint.set_rng_state(cks[0]["rng"])
