@@ -74,6 +74,9 @@ COMMANDS: dict[str, Command] = {
                     make="make_demo_config",
                     cost="≈ 8 min on 2 CPU cores: 2,400 episodes, four 2,200-step models of train's "
                          "'demo' preset, demo certificates"),
+    "export": Command("pokeworld.export", "ExportConfig",
+                      "a finished run as a model folder: model card, config.json, model.safetensors", "run_dir",
+                      make=""),
     "pairs": Command("pokeworld.sim.pairs", "PairsConfig", "matched-pairs figure", "out"),
     "plan": Command("pokeworld.plan", "PlanConfig", "CEM push-to-goal with trained runs", "out"),
     "rh20t-convert": Command("pokeworld.real.rh20t", "ConvertConfig", "convert RH20T scenes to a store", "root"),
