@@ -59,7 +59,7 @@ def heartbeat(tag: str, status: Callable[[], str] | str, every: float = HEARTBEA
             except Exception as e:  # noqa: BLE001 - a heartbeat must never end the work it reports on
                 now = f"(status unavailable: {type(e).__name__})"
             whole = f"; {_JOB[-1].status()}" if _JOB else ""  # the whole job's estimate, when one is kept
-            print(f"[{tag}] still working: {now} ({duration(time.monotonic() - start)} so far{whole})", flush=True)
+            print(f"[{tag}] still working: {now} ({duration(time.monotonic() - start)} so far){whole}", flush=True)
             sys.stdout.flush()
 
     thread = threading.Thread(target=beat, name=f"{tag}-heartbeat", daemon=True)
@@ -185,10 +185,9 @@ class JobEstimate:
         return min(1.0, done / total)
 
     def status(self) -> str:
-        """``whole job 42 % done, ~12 min 30 s left (about 21 min in all)``."""
+        """``whole job 42% done, ~12 min 30 s left of about 21 min 10 s``."""
         elapsed, left = self.now() - self.started, self.left()
-        return (f"whole job {self.fraction():.0%} done, ~{duration(left)} left (about {duration(elapsed + left)} "
-                "in all)")
+        return f"whole job {self.fraction():.0%} done, ~{duration(left)} left of about {duration(elapsed + left)}"
 
     def total(self) -> str:
         """``in 43 min 10 s (estimated at the start: 21 min 05 s)``, for the job's closing line."""
