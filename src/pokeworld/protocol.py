@@ -410,7 +410,8 @@ def certify_model(model: Union[StateFn, str, Path], data: Union[str, Path, Datas
     if config is not None and overrides:
         raise ConfigError("pass either config or field overrides, not both")
     cfg = config if config is not None else make_config(preset, **overrides)
-    if isinstance(model, (str, Path)):  # a run or exported folder: its weights checked before any data is read
+    # a run or exported folder, its weights checked before any data is read (any other string: "not callable")
+    if isinstance(model, (str, Path)) and Path(model).is_dir():
         name = name or Path(model).name
         model = load_model(model, map_location=cfg.device or "cpu").features
     t0 = time.time()
