@@ -175,3 +175,25 @@ def test_the_demo_estimates_its_whole_job_from_its_stages():
     assert costs["training and measurement"] > 300.0  # measurement inside the estimate
     line = stages.whole_job_line(progress.JobEstimate(costs), timed, slow)
     assert "2.0x the reference machine's; the whole job takes about " in line and "certificate " in line
+
+
+def test_a_stage_that_reports_its_work_is_estimated_at_its_own_rate(tmp_path):
+    clock = FakeClock()
+    job = progress.JobEstimate({"certify": 100, "train": 1000, "report": 10}, now=clock)
+    job.covers["train"] = 0.9  # training is 90 % of the stage; measuring the runs the rest
+    job.begin("certify")
+    clock.t += 200  # at half the predicted speed
+    job.end("certify")
+    with progress.whole_job(job):
+        job.begin("train")
+        clock.t += 300
+        assert job.left() == 2 * 1000 - 300 + 2 * 10  # no report yet: the prediction at this pace
+        _metrics(tmp_path / "a", [{"step": 50}])
+        _metrics(tmp_path / "b", [{"step": 50}])
+        runs = {"a": (tmp_path / "a", 100), "b": (tmp_path / "b", 100)}
+        assert progress.runs_fraction(runs) == 0.5
+        progress.report("train", progress.runs_fraction(runs))  # the runs train faster than predicted
+    assert job.fraction() == (100 + 1000 * 0.45) / 1110
+    assert job.left() == 300 * 0.55 / 0.45 + 2 * 10  # the stage at its own rate, the rest at the pace
+    progress.report("train", 1.0)  # no job any more: ignored
+    assert job.done_share["train"] == 0.45

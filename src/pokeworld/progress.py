@@ -93,6 +93,28 @@ def run_progress(name: str, run_dir: str | Path, steps: int) -> str:
     return line
 
 
+def runs_fraction(runs: dict[str, tuple[Path, int]]) -> float:
+    """The share of all the runs' training steps done (a trained run counts whole), from their metrics."""
+    done = total = 0
+    for run_dir, steps in runs.values():
+        total += steps
+        if (Path(run_dir) / "DONE").exists():
+            done += steps
+            continue
+        try:
+            rows = read_metrics(run_dir) if Path(run_dir).is_dir() else []
+        except PokeworldError:
+            rows = []
+        done += min(steps, int(rows[-1].get("step", 0))) if rows else 0
+    return done / total if total else 0.0
+
+
+def report(stage: str, fraction: float) -> None:
+    """Tell the whole job being estimated, if any, how far its running ``stage`` is (:meth:`JobEstimate.report`)."""
+    if _JOB:
+        _JOB[-1].report(stage, fraction)
+
+
 def runs_progress(runs: dict[str, tuple[Path, int]]) -> str:
     """The progress of several runs (name -> (run folder, total steps)): how many are trained and how many of those
     measured too, then the unfinished ones."""
@@ -124,6 +146,15 @@ class JobEstimate:
         self.taken: dict[str, float] = {}
         self.skipped: set[str] = set()
         self.running: tuple[str, float] | None = None
+        self.done_share: dict[str, float] = {}  # the running stage's share done, as its work reports it
+        self.covers: dict[str, float] = {}  # the share of a stage's cost its reported work stands for
+
+    def report(self, stage: str, fraction: float) -> None:
+        """The running ``stage``'s work is ``fraction`` done (e.g. training steps over all the runs' steps): its
+        time left then follows its own rate (elapsed over done) instead of its prediction. The part of the stage
+        that work stands for is ``covers[stage]`` (training, of a stage that measures the runs too)."""
+        if self.running and self.running[0] == stage:
+            self.done_share[stage] = min(1.0, max(0.0, fraction)) * self.covers.get(stage, 1.0)
 
     def set_cost(self, stage: str, seconds: float) -> None:
         """A stage's prediction, replaced by a better one (a timing made on this machine) before it starts."""
@@ -169,7 +200,9 @@ class JobEstimate:
         left = pace * sum(self.costs[s] for s in self._ahead())
         if self.running:
             name, begun = self.running
-            left += max(0.0, pace * self.costs.get(name, 0.0) - (self.now() - begun))
+            elapsed, done = self.now() - begun, self.done_share.get(name, 0.0)
+            left += (elapsed * (1 - done) / done if done > 0.02
+                     else max(0.0, pace * self.costs.get(name, 0.0) - elapsed))
         return left
 
     def fraction(self) -> float:
@@ -181,7 +214,8 @@ class JobEstimate:
         if self.running:
             name, begun = self.running
             cost = self.costs.get(name, 0.0)
-            done += cost * min(0.99, (self.now() - begun) / max(cost * self.pace(), 1e-9))
+            share = self.done_share.get(name) or (self.now() - begun) / max(cost * self.pace(), 1e-9)
+            done += cost * min(0.99, share)
         return min(1.0, done / total)
 
     def status(self) -> str:
@@ -224,5 +258,6 @@ def stage(name: str, tag: str) -> Iterator[None]:
         print(f"[{tag}] {job.end(name)}", flush=True)
 
 
-__all__ = ["HEARTBEAT_S", "quiet", "duration", "heartbeat", "run_progress", "runs_progress", "JobEstimate",
+__all__ = ["HEARTBEAT_S", "quiet", "duration", "heartbeat", "run_progress", "runs_progress", "runs_fraction",
+           "report", "JobEstimate",
            "whole_job", "stage"]

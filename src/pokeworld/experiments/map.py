@@ -201,6 +201,7 @@ def whole_job(c: MapConfig, specs: list, corpora: list[str], certify_order: list
         return None
     costs, slow = stages.whole_job_costs(c, corpora, certify_order, timed)
     job = progress.JobEstimate(costs)
+    job.covers[stages.TRAINING_STAGE] = timed["seconds"] / costs[stages.TRAINING_STAGE]  # training, then measuring
     print(stages.whole_job_line(job, timed, slow), flush=True)
     return job
 

@@ -24,7 +24,7 @@ from ..train import stacked as train_stacked
 from ..train.loop import past, status_every
 from .attributes import CORPUS_TARGETS
 from .config import MapConfig
-from .launch import cores, default_workers
+from .launch import TRAINING_STAGE, cores, default_workers
 from .registry import EXPERIMENTS
 from .runs import RunSpec, corpus_dir, run_dir, spec_measure_path, with_map_training
 
@@ -290,7 +290,6 @@ def training_estimate(c: MapConfig, specs: list[RunSpec], workers: int, threads:
             "on top")
 
 
-TRAINING_STAGE = "training and measurement"
 REPORT_STAGE = "report"
 
 
