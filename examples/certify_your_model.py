@@ -37,6 +37,17 @@ class TinyWorldModel(nn.Module):
         return states
 
 
+def verdict(claim: dict) -> str:
+    """What a row says: a gate that passed licenses a claim either way, so the line says which way it goes (the
+    model holds the parameter when its R² is above the untrained bound, or 0 without one)."""
+    if claim["status"] != "claim":
+        return claim["status"]  # "no claim (gate failed)" or "not gated"
+    bound = claim.get("untrained", 0.0)
+    if claim["ridge"] > max(bound, 0.0):
+        return "gate passed: claim — the model holds it (R² above the untrained bound)"
+    return "gate passed: claim — the model does not hold it (R² at or below the untrained bound)"
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="out/certify_example", help="where the corpus and the report go")
@@ -57,7 +68,7 @@ def main() -> None:
                            preset="tiny", certify_estimators=("gru", "linear", "drag"))
 
     for q, c in report["claims"].items():
-        print(f"{q:12s} ridge R² {c['ridge']:+.2f}  untrained {c.get('untrained', float('nan')):+.2f}  {c['status']}")
+        print(f"{q:12s} ridge R² {c['ridge']:+.2f}  untrained {c.get('untrained', float('nan')):+.2f}  {verdict(c)}")
     print(f"report: {out / 'report' / 'protocol.md'}")
 
 

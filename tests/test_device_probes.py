@@ -188,7 +188,7 @@ def test_device_states_are_the_host_states(tiny_run):
 # --------------------------------------------------------------------------- planning
 def start_history(cfg, setup):
     sim, obs = plan.start_sim(cfg, setup)
-    return {"frames": obs["vision"][:, None], "proprio": obs["proprio"][:, None], "touch": obs["touch"][:, None],
+    return {"frames": obs["vision"][:, None, ..., 0], "proprio": obs["proprio"][:, None], "touch": obs["touch"][:, None],
             "actions": np.zeros((cfg.episodes, 0, 2), np.float32)}
 
 

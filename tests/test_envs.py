@@ -39,7 +39,7 @@ def test_vector_env_next_step_autoreset():
     venv = gym.make_vec("pokeworld/PokeWorld-v0", num_envs=3, vectorization_mode="vector_entry_point",
                         max_steps=4)
     obs, info = venv.reset(seed=0)
-    assert obs["vision"].shape == (3, 64, 64)
+    assert obs["vision"].shape == (3, 64, 64, 1)
     masses = info["mass"].copy()
     for _ in range(3):
         _, _, _, trunc, _ = venv.step(np.zeros((3, 2), np.float32))
@@ -69,9 +69,9 @@ def test_import_pokeworld_alone_registers_without_loading_numba_or_torch():
             "assert not {'numba', 'torch', 'pokeworld.sim'} & set(sys.modules), sorted(sys.modules)\n"
             "env = gymnasium.make(pokeworld.ENV_ID)\n"
             "obs, info = env.reset(seed=0)\n"
-            "assert obs['vision'].shape == (64, 64)\n"
+            "assert obs['vision'].shape == (64, 64, 1)\n"
             "venv = gymnasium.make_vec(pokeworld.ENV_ID, num_envs=2, vectorization_mode='vector_entry_point')\n"
-            "assert venv.reset(seed=0)[0]['vision'].shape == (2, 64, 64)\n"
+            "assert venv.reset(seed=0)[0]['vision'].shape == (2, 64, 64, 1)\n"
             "import pokeworld.sim\n"
             "pokeworld.register_envs(); pokeworld.sim.register()  # idempotent\n"
             "print('ok')\n")

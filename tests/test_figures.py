@@ -165,6 +165,45 @@ def test_the_map_shows_the_paper_beside_ours_and_explains_itself(tmp_path, caugh
     assert "2 seeds" not in words  # every variant has both seeds: no per-variant count
 
 
+def planted_log_k(res: dict, values: dict) -> dict:
+    for run in res["runs"].values():
+        run["probes"]["ridge"]["contact"]["log_k"] = values[run["train"]["variant"]]
+    return res
+
+
+def test_the_map_states_its_conclusion_computed_from_its_numbers(tmp_path, caught):
+    from pokeworld.experiments import report
+
+    target = planted_log_k(map_results(), {"V": 0.0, "VF": 0.02, "VX_p": 0.0, "VX_t": 0.1, "VX": 0.2, "VFX": 0.40})
+    report.figure(target, tmp_path)
+    title = caught[-1].axes[0].get_title()
+    assert "Stiffness enters the latent only when touch is a forecasting target" in title
+    assert "VFX − VF = +0.38" in title and "VF − V = +0.02" in title and "paper +0.51" in title
+    none = planted_log_k(map_results(), {"V": 0.0, "VF": 0.02, "VX_p": 0.0, "VX_t": 0.0, "VX": 0.0, "VFX": 0.05})
+    assert report.map_conclusion(none).startswith("At this budget touch as a target does not put stiffness")
+    both = planted_log_k(map_results(), {"V": 0.0, "VF": 0.3, "VX_p": 0.0, "VX_t": 0.0, "VX": 0.0, "VFX": 0.6})
+    assert "with touch as a target and as an input" in report.map_conclusion(both)
+    assert report.map_conclusion(map_results(variants=("V", "VX_t"))) is None  # no VFX and VF: nothing to conclude
+
+
+def test_the_certificate_column_compares_gru_oracles_and_names_the_best_apart(tmp_path, caught):
+    from pokeworld.experiments import report
+
+    res = map_results()
+    res["certificates"]["standard"]["estimators"] = {"gru": {"contact": {"log_k": 0.9, "log_m": 0.83, "gamma": 0.81}},
+                                                     "drag": {"contact": {"gamma": 0.83}}}
+    M, _, cols, _ = report.map_matrix(res)
+    assert cols[0] == "certificate" and M[2, 0] == 0.81  # γ: our GRU oracle, beside the paper's GRU oracle
+    report.figure(res, tmp_path)
+    fig = caught[-1]
+    texts = [t.get_text() for t in fig.findobj(Text)]
+    assert f"paper {P.CERTIFICATES['gru']['gamma']:.2f}\nbest: drag 0.83" in texts
+    assert "certificate\n(GRU oracle)" in [t.get_text() for t in fig.axes[0].get_xticklabels()]
+    check_readable(fig)
+    without = map_results()  # no GRU oracle fit (the tiny preset): the best estimator, named
+    assert report.map_matrix(without)[0][2, 0] == 0.83
+
+
 def test_the_demo_map_names_its_training_preset_and_marks_a_failed_gate(tmp_path, caught):
     from pokeworld.experiments import report
 

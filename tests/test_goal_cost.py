@@ -18,7 +18,7 @@ def test_goal_observation_draws_the_object_at_the_goal_and_the_finger_behind_it(
     size = PHYS.image_size
     for i, g in enumerate(goal):
         row, col = int(g[1] * size), int(g[0] * size)
-        assert obs["vision"][i, row, col] == 255  # the object's centre pixel
+        assert obs["vision"][i, row, col, 0] == 255  # the object's centre pixel
     # touching the object on the far side from the finger: on the finger-goal line, at contact distance
     reach = PHYS.finger_radius + PHYS.object_radius
     np.testing.assert_allclose(obs["proprio"][:, :2], [[0.6 - reach, 0.5], [0.5, 0.3 + reach]], atol=1e-6)
@@ -85,7 +85,7 @@ def test_plan_with_the_goal_cost_on_a_trained_tiny_run(tmp_path):
     assert planned["setup"]["physics"].contact_damping == PHYS.contact_damping  # the run's own arena
     scorer = plan.LatentScorer(str(run), "", cost="goal_l1", physics=planned["setup"]["physics"])
     sim, obs = plan.start_sim(cfg, planned["setup"])
-    hist = {"frames": obs["vision"][:, None], "proprio": obs["proprio"][:, None], "touch": obs["touch"][:, None],
+    hist = {"frames": obs["vision"][:, None, ..., 0], "proprio": obs["proprio"][:, None], "touch": obs["touch"][:, None],
             "actions": np.zeros((cfg.episodes, 0, 2), np.float32)}
     cand = plan.rank_candidates(cfg)
     scores = scorer.score(hist, cand, planned["setup"]["goal"])

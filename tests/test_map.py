@@ -53,8 +53,16 @@ def test_glide_test_references(tiny_dataset):
 @pytest.mark.slow
 def test_tiny_map_writes_every_artifact_and_skips_on_rerun(tmp_path, capsys):
     out = tmp_path / "map"
-    c = experiment.make_config("tiny", out=str(out), workers=1)
+    c = experiment.make_config("tiny", out=str(out), workers=1, whole_job_estimate=True)
     experiment.run(c)
+    log = capsys.readouterr().out
+    # one whole-job estimate from the start, re-estimated at each stage's end, the total in the closing line
+    assert "[map] this machine, timed now: " in log and "the whole job takes about " in log
+    for stage in ("corpus standard", "certificate linear (standard, contact windows)", "training and measurement",
+                  "report"):
+        assert f"] {stage} took " in log and "whole job " in log.split(f"] {stage} took ", 1)[1].splitlines()[0]
+    closing = [line for line in log.splitlines() if line.startswith("[map] wrote ")][-1]
+    assert " in " in closing and "(estimated at the start: " in closing
     for name in ("results.json", "results.md", "identifiability_map.png", "identifiability_map.pdf", "map_config.json",
                  "data/standard/manifest.json", "data/standard/certificates.json"):
         assert (out / name).exists(), name
@@ -68,10 +76,10 @@ def test_tiny_map_writes_every_artifact_and_skips_on_rerun(tmp_path, capsys):
             assert (run / f).exists(), (run, f)
     md = (out / "results.md").read_text()
     assert "| V |" in md and "paper" in md
-    capsys.readouterr()
     experiment.run(c)  # second run: everything is skipped
     log = capsys.readouterr().out
     assert "already holds this corpus" in log and "up to date" in log
+    assert "corpus standard took" not in log  # found done: not timed as if this machine had made it in no time
 
 
 @pytest.mark.slow

@@ -52,7 +52,7 @@ def _rollout_scorer_composes_the_one_step_head(run):
 
     cfg = plan.make_config("tiny")
     sim, obs = plan.start_sim(cfg, plan.episode_setup(cfg))
-    hist = {"frames": obs["vision"][:, None], "proprio": obs["proprio"][:, None], "touch": obs["touch"][:, None],
+    hist = {"frames": obs["vision"][:, None, ..., 0], "proprio": obs["proprio"][:, None], "touch": obs["touch"][:, None],
             "actions": np.zeros((cfg.episodes, 0, 2), np.float32)}
     cand = plan.rank_candidates(cfg)
     direct, roll = plan.LatentScorer(str(run), ""), plan.LatentScorer(str(run), "", heads="rollout")

@@ -63,14 +63,21 @@ def test_runs_progress_puts_unfinished_runs_first(tmp_path):
     (tmp_path / "b" / "DONE").write_text("")
     (tmp_path / "b" / "measure.json").write_text("{}")
     line = progress.runs_progress({"a": (tmp_path / "a", 90), "b": (tmp_path / "b", 90)})
-    assert line == "training 1/2 runs finished; a 30/90 steps, 1 steps/s, ~1 min 00 s left"
+    assert line == "runs: 1 of 2 trained, 1 of 2 measured; a 30/90 steps, 1 steps/s, ~1 min 00 s left"
+
+
+def test_runs_progress_counts_a_run_being_measured_as_trained(tmp_path):
+    (tmp_path / "b").mkdir()
+    (tmp_path / "b" / "DONE").write_text("")
+    line = progress.runs_progress({"b": (tmp_path / "b", 90), "c": (tmp_path / "c", 90)})
+    assert line == "runs: 1 of 2 trained, 0 of 2 measured; b trained, being measured | c waiting"
 
 
 def test_launch_reports_the_workers_training(tmp_path):
     run = tmp_path / "r"
     _metrics(run, [{"step": 5, "steps_per_s": 5.0}])
     status = training_status([{"name": "r", "train": {"out": str(run), "steps": 10}}])
-    assert status() == "training 0/1 runs finished; r 5/10 steps, 5 steps/s, ~1 s left"
+    assert status() == "runs: 0 of 1 trained, 0 of 1 measured; r 5/10 steps, 5 steps/s, ~1 s left"
     assert launch(LaunchOptions(launcher="local", workers=1), [{"x": 1}], lambda j: {"y": j["x"]}) == [{"y": 1}]
 
 
@@ -101,3 +108,92 @@ def test_a_timing_leaves_the_process_as_it_was():
     threads, state = torch.get_num_threads(), torch.random.get_rng_state()
     assert seconds_per_step(make_config("tiny"), threads=1, steps=1) > 0
     assert torch.get_num_threads() == threads and torch.equal(torch.random.get_rng_state(), state)
+
+
+class FakeClock:
+    def __init__(self):
+        self.t = 1000.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def test_the_whole_job_estimate_weighs_stages_by_cost_and_follows_this_machine_s_pace():
+    clock = FakeClock()
+    job = progress.JobEstimate({"corpus": 10, "gru": 100, "linear": 1, "train": 300}, now=clock)
+    assert job.left() == 411 and job.fraction() == 0
+    job.begin("corpus")
+    clock.t += 20  # twice the prediction: the machine is at half speed
+    line = job.end("corpus")
+    assert line.startswith("corpus took 20 s (predicted 10 s); whole job 2% done")
+    assert job.pace() == 2.0 and job.left() == 2 * 401
+    job.begin("gru")
+    clock.t += 100  # half of gru at this pace: progress by cost, not by stage count (1 of 4 would read 25 %)
+    assert job.fraction() == (10 + 50) / 411
+    clock.t += 200  # gru ran past even the slowed prediction: the pace grows while it runs
+    assert job.pace() == (20 + 300) / (10 + 100) and job.left() == job.pace() * 301
+    job.end("gru")
+    job.skip("linear")  # found done: counts as done, leaves the pace alone
+    assert job.pace() == (20 + 300) / 110 and job.fraction() == 111 / 411
+    job.begin("train")
+    clock.t += 300
+    job.end("train")
+    assert job.left() == 0 and job.fraction() == 1
+    assert job.total() == "in 10 min 20 s (estimated at the start: 6 min 51 s)"  # 20 + 300 + 300 s
+
+
+def test_a_fast_machine_shortens_the_estimate_and_heartbeats_carry_it(capsys):
+    clock = FakeClock()
+    job = progress.JobEstimate({"a": 100, "b": 100}, now=clock)
+    with progress.whole_job(job):
+        with progress.stage("a", "map"):
+            clock.t += 50
+        assert "[map] a took 50 s (predicted 1 min 40 s); whole job 50% done, ~50 s left" in capsys.readouterr().out
+        with progress.stage("not a stage of the job", "certify"):  # a stage the job does not know: silent
+            clock.t += 5
+        assert capsys.readouterr().out == ""
+        with progress.heartbeat("certify", "fitting", every=0.03):
+            time.sleep(0.1)
+        assert "; whole job 50% done, ~50 s left" in capsys.readouterr().out
+    with progress.stage("b", "map"):  # no job any more: nothing is timed or said
+        pass
+    assert capsys.readouterr().out == "" and "b" not in job.taken
+
+
+def test_the_demo_estimates_its_whole_job_from_its_stages():
+    from pokeworld.experiments.presets import DEMO_REFERENCE_S_PER_STEP, make_demo_config
+
+    c = make_demo_config("cpu", out="unused")
+    assert c.whole_job_estimate
+    timed = {"seconds": 300.0, "rates": [2 * DEMO_REFERENCE_S_PER_STEP], "runs": 4, "threads": 1, "workers": 2}
+    costs, slow = stages.whole_job_costs(c, ["standard"], ["standard"], timed)
+    assert slow == 2.0
+    names = list(costs)
+    assert names[0] == "corpus standard" and names[-2:] == ["training and measurement", "report"]
+    gru = [n for n in names if n.startswith("certificate gru ")]
+    assert len(gru) == 1 and costs[gru[0]] == 120.0  # the reference cost, at this machine's (timed) slowdown
+    assert costs["training and measurement"] > 300.0  # measurement inside the estimate
+    line = stages.whole_job_line(progress.JobEstimate(costs), timed, slow)
+    assert "2.0x the reference machine's; the whole job takes about " in line and "certificate " in line
+
+
+def test_a_stage_that_reports_its_work_is_estimated_at_its_own_rate(tmp_path):
+    clock = FakeClock()
+    job = progress.JobEstimate({"certify": 100, "train": 1000, "report": 10}, now=clock)
+    job.covers["train"] = 0.9  # training is 90 % of the stage; measuring the runs the rest
+    job.begin("certify")
+    clock.t += 200  # at half the predicted speed
+    job.end("certify")
+    with progress.whole_job(job):
+        job.begin("train")
+        clock.t += 300
+        assert job.left() == 2 * 1000 - 300 + 2 * 10  # no report yet: the prediction at this pace
+        _metrics(tmp_path / "a", [{"step": 50}])
+        _metrics(tmp_path / "b", [{"step": 50}])
+        runs = {"a": (tmp_path / "a", 100), "b": (tmp_path / "b", 100)}
+        assert progress.runs_fraction(runs) == 0.5
+        progress.report("train", progress.runs_fraction(runs))  # the runs train faster than predicted
+    assert job.fraction() == (100 + 1000 * 0.45) / 1110
+    assert job.left() == 300 * 0.55 / 0.45 + 2 * 10  # the stage at its own rate, the rest at the pace
+    progress.report("train", 1.0)  # no job any more: ignored
+    assert job.done_share["train"] == 0.45

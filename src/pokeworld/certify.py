@@ -46,7 +46,7 @@ from .data import Dataset, load
 from .errors import ConfigError, DataError
 from .io import adopt_legacy, check_outputs, read_json, read_json_if_present, write_json
 from .models.xjepa import area_downsample
-from .progress import heartbeat
+from .progress import heartbeat, stage
 from .regressors import RidgeCV, TorchRegressor, r2_scores
 from .windows import Windows, make_windows, wall_contact
 
@@ -349,11 +349,18 @@ def _certify_kinds(ds: Dataset, fit_ds: Dataset, cfg: CertifyConfig, episodes, s
         for i, est in enumerate(cfg.estimators):
             now["what"] = f"{est} on {kind} windows ({len(w_fit)} fit / {len(w_test)} test; estimator {i + 1} of " \
                           f"{len(cfg.estimators)})"
-            r2 = _estimator_r2(est, ds, fit_ds, cfg, (w_fit, w_test), (y_fit, y_test), (fit_state, test_state), dt)
+            with stage(certify_stage(cfg.data, kind, est), "certify"):  # a whole job's estimate hears of it
+                r2 = _estimator_r2(est, ds, fit_ds, cfg, (w_fit, w_test), (y_fit, y_test), (fit_state, test_state),
+                                   dt)
             if r2 is None:
                 continue
             results["estimators"].setdefault(est, {})[kind] = r2
             print(f"[certify] {kind:8s} {est:11s} " + " ".join(f"{t}={v:+.3f}" for t, v in r2.items()), flush=True)
+
+
+def certify_stage(data: str, kind: str, estimator: str) -> str:
+    """The name of one estimator's fit as a stage of a whole job (:func:`pokeworld.progress.stage`)."""
+    return f"certificate {estimator} ({Path(data).name}, {kind} windows)"
 
 
 def certify(ds: Dataset, cfg: CertifyConfig, fit_ds: Dataset | None = None) -> dict:

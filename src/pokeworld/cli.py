@@ -74,6 +74,9 @@ COMMANDS: dict[str, Command] = {
                     make="make_demo_config",
                     cost="≈ 8 min on 2 CPU cores: 2,400 episodes, four 2,200-step models of train's "
                          "'demo' preset, demo certificates"),
+    "export": Command("pokeworld.export", "ExportConfig",
+                      "a finished run as a model folder: model card, config.json, model.safetensors", "run_dir",
+                      make=""),
     "pairs": Command("pokeworld.sim.pairs", "PairsConfig", "matched-pairs figure", "out"),
     "plan": Command("pokeworld.plan", "PlanConfig", "CEM push-to-goal with trained runs", "out"),
     "rh20t-convert": Command("pokeworld.real.rh20t", "ConvertConfig", "convert RH20T scenes to a store", "root"),
@@ -343,18 +346,19 @@ def closing_line(name: str, cfg, result, since: float) -> str:
         if name == "stats":
             return f"[{name}] wrote nothing; the statistics above are also in {Path(cfg.data) / 'manifest.json'}"
         result = Path(getattr(cfg, "out", "") or ".")
-    new = written_since(result, since)
+    new = [p for p in written_since(result, since) if not p.name.startswith(".")]  # not the ownership record
     if not new:
         return f"[{name}] {result} is up to date; skipped (nothing recomputed)"
     if new == [result]:
         return f"[{name}] wrote {result}"
-    names = ", ".join(p.name for p in new[:5]) + (f" and {len(new) - 5} more" if len(new) > 5 else "")
+    names = ", ".join(p.name for p in new[:8]) + (f" and {len(new) - 8} more" if len(new) > 8 else "")
     return f"[{name}] wrote {names} → {result}"
 
 
-def run_and_report(name: str, cfg, runner) -> None:
+def run_and_report(name: str, cfg, runner, preset: str = "") -> None:
     """Run the command, then end with one line saying what it wrote where (or that it skipped), unless the
-    command's own last line already named its output."""
+    command's own last line already named its output. ``preset``: the one --preset named (a config without a
+    ``preset`` field does not record it)."""
     finished_before = name == "train" and (Path(cfg.out) / "DONE").exists()
     since = time.time() - MTIME_SLACK_S
     tee = LastLine(sys.stdout)
@@ -364,18 +368,24 @@ def run_and_report(name: str, cfg, runner) -> None:
         print(train_closing(Path(result), finished_before))
         return
     named = isinstance(result, Path) and str(result) in tee.last_line
-    if name in SMOKE_NOTE_COMMANDS and getattr(cfg, "preset", "") == "tiny":
-        print(SMOKE_NOTE)
-    if not named:
+    noted = name in SMOKE_NOTE_COMMANDS and (getattr(cfg, "preset", "") or preset) == "tiny"
+    if noted:
+        print(CERTIFY_SMOKE_NOTE if name == "certify" else SMOKE_NOTE)
+    if noted or not named:  # the last line still says what was written where
         print(closing_line(name, cfg, result, since))
 
 
 #: Commands whose tables, at the tiny preset, show numbers a newcomer would take for results (errors in the
 #: thousands, "no effect at this budget"); ``plan`` says so under its own table (plan.table_lines).
-SMOKE_NOTE_COMMANDS = ("map",)
+SMOKE_NOTE_COMMANDS = ("map", "certify")
 SMOKE_NOTE = ("Note: the tiny preset's models are smoke-test sized, so the numbers above (prediction errors in the "
               "hundreds or thousands, no effects) test the pipeline, not the paper: run --preset cpu (or paper) for "
               "numbers worth reading.")
+#: ``certify --preset tiny``: a FAIL there says the smoke-sized estimators learned nothing, not that the data lacks
+#: the parameter.
+CERTIFY_SMOKE_NOTE = ("Note: the tiny preset's estimators are smoke-test sized (a few epochs on a few windows), so "
+                      "a FAIL above tests the pipeline, not the corpus: run --preset cpu (the default) for "
+                      "certificates worth reading.")
 
 
 def _flag_arity(cls, prefix: str = "") -> dict[str, int]:
@@ -484,9 +494,15 @@ def interrupted_exit(name: str, argv: list[str], e: KeyboardInterrupt) -> int:
         print(f"[{name}] {e}", file=sys.stderr)
         return e.exit_code
     said = f"{e}; " if str(e) else ""
-    print(f"pokeworld {name}: interrupted: {said}to resume, run: pokeworld {shlex.join([name, *argv])}",
-          file=sys.stderr)
+    again = (f"to resume, run: pokeworld {shlex.join([name, *argv])}" if name in RESUMING_COMMANDS else
+             f"nothing partial is kept, so it starts over: run again: pokeworld {shlex.join([name, *argv])}")
+    print(f"pokeworld {name}: interrupted: {said}{again}", file=sys.stderr)
     return 130
+
+
+#: Commands whose rerun continues where an interrupted one stopped (checkpoints, finished runs skipped); the others
+#: write their outputs whole at the end and start over (``generate`` simulates its corpus again from the start).
+RESUMING_COMMANDS = ("train", "train-stacked", "map", "demo")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -501,7 +517,8 @@ def main(argv: list[str] | None = None) -> int:
     cmd = COMMANDS[name]
     try:
         cfg = parse_config(name, argv)
-        run_and_report(name, cfg, getattr(importlib.import_module(cmd.module), cmd.runner))
+        preset = split_args(argv, None, {})[0] if preset_given(argv) else ""
+        run_and_report(name, cfg, getattr(importlib.import_module(cmd.module), cmd.runner), preset)
     except PokeworldError as e:
         print(f"pokeworld {name}: error: {e}", file=sys.stderr)
         return 2

@@ -40,6 +40,7 @@ from .preflight import require_finished_runs
 from .run_store import trained_store
 from .rundir import load_model
 from .sim import PhysicsConfig, PokeWorldSim, physics as physics_kernels
+from .sim.envs import vision_frames
 from .sim.generate import generator_config
 from .sim.policy import KNOT_SD, PROGRAM, programs
 
@@ -252,7 +253,7 @@ class LatentScorer:
         placed from the history's last proprio), computed once per replan."""
         if self._goal is None or self._goal[0] is not hist or self._goal[1] is not goal:
             obs = goal_observation(self.physics, hist["proprio"][:, -1, :2], goal, self.goal_finger)
-            z = self.model.encode(obs["vision"][:, None], obs["proprio"][:, None], obs["touch"][:, None])[:, 0]
+            z = self.model.encode(vision_frames(obs["vision"])[:, None], obs["proprio"][:, None], obs["touch"][:, None])[:, 0]
             self._goal = (hist, goal, z)
         return self._goal[2]
 
@@ -285,7 +286,7 @@ class LatentScorer:
         """The goal cost of the *true* observations Δ steps into each program ({Δ: observations (E·P, ...)}),
         encoded by this model: how the cost ranks when the heads' predictions are perfect (the rank test's
         goal control, the counterpart of the decoder control)."""
-        z = {d: self.model.encode(o["vision"][:, None], o["proprio"][:, None], o["touch"][:, None])[:, 0]
+        z = {d: self.model.encode(vision_frames(o["vision"])[:, None], o["proprio"][:, None], o["touch"][:, None])[:, 0]
              for d, o in observations.items()}
         return self.goal_cost(z, self.goal_latents(hist, goal))
 
@@ -307,7 +308,7 @@ def goal_observation(physics: PhysicsConfig, finger: np.ndarray, goal: np.ndarra
     frames = np.zeros((len(fp), size, size), np.uint8)
     physics_kernels.render_kernel(state, frames, physics.finger_radius, physics.object_radius, physics.arena,
                                   physics.object_intensity, physics.finger_intensity)
-    return {"vision": frames, "proprio": np.concatenate([fp, np.zeros_like(fp)], 1).astype(np.float32),
+    return {"vision": frames[..., None], "proprio": np.concatenate([fp, np.zeros_like(fp)], 1).astype(np.float32),
             "touch": np.zeros((len(fp), physics_kernels.TOUCH_DIM), np.float32)}
 
 
@@ -409,7 +410,7 @@ def rank_test(cfg: PlanConfig, setup: dict, scorer) -> dict:
     phantom pushes from a decoder that reads them into frames where nothing moved.
     """
     sim, obs = start_sim(cfg, setup)
-    hist = {"frames": obs["vision"][:, None], "proprio": obs["proprio"][:, None], "touch": obs["touch"][:, None],
+    hist = {"frames": vision_frames(obs["vision"])[:, None], "proprio": obs["proprio"][:, None], "touch": obs["touch"][:, None],
             "actions": np.zeros((cfg.episodes, 0, 2), np.float32)}
     cand, goal = rank_candidates(cfg), setup["goal"]
     path = SimulatorScorer(sim).rollout(cand)
@@ -440,7 +441,7 @@ def control(cfg: PlanConfig, setup: dict, scorer: LatentScorer | None, simulator
         scorer = SimulatorScorer(sim)
     rng = np.random.default_rng(cfg.seed + 1)
     goal = setup["goal"]
-    hist = {"frames": [obs["vision"]], "proprio": [obs["proprio"]], "touch": [obs["touch"]], "actions": []}
+    hist = {"frames": [vision_frames(obs["vision"])], "proprio": [obs["proprio"]], "touch": [obs["touch"]], "actions": []}
     dist = [np.linalg.norm(sim.state[:, 4:6] - goal, axis=1)]
     obj_path, finger_path = [sim.state[:, 4:6].copy()], [sim.state[:, 0:2].copy()]
     plan = np.zeros((n, PROGRAM, 2))
@@ -465,7 +466,7 @@ def control(cfg: PlanConfig, setup: dict, scorer: LatentScorer | None, simulator
                 plan = programs(mu)
         a = plan[:, k]
         obs = sim.step(a)
-        hist["frames"].append(obs["vision"])
+        hist["frames"].append(vision_frames(obs["vision"]))
         hist["proprio"].append(obs["proprio"])
         hist["touch"].append(obs["touch"])
         hist["actions"].append(a.astype(np.float32))

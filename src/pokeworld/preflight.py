@@ -11,7 +11,7 @@ from typing import Any
 
 from .errors import ConfigError
 from .run_store import trained_store
-from .rundir import finished_run_config, read_run_config
+from .rundir import finished_run_config, has_final_weights, read_run_config
 
 
 def finished_run(run_dir: str | os.PathLike) -> dict[str, Any]:
@@ -19,7 +19,7 @@ def finished_run(run_dir: str | os.PathLike) -> dict[str, Any]:
     ``final.pt`` would otherwise be read from its last ``ckpt.pt``, an unfinished model, under the finished run's
     name. The refusal is the same line either way."""
     cfg = finished_run_config(run_dir)
-    if not (Path(run_dir) / "final.pt").is_file():
+    if not has_final_weights(run_dir):
         raise ConfigError(f"{run_dir} has not finished training; re-run `pokeworld train` to resume it")
     return cfg
 

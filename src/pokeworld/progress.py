@@ -1,6 +1,7 @@
 """Progress of long work, so that slow never reads as hung: a heartbeat line at least every 30 s while a stage runs
-(on a terminal and in a redirected log alike), and the training progress of runs that other processes train, read
-from their ``metrics.jsonl`` (steps, steps/s, time left).
+(on a terminal and in a redirected log alike), the training progress of runs that other processes train, read
+from their ``metrics.jsonl`` (steps, steps/s, time left), and one whole-job estimate (:class:`JobEstimate`),
+re-estimated as each stage finishes from what this machine actually did.
 
 ``quiet(True)`` (``--quiet`` on ``map`` / ``demo``) silences the heartbeats; the stage lines stay.
 """
@@ -57,7 +58,8 @@ def heartbeat(tag: str, status: Callable[[], str] | str, every: float = HEARTBEA
                 now = status() if callable(status) else status
             except Exception as e:  # noqa: BLE001 - a heartbeat must never end the work it reports on
                 now = f"(status unavailable: {type(e).__name__})"
-            print(f"[{tag}] still working: {now} ({duration(time.monotonic() - start)} so far)", flush=True)
+            whole = f"; {_JOB[-1].status()}" if _JOB else ""  # the whole job's estimate, when one is kept
+            print(f"[{tag}] still working: {now} ({duration(time.monotonic() - start)} so far){whole}", flush=True)
             sys.stdout.flush()
 
     thread = threading.Thread(target=beat, name=f"{tag}-heartbeat", daemon=True)
@@ -91,12 +93,171 @@ def run_progress(name: str, run_dir: str | Path, steps: int) -> str:
     return line
 
 
+def runs_fraction(runs: dict[str, tuple[Path, int]]) -> float:
+    """The share of all the runs' training steps done (a trained run counts whole), from their metrics."""
+    done = total = 0
+    for run_dir, steps in runs.values():
+        total += steps
+        if (Path(run_dir) / "DONE").exists():
+            done += steps
+            continue
+        try:
+            rows = read_metrics(run_dir) if Path(run_dir).is_dir() else []
+        except PokeworldError:
+            rows = []
+        done += min(steps, int(rows[-1].get("step", 0))) if rows else 0
+    return done / total if total else 0.0
+
+
+def report(stage: str, fraction: float) -> None:
+    """Tell the whole job being estimated, if any, how far its running ``stage`` is (:meth:`JobEstimate.report`)."""
+    if _JOB:
+        _JOB[-1].report(stage, fraction)
+
+
 def runs_progress(runs: dict[str, tuple[Path, int]]) -> str:
-    """The progress of several runs (name -> (run folder, total steps)), the unfinished ones first."""
+    """The progress of several runs (name -> (run folder, total steps)): how many are trained and how many of those
+    measured too, then the unfinished ones."""
     lines = [run_progress(n, d, s) for n, (d, s) in runs.items()]
-    done = sum(line.endswith(" finished") for line in lines)
+    measured = sum(line.endswith(" finished") for line in lines)
+    trained = measured + sum(line.endswith(" being measured") for line in lines)
     busy = [line for line in lines if not line.endswith(" finished")]
-    return f"training {done}/{len(lines)} runs finished" + ("; " + " | ".join(busy) if busy else "")
+    return (f"runs: {trained} of {len(lines)} trained, {measured} of {len(lines)} measured"
+            + ("; " + " | ".join(busy) if busy else ""))
 
 
-__all__ = ["HEARTBEAT_S", "quiet", "duration", "heartbeat", "run_progress", "runs_progress"]
+class JobEstimate:
+    """One estimate of a whole job's time, from its start to its last line, re-estimated as each stage finishes.
+
+    ``costs`` maps each stage, in order, to its predicted seconds on this machine (a timing made at the start, or a
+    reference cost scaled by it). Progress is the share of the predicted cost that is done, so a stage that takes
+    ten minutes weighs what it costs, not one stage in N. The *pace* is the actual over the predicted time of the
+    finished stages (and of the running one, once it has run past its prediction): 2.0 means this machine is doing
+    the work at half the predicted speed (another job on its cores, say), and every prediction still ahead is
+    scaled by it. Stages found done already (a resumed job) count as done without entering the pace. ``now`` is
+    the clock (a test passes a fake one).
+    """
+
+    def __init__(self, costs: dict[str, float], now: Callable[[], float] = time.monotonic):
+        self.costs = {k: max(0.0, float(v)) for k, v in costs.items()}
+        self.now = now
+        self.started = now()
+        self.initial = sum(self.costs.values())
+        self.taken: dict[str, float] = {}
+        self.skipped: set[str] = set()
+        self.running: tuple[str, float] | None = None
+        self.done_share: dict[str, float] = {}  # the running stage's share done, as its work reports it
+        self.covers: dict[str, float] = {}  # the share of a stage's cost its reported work stands for
+
+    def report(self, stage: str, fraction: float) -> None:
+        """The running ``stage``'s work is ``fraction`` done (e.g. training steps over all the runs' steps): its
+        time left then follows its own rate (elapsed over done) instead of its prediction. The part of the stage
+        that work stands for is ``covers[stage]`` (training, of a stage that measures the runs too)."""
+        if self.running and self.running[0] == stage:
+            self.done_share[stage] = min(1.0, max(0.0, fraction)) * self.covers.get(stage, 1.0)
+
+    def set_cost(self, stage: str, seconds: float) -> None:
+        """A stage's prediction, replaced by a better one (a timing made on this machine) before it starts."""
+        self.costs[stage] = max(0.0, float(seconds))
+
+    def begin(self, stage: str) -> None:
+        self.running = (stage, self.now())
+
+    def end(self, stage: str) -> str:
+        """Close ``stage`` (begun with :meth:`begin`); the line saying what it took and the re-estimate."""
+        begun = self.running[1] if self.running and self.running[0] == stage else self.now()
+        self.taken[stage] = self.now() - begun
+        self.running = None
+        return (f"{stage} took {duration(self.taken[stage])} (predicted {duration(self.costs.get(stage, 0))}); "
+                + self.status())
+
+    def skip(self, stage: str) -> None:
+        """``stage`` was done already: it counts as done, and its (near-zero) time does not set the pace."""
+        self.skipped.add(stage)
+        if self.running and self.running[0] == stage:
+            self.running = None
+
+    def pace(self) -> float:
+        """Actual over predicted time of the work finished so far (1.0 before any), the running stage included
+        once it has run past its prediction at that pace."""
+        predicted = sum(self.costs.get(s, 0.0) for s in self.taken)
+        actual = sum(self.taken.values())
+        pace = actual / predicted if predicted > 0 else 1.0
+        if self.running:
+            name, begun = self.running
+            cost, elapsed = self.costs.get(name, 0.0), self.now() - begun
+            if cost > 0 and elapsed > cost * pace:
+                pace = (actual + elapsed) / (predicted + cost)
+        return pace
+
+    def _ahead(self) -> list[str]:
+        done = set(self.taken) | self.skipped | ({self.running[0]} if self.running else set())
+        return [s for s in self.costs if s not in done]
+
+    def left(self) -> float:
+        """Seconds still to go: every stage ahead at the current pace, and what remains of the running one."""
+        pace = self.pace()
+        left = pace * sum(self.costs[s] for s in self._ahead())
+        if self.running:
+            name, begun = self.running
+            elapsed, done = self.now() - begun, self.done_share.get(name, 0.0)
+            left += (elapsed * (1 - done) / done if done > 0.02
+                     else max(0.0, pace * self.costs.get(name, 0.0) - elapsed))
+        return left
+
+    def fraction(self) -> float:
+        """The share of the job's predicted cost that is done (the running stage by its elapsed time)."""
+        total = sum(self.costs.values())
+        if total <= 0:
+            return 1.0
+        done = sum(self.costs.get(s, 0.0) for s in set(self.taken) | self.skipped)
+        if self.running:
+            name, begun = self.running
+            cost = self.costs.get(name, 0.0)
+            share = self.done_share.get(name) or (self.now() - begun) / max(cost * self.pace(), 1e-9)
+            done += cost * min(0.99, share)
+        return min(1.0, done / total)
+
+    def status(self) -> str:
+        """``whole job 42% done, ~12 min 30 s left of about 21 min 10 s``."""
+        elapsed, left = self.now() - self.started, self.left()
+        return f"whole job {self.fraction():.0%} done, ~{duration(left)} left of about {duration(elapsed + left)}"
+
+    def total(self) -> str:
+        """``in 43 min 10 s (estimated at the start: 21 min 05 s)``, for the job's closing line."""
+        return f"in {duration(self.now() - self.started)} (estimated at the start: {duration(self.initial)})"
+
+
+_JOB: list[JobEstimate] = []
+
+
+@contextlib.contextmanager
+def whole_job(estimate: JobEstimate | None) -> Iterator[JobEstimate | None]:
+    """While the block runs, heartbeats end with ``estimate``'s status and :func:`stage` blocks report to it."""
+    if estimate is None:
+        yield None
+        return
+    _JOB.append(estimate)
+    try:
+        yield estimate
+    finally:
+        _JOB.remove(estimate)
+
+
+@contextlib.contextmanager
+def stage(name: str, tag: str) -> Iterator[None]:
+    """A stage of the whole job, when one is being estimated and has a stage called ``name``: begun here, and at its
+    end a line ``[tag] <name> took …; whole job … done, ~… left``. Nothing otherwise (a command run on its own)."""
+    job = _JOB[-1] if _JOB and name in _JOB[-1].costs else None
+    if job is not None and (name in job.skipped or name in job.taken):  # found done already: not timed again
+        job = None
+    if job is not None:
+        job.begin(name)
+    yield
+    if job is not None:
+        print(f"[{tag}] {job.end(name)}", flush=True)
+
+
+__all__ = ["HEARTBEAT_S", "quiet", "duration", "heartbeat", "run_progress", "runs_progress", "runs_fraction",
+           "report", "JobEstimate",
+           "whole_job", "stage"]

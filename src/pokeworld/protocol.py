@@ -61,6 +61,7 @@ from .evaluate.measure import (
     probe_windows,
 )
 from .io import atomic_path, hash_arrays, read_json, read_json_if_present, save_text, write_json
+from .rundir import load_model
 
 CERTIFICATES = "a certificate record (certificates.json)"
 
@@ -387,14 +388,16 @@ def claims(res: dict, gate: dict, kind: str = "contact") -> dict:
     return out
 
 
-def certify_model(model: StateFn, data: Union[str, Path, Dataset], out: Union[str, Path],
+def certify_model(model: Union[StateFn, str, Path], data: Union[str, Path, Dataset], out: Union[str, Path],
                   untrained: StateFn | None = None, *, certificates: dict | str | Path | None = None,
                   name: str | None = None, config: ProtocolConfig | None = None, preset: str = "cpu",
                   **overrides) -> dict:
     """Run the certificate-gated protocol on ``model`` and write the report to ``out``.
 
     Args:
-        model: ``(frames, proprio, touch, actions) -> (B, L, D)`` states (see the module docstring).
+        model: ``(frames, proprio, touch, actions) -> (B, L, D)`` states (see the module docstring), or the path
+            of a finished X-JEPA run or an exported model folder (``pokeworld export``), read through
+            :func:`pokeworld.rundir.load_model` and certified through its ``features``.
         data: a store directory (``pokeworld generate`` output) or an in-memory :class:`Dataset`.
         out: report directory (protocol.json, protocol.md, protocol.png; certificates.json when computed).
         untrained: the same architecture at initialisation, for the untrained bound (optional).
@@ -407,6 +410,10 @@ def certify_model(model: StateFn, data: Union[str, Path, Dataset], out: Union[st
     if config is not None and overrides:
         raise ConfigError("pass either config or field overrides, not both")
     cfg = config if config is not None else make_config(preset, **overrides)
+    # a run or exported folder, its weights checked before any data is read (any other string: "not callable")
+    if isinstance(model, (str, Path)) and Path(model).is_dir():
+        name = name or Path(model).name
+        model = load_model(model, map_location=cfg.device or "cpu").features
     t0 = time.time()
     data_path = None if isinstance(data, Dataset) else Path(data)
     ds = data if isinstance(data, Dataset) else load(data)

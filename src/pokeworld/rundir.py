@@ -44,6 +44,7 @@ from .io import (
     read_json,
     read_regular_bytes,
 )
+from .model_folder import WEIGHTS, exported_config, folder_config, read_weights
 from .models.xjepa import VALUES_BEFORE_THE_FIELD, XJEPA, check_model_kwargs
 
 #: The names training writes in a run directory (``tb`` a folder, the rest regular files).
@@ -110,13 +111,16 @@ def check_run_dir_writable(out: str | os.PathLike) -> None:
 
 
 def read_run_config(run_dir: str | os.PathLike) -> dict[str, Any] | None:
-    """A run's ``config.json`` as a dict (None when it has none); DataError when it is not a JSON object."""
+    """A run's ``config.json`` as a dict (None when it has none); DataError when it is not a JSON object. For an
+    exported model folder (:mod:`pokeworld.model_folder`), the training config of the run it was exported from."""
     path = Path(run_dir) / "config.json"
     check_run_files(run_dir)
     if not path.exists():
         return None
-    return read_json(path, "a run's config.json", dict, MAX_CONFIG_BYTES,
-                     remedy="restore the file or train the run again into a new folder")
+    cfg = read_json(path, "a run's config.json", dict, MAX_CONFIG_BYTES,
+                    remedy="restore the file or train the run again into a new folder")
+    exported = exported_config(cfg, path)
+    return exported["train_config"] if exported is not None else cfg
 
 
 class MetricsLog:
@@ -181,12 +185,26 @@ def finished_run_config(run_dir: str | os.PathLike) -> dict[str, Any]:
     cfg = read_run_config(run_dir)
     if cfg is None:
         raise ConfigError(not_a_run(run_dir))
-    if not (run_dir / "DONE").exists():
+    if not finished_marker(run_dir).exists():
         raise ConfigError(f"{run_dir} has not finished training; re-run `pokeworld train` to resume it")
     if not isinstance(cfg.get("data"), str) or not cfg["data"]:
         raise DataError(f"{run_dir / 'config.json'} names no dataset (its 'data' is {cfg.get('data')!r:.60}, not a "
                         "path); the run folder is damaged: pass the corpus with --data")
     return cfg
+
+
+def finished_marker(run_dir: str | os.PathLike) -> Path:
+    """The file whose presence (and modification time) says a run finished: ``DONE`` in a training run, the
+    weights in an exported model folder."""
+    run_dir = Path(run_dir)
+    return run_dir / (WEIGHTS if folder_config(run_dir) is not None else "DONE")
+
+
+def has_final_weights(run_dir: str | os.PathLike) -> bool:
+    """Whether ``run_dir`` holds a finished model: ``final.pt`` in a training run, the weights in an exported
+    model folder."""
+    run_dir = Path(run_dir)
+    return (run_dir / "final.pt").is_file() or (folder_config(run_dir) is not None and (run_dir / WEIGHTS).is_file())
 
 
 def read_metrics(run_dir: str | os.PathLike) -> list[dict[str, Any]]:
@@ -304,9 +322,14 @@ def model_from_checkpoint(ck: dict[str, Any], path: Path) -> XJEPA:
 
 def load_model(run_dir: str | os.PathLike, map_location: str | torch.device = "cpu",
                final: bool | None = None) -> XJEPA:
-    """Load a trained model (eval mode) from a run directory: ``final.pt`` if present, else ``ckpt.pt``."""
+    """Load a trained model (eval mode) from a run directory: ``final.pt`` if present, else ``ckpt.pt``; or from
+    an exported model folder (its ``model.safetensors``, checked as a checkpoint is)."""
     run_dir = Path(run_dir)
     check_run_files(run_dir)
+    exported = folder_config(run_dir)
+    if exported is not None:
+        ck = {"model": read_weights(run_dir), "model_kwargs": exported["model_kwargs"]}
+        return model_from_checkpoint(ck, run_dir / WEIGHTS).to(map_location).eval()
     path = run_dir / "final.pt"
     if final is False or not path.exists():
         path = run_dir / "ckpt.pt"
@@ -319,4 +342,4 @@ def load_model(run_dir: str | os.PathLike, map_location: str | torch.device = "c
 __all__ = ["RUN_FILES", "adopt_legacy_run", "MAX_MODEL_ELEMENTS", "RESUME_ENTRIES", "MetricsLog", "check_run_files",
            "check_run_dir_writable", "read_run_config", "write_final", "restart_metrics", "finished_run_config",
            "load_model", "model_from_checkpoint", "check_state_fits", "load_resume_checkpoint", "restoring",
-           "read_metrics", "last_logged_step"]
+           "read_metrics", "last_logged_step", "finished_marker", "has_final_weights"]

@@ -39,7 +39,7 @@ class ShuffledScorer:
 def _info(cfg):
     setup = episode_setup(cfg.plan)
     sim, obs = start_sim(cfg.plan, setup)
-    hist = {"frames": [obs["vision"]], "proprio": [obs["proprio"]], "touch": [obs["touch"]], "actions": []}
+    hist = {"frames": [obs["vision"][..., 0]], "proprio": [obs["proprio"]], "touch": [obs["touch"]], "actions": []}
     return sim, info_for(hist, setup["goal"], cfg.plan.context), setup
 
 

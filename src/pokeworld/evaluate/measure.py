@@ -54,7 +54,7 @@ from ..io import check_outputs, check_writable_dir, read_json, write_json
 from ..models.xjepa import XJEPA
 from ..preflight import finished_run
 from ..run_store import trained_store
-from ..rundir import adopt_legacy_run, load_model, read_run_config
+from ..rundir import adopt_legacy_run, finished_marker, load_model, read_run_config
 from .prediction import (  # noqa: F401
     CONTEXT,
     HORIZON,
@@ -325,7 +325,7 @@ def run(cfg: MeasureConfig) -> Path:
         del cfg_key["context"]
     del cfg_key["device"], cfg_key["probe_device"]  # where states and probes were computed, not what was measured
     key = {"config": cfg_key, "data_sha256": read_manifest(data).get("content_sha256"),
-           "final_mtime": (run_dir / "DONE").stat().st_mtime_ns}
+           "final_mtime": finished_marker(run_dir).stat().st_mtime_ns}
     prev = earlier_measurement(out, cfg.overwrite)
     if prev is not None and not cfg.overwrite and covers(prev.get("key"), key):
         print(f"[measure] {out} is up to date; skipping")

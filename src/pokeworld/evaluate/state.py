@@ -13,6 +13,7 @@ import torch
 
 from ..data import Dataset
 from ..errors import ConfigError
+from ..sim.envs import vision_frames
 
 PROBE_DEVICES = ("auto", "host", "model")
 """Where probes of a model's states run (``MeasureConfig.probe_device``, :func:`probes_on_device`)."""
@@ -46,11 +47,11 @@ def as_model_input(model, x) -> torch.Tensor:
 
 @torch.no_grad()
 def encode_observations(model, obs: dict, batch: int = 1024, keep_tokens: bool = False) -> np.ndarray:
-    """Single observations {"vision" (N, H, W), "proprio" (N, P), "touch" (N, T)} -> (N, D) float32 encoder
+    """Single observations {"vision" (N, H, W, 1), "proprio" (N, P), "touch" (N, T)} -> (N, D) float32 encoder
     latents, ``batch`` at a time; token models give the mean over tokens, or with ``keep_tokens`` (N, S, D)."""
-    out = []
-    for i in range(0, len(obs["vision"]), batch):
-        z = model.encode(*(obs[k][i:i + batch, None] for k in ("vision", "proprio", "touch")))[:, 0]
+    out, frames = [], vision_frames(obs["vision"])
+    for i in range(0, len(frames), batch):
+        z = model.encode(frames[i:i + batch, None], *(obs[k][i:i + batch, None] for k in ("proprio", "touch")))[:, 0]
         out.append(z.mean(1) if z.dim() == 3 and not keep_tokens else z)
     return torch.cat(out).float().cpu().numpy()
 

@@ -11,7 +11,10 @@ from typing import Any, Callable
 
 from ..config import Limit, check_fields
 from ..errors import ConfigError
-from ..progress import heartbeat, runs_progress
+from ..progress import heartbeat, report, runs_fraction, runs_progress
+
+TRAINING_STAGE = "training and measurement"
+"""The map's stage that trains and measures its runs (a whole-job estimate hears how far its training is)."""
 
 
 @dataclass
@@ -60,7 +63,13 @@ def training_status(jobs: list[dict]):
         if "out" in tr:
             steps = tr.get("steps") or make_config(j.get("train_preset", "cpu")).steps
             runs[j.get("name", Path(tr["out"]).name)] = (Path(tr["out"]), int(steps))
-    return lambda: runs_progress(runs) if runs else f"{len(jobs)} jobs running"
+    def status() -> str:
+        if not runs:
+            return f"{len(jobs)} jobs running"
+        report(TRAINING_STAGE, runs_fraction(runs))  # the whole job's estimate follows the runs' own rate
+        return runs_progress(runs)
+
+    return status
 
 
 def _execute(c: LaunchOptions, jobs: list[dict], fn: Callable[[dict], dict], name: str) -> list[dict]:
@@ -101,4 +110,4 @@ def default_workers(n_jobs: int) -> int:
     return max(1, min(n_jobs, cores()))
 
 
-__all__ = ["LaunchOptions", "launch", "cores", "default_workers"]
+__all__ = ["LaunchOptions", "TRAINING_STAGE", "launch", "cores", "default_workers"]

@@ -18,6 +18,7 @@ from pathlib import Path
 
 from .. import clock, progress
 from ..config import to_dict
+from ..data import is_complete
 from ..errors import PokeworldError
 from ..io import adopt_legacy, check_writable_dir, dir_lock, read_json_if_present, remove_stale_temporaries, write_json
 from ..train.loop import past
@@ -28,6 +29,7 @@ from .launch import cores, default_workers, launch
 from .planning import ensure_planning
 from .presets import check_names
 from .record import read_record
+from .runs import corpus_dir
 
 MAP_LOCK_REFUSAL = ("{path} is in use by another `pokeworld map`: {holder}. Two maps on one --out would overwrite "
                     "each other's results.json; wait for that one to finish and run this command again (its runs "
@@ -154,18 +156,70 @@ def _run_locked(c: MapConfig, hooks: RunHooks | None = None) -> Path:
     write_json(out / "map_config.json", to_dict(c))
     specs = stages.all_specs(c)
     corpora = sorted({s.corpus for s in specs} | {s.measure_corpus for s in specs} | {"standard"})
-    certificates: dict[str, dict] = {}
-    prepared = True  # every corpus (and, unless certify_alongside, certificate) in place: training may start
-    for corpus in corpora:
-        if past(deadline):
-            prepared = False
-            break
-        stages.ensure_corpus(c, corpus)
     # flow's certificates build on the standard's; with certify off none are computed (an allocation's record takes
     # them from the CPU side later)
     certify_order = [k for k in sorted(corpora, key=lambda k: k == "flow") if k != "contact_poor"] if c.certify else []
-    background = None
-    if prepared and c.certify_alongside:
+    workers = c.workers or default_workers(len(specs))
+    threads = max(1, cores() // workers) if (c.launcher == "local" and workers > 1) else 0
+    # a time-sliced or steered invocation spends its budget on the work, not on timing it
+    job = whole_job(c, specs, corpora, certify_order, workers, threads) if hooks is None and not deadline else None
+    with progress.whole_job(job):
+        prepared, certificates, background = prepare(c, corpora, certify_order, deadline, job)
+        if prepared:
+            print(f"[map] {len(specs)} runs, launcher={c.launcher}, workers={workers}"
+                  + (f", training until {c.time_budget_min - c.time_reserve_min:g} min" if deadline else ""))
+            jobs = stages.jobs(c, specs, threads, deadline)
+            estimate = (stages.training_estimate(c, specs, workers, threads)
+                        if hooks is None and not deadline and job is None and not c.whole_job_estimate else None)
+            if estimate:
+                print(estimate, flush=True)
+            with progress.stage(stages.TRAINING_STAGE, "map"):
+                if hooks is not None:
+                    run_one_by_one(c, jobs, specs, started, hooks)
+                else:
+                    if c.stack:
+                        stages.train_stacked_jobs(c, jobs)
+                    launch(c, jobs, stages.execute)
+        if background is not None:
+            with background[0]:
+                print("[map] waiting for the background certificates")
+                certificates = background[1].result()
+        finish(c, specs, certificates, previous, prepared, deadline, started, job)
+    if c.pack:
+        stages.pack_results(c, c.pack)
+    return out
+
+
+def whole_job(c: MapConfig, specs: list, corpora: list[str], certify_order: list[str], workers: int,
+              threads: int) -> progress.JobEstimate | None:
+    """The whole job's estimate (``whole_job_estimate``), said at the start: None when off, on a GPU or when every
+    run is trained already (what is left is the report)."""
+    if not c.whole_job_estimate:
+        return None
+    timed = stages.timed_training(c, specs, workers, threads)
+    if timed is None:
+        return None
+    costs, slow = stages.whole_job_costs(c, corpora, certify_order, timed)
+    job = progress.JobEstimate(costs)
+    job.covers[stages.TRAINING_STAGE] = timed["seconds"] / costs[stages.TRAINING_STAGE]  # training, then measuring
+    print(stages.whole_job_line(job, timed, slow), flush=True)
+    return job
+
+
+def prepare(c: MapConfig, corpora: list[str], certify_order: list[str], deadline: float,
+            job: progress.JobEstimate | None) -> tuple[bool, dict, tuple | None]:
+    """Every corpus, then the certificates (here, or in a background process with ``certify_alongside``): whether
+    all is in place for training (False when the deadline came first), the certificates, and the background
+    (executor, future) if any. Stages found done already count as done in ``job`` without setting its pace."""
+    certificates: dict[str, dict] = {}
+    for corpus in corpora:
+        if past(deadline):
+            return False, certificates, None
+        if job is not None and is_complete(corpus_dir(c, corpus)):
+            job.skip(stages.corpus_stage(corpus))
+        with progress.stage(stages.corpus_stage(corpus), "map"):
+            stages.ensure_corpus(c, corpus)
+    if c.certify_alongside:
         # certificates are CPU work, training on a GPU leaves the cores idle: one spawned process computes them while
         # the runs train (spawned, not forked, so it inherits no CUDA state)
         ctx = __import__("multiprocessing").get_context("spawn")
@@ -173,47 +227,37 @@ def _run_locked(c: MapConfig, hooks: RunHooks | None = None) -> Path:
         # two cores stay with the training process, whose GPU step is bound by its host-side launches
         pending = background.submit(stages.certify_corpora, c, certify_order, max(1, cores() - 2))
         print(f"[map] certifying {certify_order} in a background process while the runs train")
-    else:
-        for corpus in certify_order:
-            if not prepared:
-                break
-            if past(deadline):
-                prepared = False
-                break
-            certificates[corpus] = stages.ensure_certificates(c, corpus)
-    if prepared:
-        workers = c.workers or default_workers(len(specs))
-        threads = max(1, cores() // workers) if (c.launcher == "local" and workers > 1) else 0
-        print(f"[map] {len(specs)} runs, launcher={c.launcher}, workers={workers}"
-              + (f", training until {c.time_budget_min - c.time_reserve_min:g} min" if deadline else ""))
-        jobs = stages.jobs(c, specs, threads, deadline)
-        # a time-sliced invocation spends its budget on training, not on timing it
-        estimate = stages.training_estimate(c, specs, workers, threads) if hooks is None and not deadline else None
-        if estimate:
-            print(estimate, flush=True)
-        if hooks is not None:
-            run_one_by_one(c, jobs, specs, started, hooks)
-        else:
-            if c.stack:
-                stages.train_stacked_jobs(c, jobs)
-            launch(c, jobs, stages.execute)
-    if background is not None:
-        with background:
-            print("[map] waiting for the background certificates")
-            certificates = pending.result()
+        return True, certificates, (background, pending)
+    for corpus in certify_order:
+        if past(deadline):
+            return False, certificates, None
+        certificates[corpus] = stages.ensure_certificates(c, corpus)
+    if job is not None:  # certificates found up to date: their stages were never begun
+        for name in [n for n in job.costs if n.startswith("certificate ") and n not in job.taken]:
+            job.skip(name)
+    return True, certificates, None
+
+
+def finish(c: MapConfig, specs: list, certificates: dict, previous: dict | None, prepared: bool, deadline: float,
+           started: float, job: progress.JobEstimate | None) -> None:
+    """progress.json, then the report when every run is measured (or why not, and how to resume); the closing line
+    gives the job's total time."""
+    out = Path(c.out)
     prog = stages.write_progress(c, specs, started)
     planning_late = "planning" in c.experiments and past(deadline)  # planning takes minutes: never start it late
     if prog["complete"] and prepared and not planning_late:
-        results = report.collect(c, specs, certificates)
-        if "planning" in c.experiments:
-            results["planning"] = ensure_planning(c)
-        results = carry_over(previous, results)  # only this invocation, holding the lock, writes results.json
-        write_json(out / "results.json", results)
-        report.write_all(c, results)
-        table = report.certificate_table(results) + factorial_table(results)
-        print("\n".join(table + factorial_summary(results)))
+        with progress.stage(stages.REPORT_STAGE, "map"):
+            results = report.collect(c, specs, certificates)
+            if "planning" in c.experiments:
+                results["planning"] = ensure_planning(c)
+            results = carry_over(previous, results)  # only this invocation, holding the lock, writes results.json
+            write_json(out / "results.json", results)
+            report.write_all(c, results)
+            table = report.certificate_table(results) + factorial_table(results)
+            print("\n".join(table + factorial_summary(results)))
+        total = job.total() if job is not None else f"in {progress.duration(clock.wall_clock() - started)}"
         print(f"\n[map] wrote {out / 'results.json'}, {out / 'results.md'} (every table) and the figure "
-              f"{out / 'identifiability_map.png'}")
+              f"{out / 'identifiability_map.png'} {total}")
     elif planning_late and prog["complete"] and prepared:
         print("[map] time budget reached before planning: every run is trained and measured; run the same "
               "command again to plan and write the report")
@@ -221,9 +265,6 @@ def _run_locked(c: MapConfig, hooks: RunHooks | None = None) -> Path:
         print(f"[map] time budget reached: {len(prog['finished'])} runs finished, {len(prog['partial'])} partial "
               f"{prog['partial']}, {len(prog['pending'])} pending; run the same command again to resume "
               f"({out / 'progress.json'})")
-    if c.pack:
-        stages.pack_results(c, c.pack)
-    return out
 
 
 __all__ = ["run", "RunHooks", "run_one_by_one", "carry_over", "read_previous_results", "MAP_LOCK_REFUSAL"]

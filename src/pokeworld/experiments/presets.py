@@ -38,7 +38,21 @@ DEMO = {  # the newcomer's first run: four variants, one seed; 8 min 55 s measur
     # ... on the corpus's own probe-fit split: a certificate corpus would add its generation to the demo's budget
     # and its 3,000-window cap would leave it fit-set limited all the same
     "certify_fit_episodes": 0,
+    # one whole-job time estimate from the start, corrected as each stage finishes (DEMO_STAGE_SECONDS)
+    "whole_job_estimate": True,
 }
+
+#: What the demo's stages cost on the reference machine (2 idle cores; `python benchmarks/train_cpu.py` 7.85–8.03
+#: model-steps/s for two `cpu` models side by side), in seconds: the priors of the demo's whole-job estimate
+#: (:func:`.stages.whole_job_costs`), scaled by a training step timed on this machine at the start, then corrected
+#: by the pace of the stages as they finish. They add up, with the timed training (4 runs x 2,200 steps, two at a
+#: time, ~5 min), to the measured idle demo (8 min 10 s, docs/results/demo.md); the two GRU certificates split
+#: their share as on a recorded run (8.6 and 10 min of 43; the linear and drag fits about a second each).
+DEMO_STAGE_SECONDS = {"corpus": 10.0, "certificate gru": 60.0, "certificate gru_geom": 70.0, "certificate": 1.0,
+                      "measure per run": 12.0, "report": 5.0}
+#: One demo model's step on one thread of the reference machine (benchmarks/results/train_cpu_demo.json, "one
+#: model, 1 thread"): a step timed now over this is how much slower this machine is now (its load included).
+DEMO_REFERENCE_S_PER_STEP = 0.0677
 
 def make_config(preset: str = "cpu", **overrides) -> MapConfig:
     """The map config of a preset (tiny, cpu, paper) with field overrides."""
@@ -65,4 +79,4 @@ def check_names(c: MapConfig) -> MapConfig:
     return c
 
 
-__all__ = ["PRESETS", "DEMO", "make_config", "make_demo_config", "check_names"]
+__all__ = ["PRESETS", "DEMO", "DEMO_STAGE_SECONDS", "DEMO_REFERENCE_S_PER_STEP", "make_config", "make_demo_config", "check_names"]

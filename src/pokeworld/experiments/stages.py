@@ -24,7 +24,7 @@ from ..train import stacked as train_stacked
 from ..train.loop import past, status_every
 from .attributes import CORPUS_TARGETS
 from .config import MapConfig
-from .launch import cores, default_workers
+from .launch import TRAINING_STAGE, cores, default_workers
 from .registry import EXPERIMENTS
 from .runs import RunSpec, corpus_dir, run_dir, spec_measure_path, with_map_training
 
@@ -234,7 +234,8 @@ def pack_results(c: MapConfig, dest: str | os.PathLike, quiet: bool = False) -> 
 
 __all__ = ["experiment_specs", "all_specs", "spec_experiments", "ensure_corpus", "GATED", "with_standard_gate",
            "ensure_certificates", "certify_corpora", "execute", "job_train_config", "train_stacked_jobs", "jobs",
-           "write_progress", "PACK_GLOBS", "pack_results"]
+           "write_progress", "PACK_GLOBS", "pack_results", "plan_line", "timed_training", "training_estimate",
+           "whole_job_costs", "whole_job_line", "corpus_stage", "TRAINING_STAGE", "REPORT_STAGE"]
 
 
 def plan_line(c: MapConfig) -> str:
@@ -250,10 +251,10 @@ def plan_line(c: MapConfig) -> str:
             f"{int(HEARTBEAT_S)} s (--quiet silences it)")
 
 
-def training_estimate(c: MapConfig, specs: list[RunSpec], workers: int, threads: int) -> str | None:
-    """The time the runs still to train will take on this machine, from two steps of each distinct model timed now
-    (:func:`pokeworld.train.speed.seconds_per_step`); None on a GPU (its speed is not the CPU's) or when every run
-    is trained already."""
+def timed_training(c: MapConfig, specs: list[RunSpec], workers: int, threads: int) -> dict | None:
+    """The runs still to train, timed on this machine now: two steps of each distinct model
+    (:func:`pokeworld.train.speed.seconds_per_step`); ``seconds`` is their training time on ``workers``. None on a
+    GPU (its speed is not the CPU's) or when every run is trained already."""
     from ..train.speed import seconds_per_step
 
     todo = [s for s in specs if not (run_dir(c, s.name) / "DONE").exists()]
@@ -264,13 +265,65 @@ def training_estimate(c: MapConfig, specs: list[RunSpec], workers: int, threads:
     if train.resolve_device(cfgs[0]).type != "cpu":
         return None
     threads = threads or max(1, cores() // workers)
-    timed: dict[str, float] = {}  # one timing per distinct model (the seed does not change a step's cost)
+
+    def key(cfg) -> str:  # one timing per distinct model (the seed does not change a step's cost)
+        return repr({k: v for k, v in to_dict(cfg).items() if k not in ("seed", "out", "data")})
+
+    timed: dict[str, float] = {}
     for cfg in cfgs:
-        key = repr({k: v for k, v in to_dict(cfg).items() if k not in ("seed", "out", "data")})
-        if key not in timed:
-            timed[key] = seconds_per_step(cfg, threads, steps=2)
-    total = sum(timed[repr({k: v for k, v in to_dict(cfg).items() if k not in ("seed", "out", "data")})] * cfg.steps
-                for cfg in cfgs) / min(workers, len(cfgs))
-    rates = ", ".join(f"{s:.2f}" for s in sorted(set(timed.values())))
-    return (f"[map] this machine: {rates} s/step per model on {threads} thread(s) (timed now): the {len(todo)} runs to "
-            f"train take about {duration(total)} on {workers} worker(s), certificates and measurement on top")
+        if key(cfg) not in timed:
+            timed[key(cfg)] = seconds_per_step(cfg, threads, steps=2)
+    total = sum(timed[key(cfg)] * cfg.steps for cfg in cfgs) / min(workers, len(cfgs))
+    return {"seconds": total, "rates": sorted(set(timed.values())), "runs": len(todo), "threads": threads,
+            "workers": workers}
+
+
+def training_estimate(c: MapConfig, specs: list[RunSpec], workers: int, threads: int) -> str | None:
+    """The time the runs still to train will take on this machine (:func:`timed_training`), as a line; None on a
+    GPU or when every run is trained already."""
+    t = timed_training(c, specs, workers, threads)
+    if t is None:
+        return None
+    rates = ", ".join(f"{s:.2f}" for s in t["rates"])
+    return (f"[map] this machine: {rates} s/step per model on {t['threads']} thread(s) (timed now): the {t['runs']} "
+            f"runs to train take about {duration(t['seconds'])} on {workers} worker(s), certificates and measurement "
+            "on top")
+
+
+REPORT_STAGE = "report"
+
+
+def corpus_stage(corpus: str) -> str:
+    return f"corpus {corpus}"
+
+
+def whole_job_costs(c: MapConfig, corpora: list[str], certify_order: list[str], t: dict) -> tuple[dict, float]:
+    """Each stage of the job -> its predicted seconds on this machine, in order, and the slowdown they were scaled
+    by: the demo's reference costs (:data:`.presets.DEMO_STAGE_SECONDS`) times this machine's timed step over the
+    reference step (``t``: :func:`timed_training`), the training itself as timed, measurement inside it."""
+    from .presets import DEMO_REFERENCE_S_PER_STEP, DEMO_STAGE_SECONDS as REF
+
+    slow = max(t["rates"]) / DEMO_REFERENCE_S_PER_STEP
+    costs = {corpus_stage(k): REF["corpus"] * slow for k in corpora}
+    for corpus in certify_order:
+        for kind in c.certify_kinds:
+            for est in c.certify_estimators:
+                name = certify.certify_stage(str(corpus_dir(c, corpus)), kind, est)
+                costs[name] = REF.get(f"certificate {est}", REF["certificate"]) * slow
+    rounds = -(-t["runs"] // t["workers"])  # runs measured side by side, like they train
+    costs[TRAINING_STAGE] = t["seconds"] + REF["measure per run"] * rounds * slow
+    costs[REPORT_STAGE] = REF["report"] * slow
+    return costs, slow
+
+
+def whole_job_line(job, t: dict, slow: float) -> str:
+    """The estimate said at the start: the timing behind it and each stage's share."""
+    groups: dict[str, float] = {}
+    for name, cost in job.costs.items():
+        group = name.split(" ")[0] if not name.startswith(TRAINING_STAGE) else TRAINING_STAGE
+        groups[group] = groups.get(group, 0.0) + cost
+    shares = ", ".join(f"{g} {duration(v)}" for g, v in groups.items())
+    rates = ", ".join(f"{s:.3f}" for s in t["rates"])
+    return (f"[map] this machine, timed now: {rates} s/step per model on {t['threads']} thread(s), {slow:.1f}x the "
+            f"reference machine's; the whole job takes about {duration(job.initial)} ({shares}), re-estimated as "
+            "each stage finishes")

@@ -38,7 +38,7 @@ from ..evaluate.probes import fit_predict
 from ..evaluate.state import EpisodeLatents, padded_actions, window_states
 from ..io import read_json_if_present, write_json
 from ..run_store import trained_store
-from ..rundir import finished_run_config, load_model
+from ..rundir import finished_marker, finished_run_config, load_model
 from ..windows import make_windows
 
 TESTS = {"iid": "probe_test", "ood": "heldout"}
@@ -290,7 +290,7 @@ def run(cfg: RealEvalConfig) -> Path:
     data = cfg.data or trained_store(run_dir, "real-eval")
     out = result_path(run_dir, cfg.data)
     key = {"config": to_dict(cfg), "data_sha256": read_manifest(data).get("content_sha256"),
-           "final_mtime": (run_dir / "DONE").stat().st_mtime_ns}
+           "final_mtime": finished_marker(run_dir).stat().st_mtime_ns}
     if not cfg.overwrite and (read_json_if_present(out, "a real-data evaluation record") or {}).get("key") == key:
         print(f"[real] {out} is up to date; skipping")
         return out

@@ -260,7 +260,7 @@ class PokeWorldSim:
                               c.object_intensity, c.finger_intensity)
 
     def observe(self) -> dict:
-        return {"vision": self.frames.copy(), "proprio": self.state[:, 0:4].astype(np.float32),
+        return {"vision": self.frames[..., None].copy(), "proprio": self.state[:, 0:4].astype(np.float32),
                 "touch": self.touch.copy()}
 
     def privileged(self) -> dict:

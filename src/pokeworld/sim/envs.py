@@ -19,10 +19,20 @@ from .core import PARAM_NAMES, ParamRanges, PhysicsConfig, PokeWorldSim
 _RESET_KEYS = {"params", "finger_pos", "object_pos", "object_vel", "finger_vel"}
 
 
+def vision_frames(vision: np.ndarray) -> np.ndarray:
+    """Observations' ``vision`` (..., H, W, 1) -> grayscale frames (..., H, W), the layout datasets store and the
+    models' encoders read (a view, no copy)."""
+    vision = np.asarray(vision)
+    if vision.ndim < 3 or vision.shape[-1] != 1:
+        raise ConfigError(f"vision must be (..., H, W, 1) (one channel last), got shape {vision.shape}")
+    return vision[..., 0]
+
+
 def _obs_space(cfg: PhysicsConfig) -> spaces.Dict:
     s, v = cfg.image_size, PokeWorldSim.MAX_VEL
     return spaces.Dict({
-        "vision": spaces.Box(0, 255, (s, s), np.uint8),
+        # channel-last with one channel, as Gymnasium's pixel wrappers and image-policy libraries expect
+        "vision": spaces.Box(0, 255, (s, s, 1), np.uint8),
         # finger position lies in the unit arena; velocity and force bounds are loose physical caps
         # (reset rejects initial velocities outside this range: PokeWorldSim.MAX_VEL)
         "proprio": spaces.Box(np.array([0, 0, -v, -v], np.float32), np.array([1, 1, v, v], np.float32)),
@@ -60,7 +70,9 @@ class PokeWorldEnv(gym.Env):
 
     Observation (a dict):
 
-    * ``vision``: (image_size, image_size) uint8 grayscale frame of the arena (64 px by default);
+    * ``vision``: (image_size, image_size, 1) uint8 grayscale frame of the arena (64 px by default), channel
+      last as Gymnasium's image convention has it (stable-baselines3's ``CnnPolicy`` reads it as an image;
+      :func:`vision_frames` drops the channel axis);
     * ``proprio``: (4,) finger position x, y in the unit arena and velocity vx, vy (within ±50);
     * ``touch``: (7,) statistics of the contact force on the finger over the control step's physics sub-steps,
       forces in units of F_max: 0-1 mean force x, y; 2 peak force magnitude; 3-4 force x, y at the step's end;
@@ -163,4 +175,4 @@ def register() -> None:
     register_envs()
 
 
-__all__ = ["PokeWorldEnv", "PokeWorldVectorEnv", "register", "PARAM_NAMES"]
+__all__ = ["PokeWorldEnv", "PokeWorldVectorEnv", "register", "vision_frames", "PARAM_NAMES"]

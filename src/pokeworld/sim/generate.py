@@ -56,7 +56,7 @@ def simulate(cfg: GenerateConfig, progress: bool = True, render: bool = True) ->
         for t in range(T + 1):
             priv = sim.privileged()
             sl = (slice(start, stop), t)
-            frames[sl], proprio[sl], touch[sl] = obs["vision"], obs["proprio"], obs["touch"]
+            frames[sl], proprio[sl], touch[sl] = obs["vision"][..., 0], obs["proprio"], obs["touch"]
             for k in ("object_pos", "object_vel", "finger_pos", "finger_vel"):
                 lab[k][sl] = priv[k]
             lab["contact"][sl] = priv["contact"]

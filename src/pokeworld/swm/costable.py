@@ -41,6 +41,7 @@ from ..plan import (
     start_sim,
 )
 from ..sim import PokeWorldSim
+from ..sim.envs import vision_frames
 from ..sim.policy import KNOT_SD, PROGRAM, programs
 from . import solvers
 from .require import stable_worldmodel
@@ -182,7 +183,7 @@ def solver_control(cfg: SwmPlanConfig, setup: dict, solver_name: str,
     cost = PlanningCost(scorer_for(sim), cfg.search)
     solver = make_solver(solver_name, cost, cfg)
     goal = setup["goal"]
-    hist = {"frames": [obs["vision"]], "proprio": [obs["proprio"]], "touch": [obs["touch"]], "actions": []}
+    hist = {"frames": [vision_frames(obs["vision"])], "proprio": [obs["proprio"]], "touch": [obs["touch"]], "actions": []}
     dist, obj_path = [np.linalg.norm(sim.state[:, 4:6] - goal, axis=1)], [sim.state[:, 4:6].copy()]
     plan = np.zeros((cfg.plan.episodes, PROGRAM, 2))
     for t in range(cfg.plan.steps):
@@ -193,7 +194,7 @@ def solver_control(cfg: SwmPlanConfig, setup: dict, solver_name: str,
             plan = cost.programs(solved["actions"][:, None])[:, 0]
         a = plan[:, k]
         obs = sim.step(a)
-        for key, v in (("frames", obs["vision"]), ("proprio", obs["proprio"]), ("touch", obs["touch"]),
+        for key, v in (("frames", vision_frames(obs["vision"])), ("proprio", obs["proprio"]), ("touch", obs["touch"]),
                        ("actions", a.astype(np.float32))):
             hist[key].append(v)
         dist.append(np.linalg.norm(sim.state[:, 4:6] - goal, axis=1))

@@ -1,0 +1,209 @@
+"""``pokeworld export RUN --out DIR``: a finished run as a self-contained model folder in the model-hub layout.
+
+The folder (:mod:`pokeworld.model_folder` owns its format) holds the model card ``README.md`` (YAML front matter
+with the library, tags, licence, dataset and the measured metrics; the text says what the model is, how to use
+it and the exact command that reproduces it), ``config.json`` (architecture and training config) and the weights
+as ``model.safetensors``: no pickle, so anyone can load them without running code. ``probe``, ``plan`` and the
+protocol read the folder as they read the run.
+"""
+
+from __future__ import annotations
+
+import json
+import shlex
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from . import __version__, checkpoint
+from .config import to_dict
+from .errors import ConfigError
+from .io import check_outputs, read_json_if_present, read_regular_bytes, save_bytes, save_text, write_json
+from .model_folder import CARD, CONFIG, FORMAT, WEIGHTS, folder_config, read_weights
+from .models.xjepa import VARIANTS
+from .preflight import finished_run
+from .rundir import model_from_checkpoint, read_metrics
+
+LICENSE = "mit"
+"""The licence of the weights: the repository's own (MIT)."""
+#: Training-config fields that say where and how a run was executed, not what it learned: left out of the
+#: reproducing command (the store and the output folder are its DIR and RUN).
+MACHINE_FIELDS = ("data", "out", "data_path", "data_sha256", "deadline", "stop_at", "device", "threads",
+                  "progress", "tensorboard")
+#: The measurement's held-out ridge R² (contact windows) and prediction errors the card reports, with their names.
+CARD_METRICS = {"log_k": "ridge R² log k (contact windows)", "log_m": "ridge R² log m (contact windows)",
+                "gamma": "ridge R² γ (contact windows)", "object_pos": "ridge R² object position (contact windows)",
+                "object_vel": "ridge R² object velocity (contact windows)"}
+CARD_ERRORS = {"direct16": "Δ=16 direct-head position error", "rollout16": "Δ=16 rollout position error",
+               "static16": "Δ=16 static-prediction error (baseline)"}
+
+
+@dataclass
+class ExportConfig:
+    """Export one finished run as a model folder (model card, config.json, model.safetensors)."""
+
+    run_dir: str = "runs/xjepa"
+    """The finished run to export (what `pokeworld train` wrote; its measure.json, if any, gives the card's
+    metrics: run `pokeworld probe RUN` first to have them)."""
+    out: str = "models/xjepa"
+    """The model folder to write: README.md, config.json, model.safetensors."""
+    data_command: str = ""
+    """How the training store was made, quoted in the card's reproduce section (e.g. `pokeworld generate
+    --preset cpu DIR`); default: the store is named by its path and content hash only."""
+
+
+def exported_model(run_dir: Path) -> tuple[dict, dict[str, torch.Tensor], int]:
+    """The model kwargs, the float weights and the step of a finished run (``final.pt``) or of an exported folder,
+    checked as every reader checks them (:func:`pokeworld.rundir.model_from_checkpoint`)."""
+    exported = folder_config(run_dir)
+    if exported is not None:
+        ck = {"model": read_weights(run_dir), "model_kwargs": exported["model_kwargs"], "step": exported["step"]}
+        path = run_dir / WEIGHTS
+    else:
+        path = run_dir / "final.pt"
+        ck = checkpoint.load(path)
+    model = model_from_checkpoint(ck, path)  # refuses kwargs or shapes that do not fit before anything is written
+    state = {k: v.detach().contiguous() for k, v in model.state_dict().items()}
+    step = ck.get("step")
+    return dict(ck["model_kwargs"]), state, step if isinstance(step, int) and not isinstance(step, bool) else 0
+
+
+def reproduce_command(train_cfg: dict) -> str:
+    """The ``pokeworld train`` line that trains this run again on its store: the training preset its sizes match
+    and every field that differs from that preset, except where it ran (:data:`MACHINE_FIELDS`)."""
+    from .evaluate.measure import training_preset
+    from .train.config import make_config as train_config
+
+    preset = training_preset(train_cfg) or "paper"
+    base = to_dict(train_config(preset))
+    words = ["pokeworld", "train", "--preset", preset]
+    for name in sorted(base):
+        if name in MACHINE_FIELDS or name not in train_cfg or (train_cfg[name] == base[name]
+                                                               and name not in ("variant", "seed")):
+            continue
+        value, flag = train_cfg[name], "--" + name.replace("_", "-")
+        if isinstance(value, bool):
+            words.append(flag if value else "--no-" + name.replace("_", "-"))
+        elif isinstance(value, list):
+            words += [flag, *map(str, value)]
+        else:
+            words += [flag, str(value)]
+    return shlex.join(words + ["--data", "DIR", "--out", "RUN"])
+
+
+def front_matter(train_cfg: dict, measured: dict | None, name: str) -> str:
+    """The card's YAML metadata; every value is written in YAML's flow style (JSON), which hubs and YAML
+    parsers read alike."""
+    variant = str(train_cfg.get("variant", "?"))
+    meta: dict[str, Any] = {
+        "library_name": "pokeworld", "license": LICENSE,
+        "tags": ["pokeworld", "x-jepa", "world-model", "jepa", "sigreg", "physics", "identifiability",
+                 f"variant-{variant}", "safetensors"],
+        "datasets": [f"pokeworld-{Path(str(train_cfg.get('data') or 'corpus')).name}"],
+        "dataset_sha256": train_cfg.get("data_sha256"),
+    }
+    if measured:
+        metrics = [{"type": "r2", "name": label, "value": round(float(v), 4)}
+                   for k, label in CARD_METRICS.items() if (v := measured["ridge"].get(k)) is not None]
+        metrics += [{"type": "position_error", "name": label, "value": round(float(v), 4)}
+                    for k, label in CARD_ERRORS.items() if (v := measured["prediction"].get(k)) is not None]
+        meta["model-index"] = [{"name": name, "results": [{
+            "task": {"type": "representation-probing", "name": "physical-parameter probes on the frozen state"},
+            "dataset": {"type": "pokeworld", "name": "PokeWorld probe-test episodes",
+                        "revision": str(measured.get("data_sha256", ""))[:12]},
+            "metrics": metrics}]}]
+    return "---\n" + "".join(f"{k}: {json.dumps(v, ensure_ascii=False)}\n" for k, v in meta.items()) + "---\n"
+
+
+def measured_metrics(run_dir: Path) -> dict | None:
+    """The probe's held-out ridge R² (contact windows) and prediction errors from ``run_dir/measure.json``; None
+    when the run was not measured."""
+    res = read_json_if_present(run_dir / "measure.json", "a measure.json")
+    if not res:
+        return None
+    ridge = res.get("probes", {}).get("ridge", {}).get("contact", {})
+    prediction = {k: v for k, v in res.get("prediction", {}).items() if isinstance(v, (int, float))}
+    return {"ridge": ridge, "prediction": prediction, "data_sha256": res.get("key", {}).get("data_sha256"),
+            "measure_config": res.get("key", {}).get("config", {})}
+
+
+def card_text(train_cfg: dict, measured: dict | None, cfg: ExportConfig, step: int, note: str) -> str:
+    """The model card: front matter, then what the model is, how to use it, how it was trained and measured, and
+    the commands that reproduce it."""
+    variant = str(train_cfg.get("variant", "?"))
+    inputs, targets = VARIANTS.get(variant, (("?",), ("?",)))
+    name = f"pokeworld X-JEPA {variant} (seed {train_cfg.get('seed', '?')})"
+    lines = [front_matter(train_cfg, measured, name), f"# {name}", "",
+             f"An X-JEPA action-conditioned latent world model trained on PokeWorld with "
+             f"[pokeworld](https://github.com/tantansir/latent-world-model-identifiability) (the system of *What Can "
+             f"Latent World Models Know? Physical Parameter Identifiability in Multimodal Predictive "
+             f"Representations*): inputs {' + '.join(inputs)}, targets {' + '.join(targets)}. The card's metrics "
+             "say how much of the hidden mass, drag and stiffness a linear probe reads from its frozen state.", "",
+             "## Use", "", "MODEL is this folder, DIR a PokeWorld store (`pokeworld generate`).", "", "```bash",
+             "pokeworld probe MODEL --data DIR      # probes and prediction errors -> MODEL/measure.json",
+             "pokeworld plan OUT --runs MODEL       # CEM push-to-goal with this model", "```", "",
+             "```python", "from pokeworld.rundir import load_model",
+             "model = load_model('MODEL')           # the weights are safetensors: loading runs no code",
+             "from pokeworld.protocol import certify_model",
+             "certify_model('MODEL', data='DIR', out='OUT')   # the certificate-gated protocol", "```", "",
+             "## Training", "",
+             f"- variant {variant}, {step} steps ({train_cfg.get('steps')} configured), seed {train_cfg.get('seed')}",
+             f"- store: content sha256 `{train_cfg.get('data_sha256')}` (trained from `{train_cfg.get('data')}`)"]
+    rows = read_metrics(cfg.run_dir) if (Path(cfg.run_dir) / "metrics.jsonl").exists() else []
+    if rows and isinstance(rows[-1].get("loss"), (int, float)):
+        lines.append(f"- final training loss {rows[-1]['loss']:.4g} at step {rows[-1]['step']}")
+    if note:
+        lines.append(f"- {note}")
+    lines += ["", "## Reproduce", "", "```bash"]
+    if cfg.data_command:
+        lines += ["# the training store, DIR:", cfg.data_command]
+    lines += [reproduce_command(train_cfg), "pokeworld probe RUN --data DIR", "```", ""]
+    lines += metrics_lines(measured)
+    lines += ["", f"Licence: {LICENSE.upper()}. Exported with pokeworld {__version__} (`pokeworld export "
+              f"{cfg.run_dir} --out {cfg.out}`)."]
+    return "\n".join(lines) + "\n"
+
+
+def metrics_lines(measured: dict | None) -> list[str]:
+    if not measured:
+        return ["## Measured", "", "Not measured: run `pokeworld probe RUN` before exporting to have the card carry "
+                "the probes' numbers."]
+    lines = ["## Measured (`pokeworld probe`, held-out probe-test episodes)", "", "| metric | value |", "|---|---|"]
+    lines += [f"| {label} | {measured['ridge'][k]:+.3f} |" for k, label in CARD_METRICS.items()
+              if k in measured["ridge"]]
+    lines += [f"| {label} | {measured['prediction'][k]:.4f} |" for k, label in CARD_ERRORS.items()
+              if k in measured["prediction"]]
+    return lines + ["", f"On the store with content sha256 `{measured.get('data_sha256')}`."]
+
+
+def run(cfg: ExportConfig) -> Path:
+    """Write ``cfg.out``: the model card, config.json and model.safetensors of the finished run ``cfg.run_dir``.
+    Refused with one line before anything is written: a run that has not finished, weights that do not fit
+    their declared model, an output folder holding files pokeworld did not write."""
+    from safetensors.torch import save
+
+    run_dir, out = Path(cfg.run_dir), Path(cfg.out)
+    if out.resolve() == run_dir.resolve():
+        raise ConfigError(f"--out {out} is the run folder itself; name a new folder for the export")
+    train_cfg = finished_run(run_dir)
+    check_outputs(out, CARD, CONFIG, WEIGHTS)
+    kwargs, state, step = exported_model(run_dir)
+    measured = measured_metrics(run_dir)
+    done = run_dir / "DONE"
+    note = read_regular_bytes(done, "a DONE marker", 4096).decode(errors="replace").strip()[:300] \
+        if done.is_file() else ""
+    note = "" if note.startswith("finished") and "(" not in note else note
+    save_bytes(out / WEIGHTS, save(state, metadata={"format": FORMAT, "variant": str(train_cfg.get("variant"))}))
+    write_json(out / CONFIG, {"format": FORMAT, "library_name": "pokeworld", "model_type": "xjepa",
+                              "model_kwargs": kwargs, "train_config": train_cfg, "step": step,
+                              "pokeworld": __version__})
+    save_text(out / CARD, card_text(train_cfg, measured, cfg, step, note))
+    print(f"[export] {run_dir} ({train_cfg.get('variant')}, {step} steps, "
+          f"{'measured' if measured else 'not measured'}): wrote {CARD}, {CONFIG}, {WEIGHTS} → {out}")
+    return out
+
+
+__all__ = ["ExportConfig", "run", "reproduce_command", "card_text", "front_matter",
+           "measured_metrics", "exported_model"]
