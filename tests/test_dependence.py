@@ -146,3 +146,26 @@ def test_an_xjepa_forecast_is_its_decoded_direct_head_and_rollout(tiny_dataset):
     assert np.isfinite(one.end).all() and np.isfinite(one.touch_peak).all()
     np.testing.assert_allclose(one.end, many.end, rtol=1e-4, atol=1e-5)
     np.testing.assert_allclose(one.touch_peak, many.touch_peak, rtol=1e-4, atol=1e-5)
+
+
+def test_the_protocol_reports_a_user_forecaster_s_slope_ratio_beside_its_probes(tmp_path):
+    """``certify_model(..., forecaster=...)``: S per parameter beside the readout in protocol.json and .md; the
+    simulator as the user's forecaster scores 1."""
+    from pokeworld import certify as C
+    from pokeworld.protocol import certify_model
+    from pokeworld.sim.generate import make_config, simulate
+
+    ds = simulate(make_config("tiny", num_episodes=120, batch_envs=120, split_fractions=(0.2, 0.4, 0.4),
+                              physics={"image_size": 16}), progress=False)
+    est = {"gru": {"contact": {"log_m": 0.8, "gamma": 0.7, "log_k": 0.6}}}
+    cert = C.certificate_table(est, ("log_m", "gamma", "log_k"))
+    certs = {"estimators": est, "certificate": cert, "gate": C.gate(cert, est), "counts": {}}
+
+    def proprio_state(frames, proprio, touch, actions):
+        return proprio
+
+    res = certify_model(proprio_state, ds, tmp_path, certificates=certs, preset="tiny", kinds=("contact",),
+                        forecaster=SimulatorForecaster(physics_of(ds.manifest), "gamma"), dependence_episodes=600)
+    assert res["dependence"]["gamma"]["S"] == pytest.approx(1.0, abs=1e-9)
+    report = (tmp_path / "protocol.md").read_text()
+    assert "## Forecast dependence (slope ratio S)" in report and "+1.00 [+1.00, +1.00]" in report

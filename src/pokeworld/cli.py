@@ -75,6 +75,9 @@ COMMANDS: dict[str, Command] = {
                     cost="≈ 8 min on 2 CPU cores: 2,400 episodes, four 2,200-step models of train's "
                          "'demo' preset, demo certificates"),
     "pairs": Command("pokeworld.sim.pairs", "PairsConfig", "matched-pairs figure", "out"),
+    "forecast-dependence": Command("pokeworld.evaluate.dependence_runs", "DependenceRunsConfig",
+                                   "slope ratio S of trained runs' forecasts per parameter, beside their readout",
+                                   "out"),
     "plan": Command("pokeworld.plan", "PlanConfig", "CEM push-to-goal with trained runs", "out"),
     "rh20t-convert": Command("pokeworld.real.rh20t", "ConvertConfig", "convert RH20T scenes to a store", "root"),
     "rh20t-synth": Command("pokeworld.real.synthetic", "SynthConfig",

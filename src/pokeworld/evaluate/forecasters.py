@@ -78,11 +78,13 @@ def touch_decoder(ds: Dataset, lat_fit: EpisodeLatents, fit_eps: np.ndarray, rng
 class XJEPAForecaster:
     """A trained X-JEPA's forecasts, decoded to object positions and the touch peak."""
 
-    def __init__(self, model, ds: Dataset, seed: int = 0, batch: int = 256, batch_episodes: int = 64):
+    def __init__(self, model, ds: Dataset, seed: int = 0, batch: int = 256, batch_episodes: int = 64,
+                 fit_episodes: int = 400):
         if model.objective == "recon":
             raise ConfigError("a reconstruction-objective model has no latent forecast heads to measure")
         self.model, self.batch = model, batch
-        fit_eps = ds.episodes("probe_fit")
+        # the decoders subsample 20,000 frames: 400 episodes (26,000 frames) hold them, and encoding more is waste
+        fit_eps = ds.episodes("probe_fit")[:fit_episodes]
         lat_fit = EpisodeLatents(model, ds, fit_eps, batch_episodes)
         rng = np.random.default_rng(seed)
         self.position = position_decoder(ds, lat_fit, fit_eps, rng)
