@@ -55,7 +55,7 @@ REGRESSOR = {"gamma": "gamma", "mass": "log_m", "stiffness": "log_k"}
 """What each response is regressed on: γ linearly (it is sampled uniformly), m and k in logs (sampled log-uniformly)."""
 RESPONSE = {
     "gamma": "16-step displacement along the context-end velocity over the context-end speed (s), pure glides",
-    "mass": "16-step displacement along a fixed push minus that under hold (arena units), object at rest in reach",
+    "mass": "16-step displacement along a fixed push minus that under hold (arena units), object slow within reach",
     "stiffness": "peak-force touch channel over the contact-onset step and the next (× F_max), push reaching the "
                  "object",
 }

@@ -13,21 +13,17 @@ import numpy as np
 
 from ..errors import ConfigError
 from .core import PARAM_NAMES, PhysicsConfig, PokeWorldSim
+from .generate_config import generator_config, resolved
 
 STATE_LABELS = ("finger_pos", "finger_vel", "object_pos", "object_vel")
 """The store labels that make up the simulator's state vector, in its order (:mod:`pokeworld.sim.physics`)."""
 
 
 def physics_of(manifest: dict) -> PhysicsConfig:
-    """The physics a store was generated with (its manifest's ``config.physics``); keys this version does not know
-    are refused, since replaying with other physics would measure another simulator."""
-    given = dict(manifest.get("config", {}).get("physics", {}))
-    known = {f.name for f in dataclasses.fields(PhysicsConfig)}
-    unknown = sorted(set(given) - known)
-    if unknown:
-        raise ConfigError(f"the store's physics names fields this simulator does not have ({unknown}); measure it "
-                          "with the pokeworld version that generated it")
-    return PhysicsConfig(**given)
+    """The physics a store was generated with, read as the generator reads its manifest
+    (:func:`~pokeworld.sim.generate_config.generator_config`: a field the manifest lacks takes the value stores had
+    before it existed, never today's default), so an old store is replayed as what it is."""
+    return resolved(generator_config(manifest)).physics
 
 
 def state_at(labels: dict, episodes: np.ndarray, t: np.ndarray) -> np.ndarray:
