@@ -169,3 +169,16 @@ def test_the_protocol_reports_a_user_forecaster_s_slope_ratio_beside_its_probes(
     assert res["dependence"]["gamma"]["S"] == pytest.approx(1.0, abs=1e-9)
     report = (tmp_path / "protocol.md").read_text()
     assert "## Forecast dependence (slope ratio S)" in report and "+1.00 [+1.00, +1.00]" in report
+
+
+def test_a_record_measured_with_other_settings_is_not_merged(tmp_path):
+    import json
+
+    from pokeworld.evaluate.dependence_runs import make_config, merged_records
+
+    earlier = tmp_path / "earlier.json"
+    earlier.write_text(json.dumps({"config": {"store": "", "eval_episodes": 2400, "eval_seed": 1000,
+                                              "bootstrap": 1000, "max_windows": 3000, "seed": 0}, "runs": []}))
+    assert merged_records(make_config("cpu", merge=(str(earlier),))) != []
+    with pytest.raises(ConfigError, match="other settings"):
+        merged_records(make_config("cpu", merge=(str(earlier),), eval_episodes=1200))

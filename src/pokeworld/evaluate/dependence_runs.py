@@ -19,7 +19,7 @@ from .. import __version__
 from ..config import SEED, Limit, check_fields, from_preset
 from ..data import load
 from ..errors import ConfigError
-from ..io import check_outputs, check_writable_dir, read_json_if_present, save_text, write_json
+from ..io import check_outputs, check_writable_dir, read_json, read_json_if_present, save_text, write_json
 from ..rundir import load_model, read_run_config
 from ..run_store import trained_store
 from ..sim.replay import physics_of
@@ -66,6 +66,9 @@ class DependenceRunsConfig:
     """Cap on windows per response."""
     seed: int = 0
     """Seed of the decoders' subsample, the window subsample and the bootstrap."""
+    merge: tuple[str, ...] = ()
+    """Earlier records (``<name>.json`` of this command, same settings and store) whose runs join this
+    record's, so runs measured at different times make one table; a run measured here replaces its earlier row."""
 
     LIMITS = {"eval_episodes": Limit(20, 10**6), "eval_seed": SEED, "bootstrap": Limit(10, 10**5),
               "max_windows": Limit(10, 10**7), "seed": SEED}
@@ -106,9 +109,28 @@ def measure_run(run_dir: Path, fresh, store, cfg: DependenceConfig, seed: int) -
             "readout": _readout(run_dir)}
 
 
+SETTINGS = ("store", "eval_episodes", "eval_seed", "bootstrap", "max_windows", "seed")
+"""The config fields a record's numbers depend on (besides its runs): records merge only when these agree."""
+
+
+def merged_records(cfg: DependenceRunsConfig) -> list[dict]:
+    """The ``merge`` records, read and checked against ``cfg`` before anything is measured."""
+    records = []
+    for path in cfg.merge:
+        rec = read_json(path, "a forecast-dependence record", dict)
+        want = {k: getattr(cfg, k) for k in SETTINGS}
+        got = rec.get("config", {})
+        if any(got.get(k) != want[k] for k in SETTINGS):
+            raise ConfigError(f"{path} was measured with other settings ({got}); merge only records of the same "
+                              f"settings ({want})")
+        records.append(rec)
+    return records
+
+
 def run(cfg: DependenceRunsConfig) -> Path:
     if not cfg.runs:
         raise ConfigError("give at least one trained run directory with --runs")
+    earlier = merged_records(cfg)
     out = Path(cfg.out)
     check_writable_dir(out.parent)
     check_outputs(out, *(f"{cfg.name}.{ext}" for ext in ("json", "md", "png", "pdf")))
@@ -127,8 +149,11 @@ def run(cfg: DependenceRunsConfig) -> Path:
         rows.append({**measure_run(Path(r), fresh, store, dep, cfg.seed), "store": path})
         print(f"[forecast-dependence] {r}: " + ", ".join(
             f"{p} S {v['S']:+.2f}" for p, v in rows[-1]["dependence"].items() if "S" in v))
-    result = {"environment": cfg.environment, "config": {k: getattr(cfg, k) for k in (
-        "store", "eval_episodes", "eval_seed", "bootstrap", "max_windows", "seed")}, "responses": RESPONSE,
+    measured = {row["run"] for row in rows}
+    for rec in earlier:
+        rows = [row for row in rec["runs"] if row["run"] not in measured] + rows
+        refs = {**rec["planted"], **refs}
+    result = {"environment": cfg.environment, "config": {k: getattr(cfg, k) for k in SETTINGS}, "responses": RESPONSE,
               "regressors": REGRESSOR, "runs": rows, "planted": refs, "revision": REVISION,
               "provenance": {"pokeworld": __version__, "git": R.git_commit()}}
     out.mkdir(parents=True, exist_ok=True)
@@ -144,6 +169,10 @@ def _cell(v: dict) -> str:
         return f"— ({v.get('note', 'not measured')})"
     lo, hi = v["S_interval"]
     return f"{v['S']:+.2f} [{lo:+.2f}, {hi:+.2f}]"
+
+
+def _label(row: dict) -> str:
+    return f"{row['variant']} s{row['seed']} ({row['steps']} steps)"
 
 
 def _r2(x) -> str:
@@ -167,7 +196,7 @@ def markdown(result: dict) -> str:
             v, rd = row["dependence"][p], row["readout"][p]
             slopes = f"{v['slope_model']:+.4f} / {v['slope_simulator']:+.4f}" if "S" in v else "—"
             err = f"{v['forecast_error']:.3f}" if "forecast_error" in v else "—"
-            lines.append(f"| {row['variant']} s{row['seed']} | {_r2(rd['contact'])} / {_r2(rd['glide'])} | {_cell(v)} "
+            lines.append(f"| {_label(row)} | {_r2(rd['contact'])} / {_r2(rd['glide'])} | {_cell(v)} "
                          f"| {slopes} | {err} | {v.get('windows', 0)} ({v.get('episodes', '—')}) |")
         for store, ref in result["planted"].items():
             lines.append(f"| *planted, {Path(store).name}:* simulator / ignores {p} / reverses {p} | — | "
@@ -191,7 +220,7 @@ def figure(result: dict, path: Path) -> Path:
 
     fig, axes = plt.subplots(1, len(PARAMETERS), figsize=(4.2 * len(PARAMETERS), 3.8), sharey=False)
     for ax, p in zip(np.atleast_1d(axes), PARAMETERS):
-        names = [f"{r['variant']} s{r['seed']}" for r in result["runs"]]
+        names = [_label(r) for r in result["runs"]]
         for i, r in enumerate(result["runs"]):
             v = r["dependence"][p]
             if "S" in v:
@@ -214,5 +243,5 @@ def figure(result: dict, path: Path) -> Path:
     return path
 
 
-__all__ = ["DependenceRunsConfig", "PRESETS", "REVISION", "make_config", "markdown", "measure_run", "planted_rows",
-           "run"]
+__all__ = ["DependenceRunsConfig", "PRESETS", "REVISION", "SETTINGS", "make_config", "markdown", "measure_run",
+           "merged_records", "planted_rows", "run"]
