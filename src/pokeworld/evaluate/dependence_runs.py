@@ -128,8 +128,8 @@ def merged_records(cfg: DependenceRunsConfig) -> list[dict]:
 
 
 def run(cfg: DependenceRunsConfig) -> Path:
-    if not cfg.runs:
-        raise ConfigError("give at least one trained run directory with --runs")
+    if not cfg.runs and not cfg.merge:
+        raise ConfigError("give at least one trained run directory with --runs (or records to join with --merge)")
     earlier = merged_records(cfg)
     out = Path(cfg.out)
     check_writable_dir(out.parent)
