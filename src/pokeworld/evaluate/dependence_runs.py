@@ -153,6 +153,9 @@ def run(cfg: DependenceRunsConfig) -> Path:
     for rec in earlier:
         rows = [row for row in rec["runs"] if row["run"] not in measured] + rows
         refs = {**rec["planted"], **refs}
+    for row in rows:  # a run probed after its dependence was measured gets its readout now
+        if Path(row["run"], "measure.json").is_file():
+            row["readout"] = _readout(Path(row["run"]))
     result = {"environment": cfg.environment, "config": {k: getattr(cfg, k) for k in SETTINGS}, "responses": RESPONSE,
               "regressors": REGRESSOR, "runs": rows, "planted": refs, "revision": REVISION,
               "provenance": {"pokeworld": __version__, "git": R.git_commit()}}
@@ -227,6 +230,10 @@ def figure(result: dict, path: Path) -> Path:
                 lo, hi = v["S_interval"]
                 ax.errorbar(i - 0.12, v["S"], yerr=[[v["S"] - lo], [hi - v["S"]]], fmt="o", color="C0",
                             capsize=3, label="S (95 % episode bootstrap)" if i == 0 else None)
+            reported = REVISION.get(r["variant"], {}).get(p, {}).get("S")
+            if reported is not None:
+                ax.plot(i - 0.12, reported, "*", color="grey", ms=10,
+                        label=f"revision's {r['variant']} S (paper, not ours)")
             rd = r["readout"][p]["contact"]
             if rd is not None:
                 ax.plot(i + 0.12, rd, "s", color="C1", label="readout R² (contact)" if i == 0 else None)
