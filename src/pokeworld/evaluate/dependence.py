@@ -56,8 +56,8 @@ REGRESSOR = {"gamma": "gamma", "mass": "log_m", "stiffness": "log_k"}
 RESPONSE = {
     "gamma": "16-step displacement along the context-end velocity over the context-end speed (s), pure glides",
     "mass": "16-step displacement along a fixed push minus that under hold (arena units), object slow within reach",
-    "stiffness": "peak-force touch channel over the contact-onset step and the next (× F_max), push reaching the "
-                 "object",
+    "stiffness": "peak-force touch channel over the contact-onset step and the next (the store's touch units), push "
+                 "reaching the object",
 }
 PUSH = 0.9
 """Magnitude of the fixed push action (per component of the unit finger→object direction; actions lie in [-1, 1])."""

@@ -190,7 +190,7 @@ def markdown(result: dict) -> str:
              "parameter / the simulator's, context state and the other parameters controlled (docs/design.md, "
              "\"Forecast dependence\"); [95 % episode-bootstrap interval]. Readout: the run's ridge R² of the "
              "parameter (contact / glide windows, measure.json). Error: the forecast's mean error on the same "
-             "windows (arena units; × F_max for stiffness).", ""]
+             "windows (arena units; the store's touch units for stiffness).", ""]
     for p in PARAMETERS:
         lines += [f"## {p}: {result['responses'][p]}; regressed on {result['regressors'][p]}", "",
                   "| run | readout contact / glide | S [95 %] | slope model / simulator | error | windows (episodes) |",
