@@ -150,9 +150,11 @@ def run(cfg: DependenceRunsConfig) -> Path:
         print(f"[forecast-dependence] {r}: " + ", ".join(
             f"{p} S {v['S']:+.2f}" for p, v in rows[-1]["dependence"].items() if "S" in v))
     measured = {row["run"] for row in rows}
-    for rec in earlier:
-        rows = [row for row in rec["runs"] if row["run"] not in measured] + rows
+    joined = []
+    for rec in earlier:  # in the order given, then this invocation's runs
+        joined += [row for row in rec["runs"] if row["run"] not in measured and row not in joined]
         refs = {**rec["planted"], **refs}
+    rows = joined + rows
     for row in rows:  # a run probed after its dependence was measured gets its readout now
         if Path(row["run"], "measure.json").is_file():
             row["readout"] = _readout(Path(row["run"]))
