@@ -10,6 +10,7 @@ coming out at 1, ≈ 0 and < 0 there before any model is read.
 
 from __future__ import annotations
 
+import textwrap
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -245,8 +246,8 @@ def figure(result: dict, path: Path) -> Path:
         ax.set_title(f"{p}: S and readout", fontsize=9)
         ax.set_ylabel("S (1 = the simulator's dependence) / R²")
         ax.legend(fontsize=7, loc="best")
-    fig.suptitle(f"Forecast dependence beside readout ({result['environment'] or 'environment not named'})",
-                 fontsize=9)
+    title = f"Forecast dependence beside readout ({result['environment'] or 'environment not named'})"
+    fig.suptitle("\n".join(textwrap.wrap(title, 200)), fontsize=8)
     fig.tight_layout()
     save_figure(fig, path.parent, path.stem, dpi=130)
     return path
