@@ -31,7 +31,10 @@ What it runs, all episode-split (probes fit on probe-fit episodes, held-out R² 
 2. probes (:func:`pokeworld.evaluate.measure.probe_windows`, the loop trained runs go through): ridge and
    MLP on contact / glide / all windows, to log m, γ, log k (and b, g when they vary), object and finger
    state; the action-conditioned ridge readout; the untrained bound when an untrained copy is given;
-3. the report: ``protocol.json``, ``protocol.md`` (a parameter whose gate failed gets † and an explicit
+3. with a ``forecaster`` (:class:`pokeworld.evaluate.dependence.Forecaster`: the model's forecasts of the object
+   position and touch under an action program), the forecast dependence: the slope ratio S per parameter beside
+   its readout (:mod:`pokeworld.evaluate.dependence`);
+4. the report: ``protocol.json``, ``protocol.md`` (a parameter whose gate failed gets † and an explicit
    "no claim" line) and ``protocol.png`` (R² per quantity beside its certificate).
 """
 
@@ -51,6 +54,7 @@ from .config import from_preset, to_dict
 from .data import Dataset, load
 from .errors import ConfigError, DataError, ModelError
 from .evaluate import tables as R
+from .evaluate.dependence import DependenceConfig, Forecaster, check_store, forecast_dependence, fresh_corpus
 from .evaluate.measure import (
     KINDS,
     PARAM_TARGETS,
@@ -100,8 +104,15 @@ class ProtocolConfig:
     """Certificate estimators to run when computing (the gate reads ``gru``; it must be among them)."""
     seed: int = 0
     """Seed for window subsampling, MLP probes and computed certificates."""
+    dependence_episodes: int = 2400
+    """Forecast dependence (with a ``forecaster``): fresh episodes simulated from the store's generator for its
+    windows; 0: the store's probe-test episodes instead (few push windows: mass and stiffness may go unmeasured)."""
+    dependence_bootstrap: int = 1000
+    """Episode-bootstrap resamples of the slope ratio S."""
 
     def __post_init__(self) -> None:
+        if self.dependence_episodes < 0 or self.dependence_bootstrap < 10:
+            raise ConfigError("dependence_episodes must be >= 0 and dependence_bootstrap >= 10")
         bad = (set(self.kinds) | set(self.action_conditioned_kinds)) - set(KINDS)
         if bad:
             raise ConfigError(f"unknown window kinds {sorted(bad)}; choose from {list(KINDS)}")
@@ -117,7 +128,8 @@ class ProtocolConfig:
             raise ConfigError(f"certify_estimators must include {C.GATE_ESTIMATOR!r}, the paper's gate estimator")
 
 
-PRESETS = {"tiny": {"max_windows": 400, "mlp": False, "certify_preset": "tiny"}, "cpu": {},
+PRESETS = {"tiny": {"max_windows": 400, "mlp": False, "certify_preset": "tiny", "dependence_episodes": 300,
+                    "dependence_bootstrap": 100}, "cpu": {},
            "paper": {"max_windows": 100000, "certify_preset": "paper"}}
 
 
@@ -391,7 +403,7 @@ def claims(res: dict, gate: dict, kind: str = "contact") -> dict:
 def certify_model(model: Union[StateFn, str, Path], data: Union[str, Path, Dataset], out: Union[str, Path],
                   untrained: StateFn | None = None, *, certificates: dict | str | Path | None = None,
                   name: str | None = None, config: ProtocolConfig | None = None, preset: str = "cpu",
-                  **overrides) -> dict:
+                  forecaster: Forecaster | None = None, **overrides) -> dict:
     """Run the certificate-gated protocol on ``model`` and write the report to ``out``.
 
     Args:
@@ -403,6 +415,8 @@ def certify_model(model: Union[StateFn, str, Path], data: Union[str, Path, Datas
         untrained: the same architecture at initialisation, for the untrained bound (optional).
         certificates: a certificates dict or certificates.json path (default: found or computed).
         name: label of the model in the report (default: its function / class name).
+        forecaster: the model's forecasts (:class:`pokeworld.evaluate.dependence.Forecaster`), for the forecast
+            dependence (slope ratio S) per parameter beside its probes; None: readout only.
         config / preset / overrides: a :class:`ProtocolConfig`, or a preset with field overrides.
     Returns:
         The report dictionary also written to ``out/protocol.json``.
@@ -418,10 +432,14 @@ def certify_model(model: Union[StateFn, str, Path], data: Union[str, Path, Datas
     data_path = None if isinstance(data, Dataset) else Path(data)
     ds = data if isinstance(data, Dataset) else load(data)
     _check_splits(ds)  # before the (slow) certificates, so a store without splits fails at once
+    if forecaster is not None:
+        check_store(ds)  # likewise a store the forecast responses cannot be read from
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     certs = resolve_certificates(ds, cfg, out, data_path, certificates)
     res = run_probes(model, ds, cfg, untrained)
+    if forecaster is not None:
+        res["dependence"] = dependence_of(forecaster, ds, cfg)
     name = name or getattr(model, "__name__", type(model).__name__)
     result = {"model": {"name": name, "state_dim": res.pop("state_dim")},
               "protocol": to_dict(cfg),
@@ -437,6 +455,36 @@ def certify_model(model: Union[StateFn, str, Path], data: Union[str, Path, Datas
     figure(result, out / "protocol.png")
     print(f"[protocol] {name}: wrote {out / 'protocol.md'}")
     return result
+
+
+def dependence_of(forecaster: Forecaster, ds: Dataset, cfg: ProtocolConfig) -> dict:
+    """The forecaster's slope ratio S per parameter (:mod:`pokeworld.evaluate.dependence`), on fresh episodes from
+    the store's generator (``dependence_episodes``) or on the store's probe-test episodes."""
+    dep = DependenceConfig(bootstrap=cfg.dependence_bootstrap, seed=cfg.seed)
+    if cfg.dependence_episodes:
+        fresh = fresh_corpus(ds, cfg.dependence_episodes, cfg.seed + 1000)
+        return forecast_dependence(forecaster, fresh, np.arange(fresh.num_episodes), dep)
+    return forecast_dependence(forecaster, ds, ds.episodes("probe_test"), dep)
+
+
+def dependence_lines(result: dict) -> list[str]:
+    """The report's forecast-dependence table: readout (ridge, contact) and S side by side per parameter."""
+    if "dependence" not in result:
+        return []
+    lines = ["", "## Forecast dependence (slope ratio S)", "",
+             "| parameter | response | readout (ridge, contact) | S [95 % episode bootstrap] | forecast error | "
+             "windows |", "|---|---|---|---|---|---|"]
+    ridge = result["probes"].get("ridge", {}).get("contact", {})
+    for p, v in result["dependence"].items():
+        s = (f"{v['S']:+.2f} [{v['S_interval'][0]:+.2f}, {v['S_interval'][1]:+.2f}]" if "S" in v
+             else f"— ({v.get('note', 'not measured')})")
+        err = f"{v['forecast_error']:.3f}" if "forecast_error" in v else "—"
+        lines.append(f"| {p} | {v['response']} | {R.fmt(ridge.get(v['regressor']))} | {s} | {err} | "
+                     f"{v.get('windows', 0)} |")
+    return lines + ["", "S: the partial slope of the model's forecast response on the parameter over the simulator's "
+                    "on the same windows, context state and the other parameters controlled (docs/design.md, "
+                    "\"Forecast dependence\"). 1: the forecast depends on the parameter as the world does; 0: it "
+                    "ignores it; below 0: it moves the wrong way. Readout and dependence can diverge."]
 
 
 # --------------------------------------------------------------------------- report
@@ -497,7 +545,7 @@ def markdown(result: dict) -> str:
     if has_unt:
         lines += ["", "Untrained: the same ridge probes on the untrained copy of the model; content is what the "
                   "trained model holds above it."]
-    return "\n".join(lines) + "\n"
+    return "\n".join(lines + dependence_lines(result)) + "\n"
 
 
 #: The figure's lowest R²: a bar below it is cut there and marked with its true value.

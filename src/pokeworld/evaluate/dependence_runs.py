@@ -1,0 +1,257 @@
+"""Forecast dependence of trained runs, beside their readout: ``forecast_dependence.{json,md,png}``.
+
+For each run: S, its episode-bootstrap interval and the forecast error per parameter
+(:func:`pokeworld.evaluate.dependence.forecast_dependence` through :class:`~.forecasters.XJEPAForecaster`), on a
+fresh corpus from the generator of the run's training store, and the run's own ridge readout of the same parameter
+(``measure.json``, contact and glide windows) beside it. Per training store, the planted reference rows on the same
+windows — the simulator itself, and the simulator ignoring or reversing each parameter — show the measurement
+coming out at 1, ≈ 0 and < 0 there before any model is read.
+"""
+
+from __future__ import annotations
+
+import textwrap
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .. import __version__
+from ..config import SEED, Limit, check_fields, from_preset
+from ..data import load
+from ..errors import ConfigError
+from ..io import check_outputs, check_writable_dir, read_json, read_json_if_present, save_text, write_json
+from ..rundir import load_model, read_run_config
+from ..run_store import trained_store
+from ..sim.replay import physics_of
+from . import tables as R
+from .dependence import PARAMETERS, REGRESSOR, RESPONSE, DependenceConfig, forecast_dependence, fresh_corpus
+from .forecasters import PLANTS, SimulatorForecaster, XJEPAForecaster
+
+REVISION = {
+    "VFX": {"gamma": {"S": 1.04, "readout_contact": 0.12, "readout_glide": 0.50}},
+    "coordinate-target": {"gamma": {"readout": 0.95, "S_sign": "negative (forecast displacement rises with drag)"}},
+}
+"""What the authors' revised paper reports (tantansir/latent-world-model-identifiability, docs/index.html and
+README): VFX's 16-step glide displacement falls with drag at S = 1.04 although its linear drag readout is 0.12 on
+contact windows (0.50 on glides); a coordinate-target model reads drag at 0.95 but forecasts displacement that rises
+with drag. Paper values, shown beside ours, never used as ours."""
+PARAM_READOUT = {"gamma": "gamma", "mass": "log_m", "stiffness": "log_k"}
+
+
+@dataclass
+class DependenceRunsConfig:
+    """Measure forecast dependence (slope ratio S) of trained runs, beside their probe readout."""
+
+    runs: tuple[str, ...] = ("runs/xjepa",)
+    """Run directories written by ``pokeworld train`` (a map's or demo's ``runs/<name>``; default: where ``pokeworld
+    train`` writes)."""
+    out: str = "out/forecast_dependence"
+    """Folder of the record (``<name>.json``, ``.md``, ``.png``)."""
+    name: str = "forecast_dependence"
+    """File stem of the record."""
+    store: str = ""
+    """A store to fit the decoders on and draw the fresh episodes from, for every run (default: each run's own
+    training store, checked by content). For runs whose training store is not at hand (weights returned from a GPU):
+    a store of the same generator (physics, policy, parameter ranges, episode length), which the caller vouches for;
+    the record names it."""
+    environment: str = ""
+    """What the record calls the environment the runs were trained on (e.g. the corpus and simulator)."""
+    eval_episodes: int = 2400
+    """Fresh evaluation episodes simulated from each training store's generator."""
+    eval_seed: int = 1000
+    """Seed of the evaluation episodes (the store's own seed would repeat its episodes)."""
+    bootstrap: int = 1000
+    """Episode-bootstrap resamples of S."""
+    max_windows: int = 3000
+    """Cap on windows per response."""
+    seed: int = 0
+    """Seed of the decoders' subsample, the window subsample and the bootstrap."""
+    merge: tuple[str, ...] = ()
+    """Earlier records (``<name>.json`` of this command, same settings and store) whose runs join this
+    record's, so runs measured at different times make one table; a run measured here replaces its earlier row."""
+
+    LIMITS = {"eval_episodes": Limit(20, 10**6), "eval_seed": SEED, "bootstrap": Limit(10, 10**5),
+              "max_windows": Limit(10, 10**7), "seed": SEED}
+
+    def __post_init__(self) -> None:
+        check_fields(self)
+
+
+PRESETS = {"tiny": {"eval_episodes": 200, "bootstrap": 50, "max_windows": 300}, "cpu": {}, "paper": {}}
+
+
+def make_config(preset: str = "cpu", **overrides) -> DependenceRunsConfig:
+    return from_preset(DependenceRunsConfig, PRESETS, preset, **overrides)
+
+
+def _readout(run_dir: Path) -> dict:
+    """The run's ridge R² per parameter on contact and glide windows (None where not measured)."""
+    m = read_json_if_present(Path(run_dir) / "measure.json", "a measurement record", dict) or {}
+    ridge = m.get("probes", {}).get("ridge", {})
+    return {p: {kind: ridge.get(kind, {}).get(q) for kind in ("contact", "glide")} for p, q in PARAM_READOUT.items()}
+
+
+def planted_rows(ds, cfg: DependenceConfig) -> dict:
+    """S of the simulator and of its planted corruptions, per parameter, on ``ds``'s windows."""
+    physics, eps = physics_of(ds.manifest), np.arange(ds.num_episodes)
+    return {plant: {p: forecast_dependence(SimulatorForecaster(physics, p, plant), ds, eps, cfg, (p,))[p]
+                    for p in PARAMETERS} for plant in PLANTS}
+
+
+def measure_run(run_dir: Path, fresh, store, cfg: DependenceConfig, seed: int) -> dict:
+    """One run's forecast dependence on ``fresh`` (decoders fit on its training ``store``) and its readout."""
+    model = load_model(run_dir)
+    rc = read_run_config(run_dir) or {}
+    forecaster = XJEPAForecaster(model, store, seed=seed)
+    return {"run": str(run_dir), "variant": rc.get("variant", model.variant), "seed": rc.get("seed"),
+            "steps": rc.get("steps"), "dependence": forecast_dependence(forecaster, fresh, np.arange(fresh.num_episodes),
+                                                                       cfg),
+            "readout": _readout(run_dir)}
+
+
+SETTINGS = ("store", "eval_episodes", "eval_seed", "bootstrap", "max_windows", "seed")
+"""The config fields a record's numbers depend on (besides its runs): records merge only when these agree."""
+
+
+def merged_records(cfg: DependenceRunsConfig) -> list[dict]:
+    """The ``merge`` records, read and checked against ``cfg`` before anything is measured."""
+    records = []
+    for path in cfg.merge:
+        rec = read_json(path, "a forecast-dependence record", dict)
+        want = {k: getattr(cfg, k) for k in SETTINGS}
+        got = rec.get("config", {})
+        if any(got.get(k) != want[k] for k in SETTINGS):
+            raise ConfigError(f"{path} was measured with other settings ({got}); merge only records of the same "
+                              f"settings ({want})")
+        records.append(rec)
+    return records
+
+
+def run(cfg: DependenceRunsConfig) -> Path:
+    if not cfg.runs and not cfg.merge:
+        raise ConfigError("give at least one trained run directory with --runs (or records to join with --merge)")
+    earlier = merged_records(cfg)
+    out = Path(cfg.out)
+    check_writable_dir(out.parent)
+    check_outputs(out, *(f"{cfg.name}.{ext}" for ext in ("json", "md", "png", "pdf")))
+    # every run checked first
+    stores = {str(r): cfg.store or trained_store(r, "[forecast-dependence]") for r in cfg.runs}
+    dep = DependenceConfig(bootstrap=cfg.bootstrap, max_windows=cfg.max_windows, seed=cfg.seed)
+    loaded, rows, refs = {}, [], {}
+    for r in cfg.runs:
+        path = stores[str(r)]
+        if path not in loaded:
+            store = load(path)
+            loaded[path] = (store, fresh_corpus(store, cfg.eval_episodes, cfg.eval_seed))
+            refs[path] = planted_rows(loaded[path][1], dep)
+            print(f"[forecast-dependence] {path}: {cfg.eval_episodes} fresh episodes; planted rows done")
+        store, fresh = loaded[path]
+        rows.append({**measure_run(Path(r), fresh, store, dep, cfg.seed), "store": path})
+        print(f"[forecast-dependence] {r}: " + ", ".join(
+            f"{p} S {v['S']:+.2f}" for p, v in rows[-1]["dependence"].items() if "S" in v))
+    measured = {row["run"] for row in rows}
+    joined = []
+    for rec in earlier:  # in the order given, then this invocation's runs
+        joined += [row for row in rec["runs"] if row["run"] not in measured and row not in joined]
+        refs = {**rec["planted"], **refs}
+    rows = joined + rows
+    for row in rows:  # a run probed after its dependence was measured gets its readout now
+        if Path(row["run"], "measure.json").is_file():
+            row["readout"] = _readout(Path(row["run"]))
+    result = {"environment": cfg.environment, "config": {k: getattr(cfg, k) for k in SETTINGS}, "responses": RESPONSE,
+              "regressors": REGRESSOR, "runs": rows, "planted": refs, "revision": REVISION,
+              "provenance": {"pokeworld": __version__, "git": R.git_commit()}}
+    out.mkdir(parents=True, exist_ok=True)
+    write_json(out / f"{cfg.name}.json", result)
+    save_text(out / f"{cfg.name}.md", markdown(result))
+    figure(result, out / f"{cfg.name}.png")
+    print(f"[forecast-dependence] wrote {out / cfg.name}.json, .md, .png")
+    return out
+
+
+def _cell(v: dict) -> str:
+    if "S" not in v:
+        return f"— ({v.get('note', 'not measured')})"
+    lo, hi = v["S_interval"]
+    return f"{v['S']:+.2f} [{lo:+.2f}, {hi:+.2f}]"
+
+
+def _label(row: dict) -> str:
+    return f"{row['variant']} s{row['seed']} ({row['steps']} steps)"
+
+
+def _r2(x) -> str:
+    return "—" if x is None else f"{x:+.2f}"
+
+
+def markdown(result: dict) -> str:
+    """Readout and S side by side per run and parameter; the planted rows; the revision's values."""
+    lines = ["# Forecast dependence (slope ratio S) beside readout", "",
+             f"Environment: {result['environment'] or 'not named'}. pokeworld {result['provenance']['pokeworld']}, "
+             f"git {result['provenance']['git']}. S = the model's partial slope of its forecast response on the "
+             "parameter / the simulator's, context state and the other parameters controlled (docs/design.md, "
+             "\"Forecast dependence\"); [95 % episode-bootstrap interval]. Readout: the run's ridge R² of the "
+             "parameter (contact / glide windows, measure.json). Error: the forecast's mean error on the same "
+             "windows (arena units; the store's touch units for stiffness).", ""]
+    for p in PARAMETERS:
+        lines += [f"## {p}: {result['responses'][p]}; regressed on {result['regressors'][p]}", "",
+                  "| run | readout contact / glide | S [95 %] | slope model / simulator | error | windows (episodes) |",
+                  "|---|---|---|---|---|---|"]
+        for row in result["runs"]:
+            v, rd = row["dependence"][p], row["readout"][p]
+            slopes = f"{v['slope_model']:+.4f} / {v['slope_simulator']:+.4f}" if "S" in v else "—"
+            err = f"{v['forecast_error']:.3f}" if "forecast_error" in v else "—"
+            lines.append(f"| {_label(row)} | {_r2(rd['contact'])} / {_r2(rd['glide'])} | {_cell(v)} "
+                         f"| {slopes} | {err} | {v.get('windows', 0)} ({v.get('episodes', '—')}) |")
+        for store, ref in result["planted"].items():
+            lines.append(f"| *planted, {Path(store).name}:* simulator / ignores {p} / reverses {p} | — | "
+                         f"{_cell(ref['true'][p])} / {_cell(ref['ignore'][p])} / {_cell(ref['reverse'][p])} | | | |")
+        lines.append("")
+    lines += ["## The revision's reported values (paper, not ours)", "",
+              "| model | parameter | S | readout |", "|---|---|---|---|",
+              "| VFX | drag (γ), pure glides | +1.04 | 0.12 contact / 0.50 glides |",
+              "| coordinate-target model | drag (γ) | negative: displacement rises with drag | 0.95 |", ""]
+    return "\n".join(lines)
+
+
+def figure(result: dict, path: Path) -> Path:
+    """S with its interval per run and parameter (left axis per parameter), the readout beside it."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from ..io import save_figure
+
+    fig, axes = plt.subplots(1, len(PARAMETERS), figsize=(4.2 * len(PARAMETERS), 3.8), sharey=False)
+    for ax, p in zip(np.atleast_1d(axes), PARAMETERS):
+        names = [_label(r) for r in result["runs"]]
+        for i, r in enumerate(result["runs"]):
+            v = r["dependence"][p]
+            if "S" in v:
+                lo, hi = v["S_interval"]
+                ax.errorbar(i - 0.12, v["S"], yerr=[[v["S"] - lo], [hi - v["S"]]], fmt="o", color="C0",
+                            capsize=3, label="S (95 % episode bootstrap)" if i == 0 else None)
+            reported = REVISION.get(r["variant"], {}).get(p, {}).get("S")
+            if reported is not None:
+                ax.plot(i - 0.12, reported, "*", color="grey", ms=10,
+                        label=f"revision's {r['variant']} S (paper, not ours)")
+            rd = r["readout"][p]["contact"]
+            if rd is not None:
+                ax.plot(i + 0.12, rd, "s", color="C1", label="readout R² (contact)" if i == 0 else None)
+        ax.axhline(1.0, color="grey", lw=0.8, ls="--")
+        ax.axhline(0.0, color="grey", lw=0.8)
+        ax.set_xticks(range(len(names)), names, rotation=30, fontsize=8)
+        ax.set_title(f"{p}: S and readout", fontsize=9)
+        ax.set_ylabel("S (1 = the simulator's dependence) / R²")
+        ax.legend(fontsize=7, loc="best")
+    title = f"Forecast dependence beside readout ({result['environment'] or 'environment not named'})"
+    fig.suptitle("\n".join(textwrap.wrap(title, 200)), fontsize=8)
+    fig.tight_layout()
+    save_figure(fig, path.parent, path.stem, dpi=130)
+    return path
+
+
+__all__ = ["DependenceRunsConfig", "PRESETS", "REVISION", "SETTINGS", "make_config", "markdown", "measure_run",
+           "merged_records", "planted_rows", "run"]
