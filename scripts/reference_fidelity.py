@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 
 from pokeworld.io import read_json_if_present, save_text, write_json
-from pokeworld.sim import environments, fidelity
+from pokeworld.sim import fidelity
 from pokeworld.sim.generate import content_config, make_config, simulate
 
 REFERENCE_SOURCE = ("issue 59, \"Measured side by side\": the authors' released simulator "
@@ -36,7 +36,7 @@ def measure(env: str, preset: str, seed: int) -> dict:
     t0 = time.time()
     cfg = make_config(preset, environment=env, seed=seed)
     ds = simulate(cfg, progress=False, render=False)
-    stats = {**fidelity.restitutions(environments.layered(cfg, env).physics), **fidelity.corpus_statistics(ds)}
+    stats = {**fidelity.restitutions(cfg.physics), **fidelity.corpus_statistics(ds)}
     return {"environment": env, "episodes": cfg.num_episodes, "split_counts": {k: int((ds.split == v).sum())
             for k, v in (("train", 0), ("probe_fit", 1), ("probe_test", 2))}, "config": content_config(cfg),
             "statistics": stats, "verdicts": fidelity.verdicts(stats), "seconds": round(time.time() - t0, 1)}

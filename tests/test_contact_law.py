@@ -56,8 +56,7 @@ def test_stores_made_before_the_law_was_recorded_read_as_tangent():
     recorded = content_config(make_config("tiny", environment="calibrated"))
     assert "contact_damping" not in recorded["physics"]
     assert generator_config({"config": recorded}).physics.contact_damping == LEGACY_PHYSICS["contact_damping"]
-    constant = content_config(make_config("tiny", environment="calibrated",
-                                          physics=PhysicsConfig(contact_damping="constant")))
+    constant = content_config(make_config("tiny", environment="calibrated", physics={"contact_damping": "constant"}))
     assert constant["physics"]["contact_damping"] == "constant" and constant != recorded  # never taken for one
     assert generator_config({"config": constant}).physics.contact_damping == "constant"
 

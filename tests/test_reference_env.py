@@ -115,9 +115,9 @@ def test_calibrated_stores_keep_their_configs_and_old_manifests_read_as_calibrat
     ref = content_config(make_config("tiny"))
     assert ref["environment"] == "reference" and ref["physics"]["walls"] == "hertz" and ref != old
     assert generator_config({"config": ref}).physics == REFERENCE
-    # a field set to another value than the reference's wins over the calibrated layer
-    tuned = make_config("tiny", environment="calibrated", physics={"force_max": 7.0})
-    assert environments.layered(tuned, "calibrated").physics.force_max == 7.0
+    # a value given beside the environment wins over its layer, even the reference's own value
+    tuned = make_config("tiny", environment="calibrated", physics={"force_max": 7.0}, policy={"launch_fraction": 0.6})
+    assert (tuned.physics.force_max, tuned.physics.finger_damping, tuned.policy.launch_fraction) == (7.0, 0.85, 0.6)
 
 
 def test_fidelity_statistics_read_a_reference_corpus_and_a_planted_one():
@@ -138,3 +138,12 @@ def test_fidelity_statistics_read_a_reference_corpus_and_a_planted_one():
     assert np.isnan(planted["ridge_log_k"])  # no contact window to fit on: no number
     assert fidelity.verdicts({"static16": 0.205})["static16"]["pass"]
     assert not fidelity.verdicts({"static16": 0.168})["static16"]["pass"]
+
+
+def test_the_command_line_builds_on_the_environment_it_names():
+    from pokeworld.cli import parse_config
+
+    cfg = parse_config("generate", ["--preset", "paper", "--environment", "calibrated", "--physics.force_max", "7"])
+    assert cfg.environment == "calibrated" and cfg.num_episodes == 8000 and cfg.policy.behaviour == "calibrated"
+    assert (cfg.physics.force_max, cfg.physics.finger_damping) == (7.0, 0.85)  # the flag wins, the rest is its
+    assert parse_config("generate", ["--preset", "paper"]).physics == REFERENCE

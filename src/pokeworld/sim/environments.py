@@ -1,7 +1,7 @@
 """PokeWorld's named environments: the reference (the default) and the calibrated one that came before it.
 
-An environment is a base layer of physics, behaviour and split settings under a corpus's own (docs/design.md,
-"PokeWorld"). ``reference`` is the environment the paper's authors released (their simulator, behaviour mix and
+An environment is the base layer of physics, behaviour and split settings a generator config is built on
+(:func:`pokeworld.sim.generate.make_config`, ``--environment``; docs/design.md, "PokeWorld"). ``reference`` is the environment the paper's authors released (their simulator, behaviour mix and
 splits, with one later random draw removed): the dataclass defaults of :class:`~pokeworld.sim.core.PhysicsConfig`,
 :class:`~pokeworld.sim.policy.PolicyConfig` and the generator are its values, so its layer is empty. ``calibrated``
 is the environment every record before it was made with (its constants calibrated to the paper's reported corpus
@@ -49,8 +49,8 @@ def check(name: str) -> str:
 
 
 def layered(cfg, name: str):
-    """``cfg`` (a dataclass) with environment ``name``'s layer applied to every field still at the reference's
-    value: a field set to anything else (a corpus, a command-line override) keeps its value."""
+    """``cfg`` (a dataclass; the generator's defaults when building a config) with environment ``name``'s layer
+    applied to every field still at the reference's value."""
     return _layer(cfg, ENVIRONMENTS[check(name)], type(cfg)())
 
 

@@ -15,7 +15,6 @@ from ..config import (
     check_fields,
     check_fractions,
     from_dict,
-    from_preset,
     shown,
     to_dict,
 )
@@ -36,8 +35,9 @@ class GenerateConfig:
     """Master seed: the same seed and config give byte-identical arrays."""
     environment: str = environments.DEFAULT
     """Named environment (pokeworld.sim.environments): "reference" (the authors' released simulator, behaviour and
-    splits; the default) or "calibrated" (the environment of every record made before it). It sets each physics,
-    behaviour and split field left at the reference's value; the manifest records it."""
+    splits; the default) or "calibrated" (the environment of every record made before it). The base every other
+    setting is layered on (``--environment calibrated`` builds the config on that environment's physics, behaviour
+    and splits; flags given beside it still win); the manifest records it."""
     num_episodes: int = 2400
     """Number of episodes."""
     episode_steps: int = 64
@@ -113,15 +113,19 @@ CALIBRATED_PRESETS = {"paper": {"num_episodes": 8000}}
 
 
 def make_config(preset: str = "cpu", **overrides) -> GenerateConfig:
-    if overrides.get("environment") == "calibrated":
-        overrides = {**CALIBRATED_PRESETS.get(preset, {}), **overrides}
-    return from_preset(GenerateConfig, PRESETS, preset, **overrides)
+    """The generator config of ``preset`` built on the environment ``overrides`` names (default the reference):
+    the environment's layer first, then the preset, then the overrides, so an explicit value always wins."""
+    env = environments.check(overrides.get("environment", environments.DEFAULT))
+    if preset not in PRESETS:
+        raise ConfigError(f"unknown preset {preset!r} for GenerateConfig; choose one of {sorted(PRESETS)}")
+    sizes = {**PRESETS[preset], **(CALIBRATED_PRESETS.get(preset, {}) if env == "calibrated" else {})}
+    cfg = apply_overrides(environments.layered(GenerateConfig(), env), {**sizes, "environment": env})
+    return apply_overrides(cfg, overrides) if overrides else cfg
 
 
 def resolved(cfg: GenerateConfig) -> GenerateConfig:
-    """``cfg`` with its environment's layer (:func:`~pokeworld.sim.environments.layered`), then its named corpus
-    overrides applied."""
-    return apply_overrides(environments.layered(cfg, cfg.environment), CORPORA[cfg.corpus])
+    """``cfg`` with its named corpus overrides applied."""
+    return apply_overrides(cfg, CORPORA[cfg.corpus])
 
 
 def content_config(cfg: GenerateConfig) -> dict:
