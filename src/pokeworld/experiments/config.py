@@ -197,4 +197,11 @@ class MapConfig(LaunchOptions):
         if self.pack and not self.pack.endswith((".tar.gz", ".tgz")):
             raise ConfigError(f"pack must name a .tar.gz file, got {self.pack!r}")
 
-__all__ = ["MapConfig", "VARIANT_ORDER"]
+
+def recorded_map_config(recorded: dict) -> dict:
+    """A map config as a record wrote it, with the environment of a record made before environments existed
+    (``calibrated``, its corpora's) where it names none, so an old record is read back as what it ran."""
+    return {"environment": environments.LEGACY, **recorded}
+
+
+__all__ = ["MapConfig", "VARIANT_ORDER", "recorded_map_config"]
