@@ -147,3 +147,13 @@ def test_the_command_line_builds_on_the_environment_it_names():
     assert cfg.environment == "calibrated" and cfg.num_episodes == 8000 and cfg.policy.behaviour == "calibrated"
     assert (cfg.physics.force_max, cfg.physics.finger_damping) == (7.0, 0.85)  # the flag wins, the rest is its
     assert parse_config("generate", ["--preset", "paper"]).physics == REFERENCE
+
+
+def test_map_records_without_an_environment_read_back_as_calibrated():
+    from pokeworld.experiments.config import MapConfig, recorded_map_config
+
+    assert recorded_map_config({"preset": "cpu"})["environment"] == "calibrated"
+    assert recorded_map_config({"environment": "reference"})["environment"] == "reference"
+    assert MapConfig().environment == "reference" and MapConfig().contact_damping == ""  # the environment's own law
+    with pytest.raises(ConfigError, match="environment"):
+        MapConfig(environment="gym")
