@@ -2,7 +2,8 @@
 
 Measures, in the simulator, head-on impacts over the corpus's stiffness range at the impact speeds the default
 corpus holds (its contact-onset speeds, quartiles), for the "constant" and "tangent" readings of "normal damping at
-zeta of critical" (docs/design.md, "Contact damping"), and writes JSON + a Markdown table:
+zeta of critical" (docs/design.md, "Contact damping") in the calibrated environment (whose two laws these are; the
+reference environment's hertz law is measured by scripts/reference_fidelity.py), and writes JSON + a Markdown table:
 
     python scripts/contact_law.py --out docs/results/contact_law
 """
@@ -13,15 +14,18 @@ from pathlib import Path
 import numpy as np
 
 from pokeworld.io import write_json
-from pokeworld.sim import contact
-from pokeworld.sim.core import PhysicsConfig
+from dataclasses import replace
+
+from pokeworld.sim import contact, environments
 from pokeworld.sim.generate import make_config, simulate
 
 STIFFNESS = (500.0, 1000.0, 2000.0, 4000.0, 6000.0)
+CALIBRATED = environments.physics("calibrated")
 
 
 def corpus_speeds(law: str, episodes: int) -> np.ndarray:
-    cfg = make_config("cpu", num_episodes=episodes, physics=PhysicsConfig(contact_damping=law))
+    cfg = make_config("cpu", num_episodes=episodes, environment="calibrated",
+                      physics=replace(CALIBRATED, contact_damping=law))
     return contact.impact_speeds(simulate(cfg, progress=False, render=False).labels)
 
 
@@ -49,9 +53,9 @@ def main() -> None:
     ap.add_argument("--episodes", type=int, default=1200, help="episodes of the corpus whose impact speeds are used")
     args = ap.parse_args()
     speeds = {law: corpus_speeds(law, args.episodes) for law in ("constant", "tangent")}
-    default_law = PhysicsConfig().contact_damping
+    default_law = CALIBRATED.contact_damping
     quartiles = np.quantile(speeds[default_law], [0.25, 0.5, 0.75])
-    table = contact.law_table(PhysicsConfig(), STIFFNESS, quartiles)
+    table = contact.law_table(CALIBRATED, STIFFNESS, quartiles)
     rec = {"command": f"python scripts/contact_law.py --out {args.out} --episodes {args.episodes}",
            "corpus_episodes": args.episodes, "table": table, "default_law": default_law,
            "corpus_impact_speed_quantiles": {law: dict(zip(("q10", "q25", "q50", "q75", "q90"),

@@ -7,11 +7,14 @@ import numpy as np
 import pytest
 
 from pokeworld.errors import ConfigError
-from pokeworld.sim import PhysicsConfig, contact
+from pokeworld.sim import PhysicsConfig, contact, environments
 from pokeworld.sim.generate import LEGACY_PHYSICS, content_config, generator_config, make_config
 
 # the contact law alone: no finger damping, no drag
-TWO_BODY = PhysicsConfig(touch_noise=0.0, finger_damping=0.0, contact_damping="constant")
+# (the calibrated environment's kernel, which these two laws were built for; tests/test_reference_env.py tests the
+# reference's hertz law)
+TWO_BODY = dataclasses.replace(environments.physics("calibrated"), touch_noise=0.0, finger_damping=0.0,
+                               contact_damping="constant")
 MU = 0.5  # reduced mass of the unit finger and a unit object
 
 
@@ -49,10 +52,11 @@ def test_impact_speeds_reads_contact_onsets_of_a_planted_corpus():
 
 
 def test_stores_made_before_the_law_was_recorded_read_as_tangent():
-    recorded = content_config(make_config("tiny"))  # the default law: the manifest of a store made before the field
+    # the calibrated environment's law: the manifest of a store made before the field
+    recorded = content_config(make_config("tiny", environment="calibrated"))
     assert "contact_damping" not in recorded["physics"]
     assert generator_config({"config": recorded}).physics.contact_damping == LEGACY_PHYSICS["contact_damping"]
-    constant = content_config(make_config("tiny", physics=PhysicsConfig(contact_damping="constant")))
+    constant = content_config(make_config("tiny", environment="calibrated", physics={"contact_damping": "constant"}))
     assert constant["physics"]["contact_damping"] == "constant" and constant != recorded  # never taken for one
     assert generator_config({"config": constant}).physics.contact_damping == "constant"
 
@@ -63,7 +67,7 @@ def test_a_map_generates_its_corpora_under_the_law_it_names(tmp_path):
     from pokeworld.experiments.stages import ensure_corpus
 
     for law in ("constant", "tangent"):
-        c = experiments.make_config("tiny", out=str(tmp_path / law), contact_damping=law)
+        c = experiments.make_config("tiny", out=str(tmp_path / law), contact_damping=law, environment="calibrated")
         manifest = read_manifest(ensure_corpus(c, "standard"))
         assert generator_config(manifest).physics.contact_damping == law
     with pytest.raises(ConfigError, match="contact_damping"):

@@ -18,7 +18,7 @@ def test_goal_observation_draws_the_object_at_the_goal_and_the_finger_behind_it(
     size = PHYS.image_size
     for i, g in enumerate(goal):
         row, col = int(g[1] * size), int(g[0] * size)
-        assert obs["vision"][i, row, col, 0] == 255  # the object's centre pixel
+        assert obs["vision"][i, row, col, 0] == int(PHYS.object_intensity + 0.5)  # the object's centre pixel
     # touching the object on the far side from the finger: on the finger-goal line, at contact distance
     reach = PHYS.finger_radius + PHYS.object_radius
     np.testing.assert_allclose(obs["proprio"][:, :2], [[0.6 - reach, 0.5], [0.5, 0.3 + reach]], atol=1e-6)

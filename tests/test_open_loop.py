@@ -12,7 +12,8 @@ from pokeworld.sim import generate
 from pokeworld.sim.policy import KNOT_SD, PROGRAM, programs
 
 #: content hash of ``simulate(make_config("tiny", seed=0))`` from the generator before open-loop slots existed
-#: (commit 08564c2); a share of 0 must reproduce it byte for byte
+#: (commit 08564c2); a share of 0 must reproduce it byte for byte, and so must the calibrated environment (the one
+#: it was made in) now that the reference environment is the default
 TINY_STANDARD_SHA256 = "9f24bb04d9b323955136af13c47abb834652447afd1c08335fd9ee2f8b78670f"
 TINY_CONTACT_POOR_SHA256 = "84b95f5a9162cb115986215755931602c95a53bb4dd8097ef4401dd0446db3c2"
 
@@ -94,11 +95,11 @@ def test_generated_corpora_hold_programs_only_in_open_loop_slots():
 
 def test_share_zero_leaves_corpora_byte_identical():
     for corpus, digest in (("standard", TINY_STANDARD_SHA256), ("contact_poor", TINY_CONTACT_POOR_SHA256)):
-        ds = generate.simulate(generate.make_config("tiny", corpus=corpus), progress=False)
+        ds = generate.simulate(generate.make_config("tiny", corpus=corpus, environment="calibrated"), progress=False)
         assert hash_arrays(ds.arrays()) == digest, corpus
         # and the recorded config is the one written before the fields existed, so old stores stay current
         assert not {"open_loop_share", "open_loop_aim"} & set(ds.manifest["config"]["policy"])
-    ds = generate.simulate(generate.make_config("tiny", corpus="open_loop"), progress=False)
+    ds = generate.simulate(generate.make_config("tiny", corpus="open_loop", environment="calibrated"), progress=False)
     assert hash_arrays(ds.arrays()) != TINY_STANDARD_SHA256
     assert ds.manifest["config"]["policy"]["open_loop_share"] == 0.2
 

@@ -73,10 +73,11 @@ def test_stats_refuse_stores_without_object_labels():
 
 
 @pytest.mark.parametrize("corpus", ["standard", "open_loop"])
-def test_default_corpus_stays_calibrated(corpus):
-    # 400 render-free episodes: the calibrated defaults must keep every statistic in its band, with a fifth of
+def test_calibrated_environment_stays_calibrated(corpus):
+    # 400 render-free episodes: the calibrated environment must keep every statistic in its band, with a fifth of
     # the program slots open-loop too (the planner's programs; docs/design.md, "Planning: open-loop behaviour ...")
-    ds = simulate(make_config("cpu", num_episodes=400, seed=3, corpus=corpus), progress=False, render=False)
+    ds = simulate(make_config("cpu", num_episodes=400, seed=3, corpus=corpus, environment="calibrated"),
+                  progress=False, render=False)
     st = ds.manifest["stats"]
     assert st == corpus_stats(ds)
     table = format_stats(st)

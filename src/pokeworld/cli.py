@@ -473,13 +473,17 @@ def parse_config(name: str, argv: list[str]):
 
     own = bool(cmd.own_preset) and not preset_given(argv)
 
-    def parse(preset: str):
-        default = getattr(config_mod, cmd.make)(preset) if cmd.make else cls()
+    def parse(preset: str, **base):
+        default = getattr(config_mod, cmd.make)(preset, **base) if cmd.make else cls()
         with parsing_command_line():  # a field out of range: one line, not the parser's help box
             return tyro.cli(cls, default=default, args=rest, prog=command_prog(name, module_presets(config_mod)),
                             registry=plain_help_registry(), description=command_description(name, preset, own))
 
     cfg = parse(preset)
+    if cmd.make and getattr(cfg, "environment", None) not in (None, getattr(cls(), "environment", None)):
+        # a named environment is the base the preset and the flags are layered on (pokeworld.sim.environments):
+        # parsing again builds the defaults on it, and the other flags still win
+        cfg = parse(preset, environment=cfg.environment)
     if own:
         # the input (probe: the run) is only known once parsed; parsing again layers the flags over its preset
         run_preset = getattr(config_mod, cmd.own_preset)(cfg)

@@ -25,7 +25,7 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
-from .. import checkpoint, clock
+from .. import clock
 from ..config import to_dict
 from ..errors import PokeworldError
 from ..io import read_regular_bytes, save_bytes, write_json

@@ -62,7 +62,7 @@ from ..train.optimizer_state import check_optimizer_fits
 from . import merge, report, stages
 from .allocation_pack import COMPACT_MIN_ELEMENTS, INDEX, RECORDS, load_member, read_stream
 from .allocation_queue import PRIORITY, checked_key, folder_list, order_queue, parse_token, run_word, shell_line
-from .config import VARIANT_ORDER, MapConfig
+from .config import VARIANT_ORDER, MapConfig, recorded_map_config
 from .factorial import FACTORIAL
 from .runs import spec_measure_path
 
@@ -71,7 +71,7 @@ DEVICE_FILE = "device.json"
 
 #: Map settings every merged allocation must share: they decide the corpus, the runs' training and what is measured.
 AGREE = ("preset", "train_preset", "train_steps", "train_batch_size", "num_episodes", "data_seed", "split_fractions",
-         "contact_damping", "sigreg_weight", "sigreg_pool", "sigreg_reference_rows", "gnll_variance",
+         "environment", "contact_damping", "sigreg_weight", "sigreg_pool", "sigreg_reference_rows", "gnll_variance",
          "measure_max_windows", "measure_kinds")
 MAX_PACK_BYTES = 64 << 20
 """Largest pack read (a device machine returns files of at most 16 MiB)."""
@@ -299,7 +299,7 @@ def training_facts(a: Allocation, name: str) -> dict:
 
 def allocation_record(a: Allocation, certificates: dict) -> dict:
     """The finished runs of ``a`` as a map record (:func:`.report.collect`), each naming where it was trained."""
-    c = from_dict(MapConfig, {**a.map_config, "out": str(a.root)})
+    c = from_dict(MapConfig, {**recorded_map_config(a.map_config), "out": str(a.root)})
     finished = set(a.progress.get("finished", []))
     specs = [s for s in stages.all_specs(c) if s.name in finished]
     for s in specs:

@@ -10,6 +10,7 @@ from ..errors import ConfigError
 from ..evaluate.probes import KINDS
 from ..losses import SIGREG_POOLS
 from ..models.xjepa import VARIANTS, check_gnll_variance
+from ..sim import environments
 from ..sim.physics import DAMPING_LAWS
 from ..train.config import PRESETS as TRAIN_PRESETS
 from .launch import LaunchOptions
@@ -66,9 +67,14 @@ class MapConfig(LaunchOptions):
     sigreg_pool: str = "step"
     """SIGReg rows of every global-latent run (``pokeworld train --sigreg-pool``): 'step' or 'pooled'; runs it
     does not apply to (token, reconstruction) keep theirs. A non-default value is part of each run's name."""
-    contact_damping: str = "tangent"
-    """Contact-damping law of every corpus the map generates (``PhysicsConfig.contact_damping``): 'tangent' (the
-    default) or 'constant' (docs/design.md, "Contact damping")."""
+    environment: str = "reference"
+    """Environment of every corpus the map generates (``pokeworld generate --environment``): 'reference' (the
+    authors' released simulator, the default) or 'calibrated' (every record made before it; docs/design.md,
+    "PokeWorld")."""
+    contact_damping: str = ""
+    """Contact-damping law of every corpus the map generates (``PhysicsConfig.contact_damping``): empty for the
+    environment's own ('hertz' in the reference, 'tangent' in the calibrated one), or 'hertz', 'tangent',
+    'constant' (docs/design.md, "Contact damping")."""
     sigreg_reference_rows: int = 0
     """SIGReg statistic of every global-latent run at this sample count (``pokeworld train
     --sigreg-reference-rows``; 0: each run's own rows). 128 gives the paper's batch-128 strength at any batch; a
@@ -173,7 +179,8 @@ class MapConfig(LaunchOptions):
             raise ConfigError(f"unknown preset {self.preset!r}; choose tiny, cpu or paper")
         if self.train_preset and self.train_preset not in TRAIN_PRESETS:
             raise ConfigError(f"unknown train_preset {self.train_preset!r}; choose one of {sorted(TRAIN_PRESETS)}")
-        if self.contact_damping not in DAMPING_LAWS:
+        environments.check(self.environment)
+        if self.contact_damping and self.contact_damping not in DAMPING_LAWS:
             raise ConfigError(f"contact_damping must be one of {list(DAMPING_LAWS)}, got {self.contact_damping!r}")
         if self.sigreg_reference_rows < 0:
             raise ConfigError(f"sigreg_reference_rows must be ≥ 0, got {self.sigreg_reference_rows}")
@@ -194,4 +201,11 @@ class MapConfig(LaunchOptions):
         if self.pack and not self.pack.endswith((".tar.gz", ".tgz")):
             raise ConfigError(f"pack must name a .tar.gz file, got {self.pack!r}")
 
-__all__ = ["MapConfig", "VARIANT_ORDER"]
+
+def recorded_map_config(recorded: dict) -> dict:
+    """A map config as a record wrote it, with the environment of a record made before environments existed
+    (``calibrated``, its corpora's) where it names none, so an old record is read back as what it ran."""
+    return {"environment": environments.LEGACY, **recorded}
+
+
+__all__ = ["MapConfig", "VARIANT_ORDER", "recorded_map_config"]

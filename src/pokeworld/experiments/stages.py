@@ -19,7 +19,6 @@ from ..models import flow
 from ..progress import HEARTBEAT_S, duration
 from ..rundir import last_logged_step
 from ..sim import generate
-from ..sim.generate import LEGACY_PHYSICS
 from ..train import stacked as train_stacked
 from ..train.loop import past, status_every
 from .attributes import CORPUS_TARGETS
@@ -58,7 +57,8 @@ def ensure_corpus(c: MapConfig, corpus: str) -> Path:
         overrides["num_episodes"] = c.num_episodes
     if c.split_fractions:
         overrides["split_fractions"] = tuple(c.split_fractions)
-    if c.contact_damping != LEGACY_PHYSICS["contact_damping"]:  # the default law leaves the configs as they were
+    overrides["environment"] = c.environment
+    if c.contact_damping:  # empty: the environment's own law
         overrides["physics"] = {"contact_damping": c.contact_damping}
     try:
         return generate.run(generate.make_config(c.preset, **overrides))

@@ -48,9 +48,10 @@ from ..config import from_preset, to_dict
 from ..data import load
 from ..errors import ConfigError, DataError
 from ..io import OwnedDir, atomic_path, check_owned_dir, read_json, read_json_if_present, remove_owned_dir, write_json
-from ..sim.core import PARAM_NAMES, ParamRanges, PhysicsConfig, PokeWorldSim
+from ..sim.core import PARAM_NAMES, ParamRanges, PokeWorldSim
 from ..sim.physics import render_kernel
-from ..sim.policy import MixedPolicy, PolicyConfig
+from ..sim import environments
+from ..sim.policy import make_policy
 from .evaluate import r2
 from .fixtures import save_dict, write_mp4
 from .rh20t import (
@@ -225,6 +226,11 @@ def plan_scenes(cfg: SynthConfig) -> list[ScenePlan]:
 
 # ----------------------------------------------------------------------------- simulation
 
+SCENE_ENVIRONMENT = "calibrated"
+"""The PokeWorld environment the synthetic RH20T scenes are rolled in: the one they were built on (forces in F_max
+units), so the fixtures and their recorded checks stay as they were."""
+SCENE_PHYSICS = environments.physics(SCENE_ENVIRONMENT)
+
 
 def _override(obj, changes: dict):
     import dataclasses
@@ -235,13 +241,13 @@ def _override(obj, changes: dict):
 def simulate_scene(task: int, duration_s: float, rng_seed: np.random.SeedSequence) -> dict:
     """Roll one PokeWorld episode long enough to cover ``duration_s``; positions / forces per control step."""
     spec = TASKS[task]
-    phys = PhysicsConfig()
+    phys = SCENE_PHYSICS
     ranges = _override(ParamRanges(), spec.get("ranges", {}))
-    pol_cfg = _override(PolicyConfig(), spec.get("policy", {}))
+    pol_cfg = _override(environments.policy(SCENE_ENVIRONMENT), spec.get("policy", {}))
     n_steps = int(math.ceil(duration_s / phys.dt)) + 2
     sim_seed, pol_seed = rng_seed.spawn(2)
     sim = PokeWorldSim(1, phys, ranges, seed=np.random.default_rng(sim_seed).integers(2**63))
-    pol = MixedPolicy(pol_cfg, 1, np.random.default_rng(pol_seed), phys.dt)
+    pol = make_policy(pol_cfg, 1, np.random.default_rng(pol_seed), phys.dt)
     _, vel = pol.reset()
     obs = sim.reset(object_vel=vel)
     finger = np.zeros((n_steps + 1, 2))
@@ -295,7 +301,7 @@ def _homog(r: np.ndarray, t) -> np.ndarray:
 def _render(pos_f: np.ndarray, pos_o: np.ndarray, view: str, cfg: SynthConfig) -> np.ndarray:
     """(n, H, W) grayscale frames: the arena (far) or a finger-centred window (close) in the centred square."""
     w, h = cfg.frame_size
-    phys = PhysicsConfig()
+    phys = SCENE_PHYSICS
     n = len(pos_f)
     state = np.zeros((n, 8))
     square = np.zeros((n, h, h), np.uint8)
@@ -718,9 +724,9 @@ def run(cfg: SynthConfig) -> Path:
         "config": content_config(cfg), "cfg": cfg.cfg, "robot": ROBOTS[cfg.cfg],
         "tasks": {str(t): TASKS[t] for t in cfg.tasks}, "defects": DEFECTS,
         "constants": {"metres_per_unit": cfg.metres_per_unit, "tcp_offset_m": list(cfg.tcp_offset_m),
-                      "newtons_per_unit": cfg.newtons_per_unit, "force_max_units": PhysicsConfig().force_max,
+                      "newtons_per_unit": cfg.newtons_per_unit, "force_max_units": SCENE_PHYSICS.force_max,
                       "lever_arm_m": cfg.lever_arm_m, "tcp_quat": QUAT_DOWN.tolist(), "ft_raw_offset":
-                      FT_RAW_OFFSET.tolist(), "dt_s": PhysicsConfig().dt, "calib": CALIB_MS},
+                      FT_RAW_OFFSET.tolist(), "dt_s": SCENE_PHYSICS.dt, "calib": CALIB_MS},
         "truth_note": "truth/<scene>.npz on the converter's 10 Hz grid (grid_ms = start_time + 100 k): force/torque "
                       "[N, N m] base frame (noise-free), contact = |F| > 10 N, contact_onset as the converter "
                       "defines it, tcp_pos [m], expected_* = linear interpolation of the recorded samples after the "

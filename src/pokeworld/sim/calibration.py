@@ -88,8 +88,10 @@ def evaluate(point: dict, episodes: int, seed: int) -> dict:
 
 
 def evaluate_corpus(point: dict, episodes: int, seed: int):
-    """A render-free corpus with ``point``'s overrides and its statistics (the statistics need no frames)."""
-    ds = simulate(make_config("cpu", num_episodes=episodes, seed=seed, **point), progress=False, render=False)
+    """A render-free corpus with ``point``'s overrides of the calibrated environment (the one this search made) and
+    its statistics (the statistics need no frames)."""
+    ds = simulate(make_config("cpu", num_episodes=episodes, seed=seed, environment="calibrated", **point),
+                  progress=False, render=False)
     return ds, ds.manifest["stats"]
 
 

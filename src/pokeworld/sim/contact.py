@@ -80,18 +80,23 @@ def restitution_reference(law: str, k: float, mu: float, v: float, zeta: float) 
 
     ``c = 2 zeta sqrt(k mu)`` (law "constant") or ``2 zeta sqrt(1.5 k sqrt(d) mu)`` (law "tangent"); the
     separation is where the clipped force reaches zero (the penalty contact cannot pull), as in the simulator.
+    Law "hertz" (the reference environment's): ``c = 2 zeta sqrt(k mu) sqrt(d)``, not clipped, so the contact
+    lasts until the overlap is gone.
     """
     from scipy.integrate import solve_ivp
 
     def force(d: float, dd: float) -> float:
-        stiffness = k if law == "constant" else 1.5 * k * math.sqrt(max(d, 0.0))
-        c = 2 * zeta * math.sqrt(stiffness * mu)
+        stiffness = k if law in ("constant", "hertz") else 1.5 * k * math.sqrt(max(d, 0.0))
+        c = 2 * zeta * math.sqrt(stiffness * mu) * (math.sqrt(max(d, 0.0)) if law == "hertz" else 1.0)
         return k * max(d, 0.0) ** 1.5 + c * dd
 
     def rhs(_t, y):
-        return [y[1], -max(force(y[0], y[1]), 0.0) / mu]
+        f = force(y[0], y[1])
+        return [y[1], -(f if law == "hertz" else max(f, 0.0)) / mu]
 
-    def released(_t, y):  # the force has fallen to zero while the bodies separate
+    def released(_t, y):  # the force has fallen to zero (hertz: the overlap is gone) while the bodies separate
+        if law == "hertz":
+            return y[0] if y[1] < 0 else 1.0
         return force(y[0], y[1]) if y[1] < 0 else 1.0
 
     released.terminal, released.direction = True, -1

@@ -23,24 +23,45 @@ class PhysicsConfig:
     """Control step in seconds."""
     substeps: int = 20
     """Semi-implicit Euler sub-steps per control step (touch statistics are taken over these)."""
-    force_max: float = 5.6
-    """F_max: the commanded finger force is F_max * a with a in [-1, 1]^2 (simulator force units).
-    Calibrated with the policy knobs to the paper's corpus statistics (docs/design.md, "Calibration")."""
+    force_max: float = 6.0
+    """F_max: the commanded finger force is F_max * a with a in [-1, 1]^2 (simulator force units). 6.0 is the
+    reference's; the calibrated environment's 5.6 was calibrated to the paper's corpus statistics (docs/design.md,
+    "Calibration")."""
     finger_mass: float = 1.0
     """Finger mass."""
-    finger_damping: float = 0.85
-    """Linear damping coefficient on the finger (terminal speed F_max/damping = 6.6 arena units/s; calibrated)."""
+    finger_damping: float = 2.0
+    """Linear damping coefficient on the finger (force -finger_damping * v; terminal speed F_max/damping = 3).
+    The calibrated environment's 0.85 was calibrated."""
     finger_radius: float = 0.06
     """Finger disk radius (arena units; the arena is the unit square)."""
     object_radius: float = 0.09
     """Object disk radius."""
     contact_zeta: float = 0.25
     """Finger-object normal damping as a fraction of critical (underdamped keeps impact peaks k-dependent)."""
-    contact_damping: str = "tangent"
-    """Which critical damping ``contact_zeta`` is a fraction of: "tangent" (the default: of the Hertz law's local
-    tangent stiffness, so two-body restitution is independent of k) or "constant" (2 sqrt(k mu): restitution falls
-    with k, a post-contact trace of stiffness). Chosen by measurement: "constant" halved the demo's central
-    comparison (docs/design.md, "Contact damping")."""
+    contact_damping: str = "hertz"
+    """Contact damping law: "hertz" (the reference's and the default: 2 zeta sqrt(k mu) sqrt(d) times the
+    separation speed, not clipped; restitution rises with k), "tangent" (the calibrated environment's: zeta of the
+    Hertz law's local tangent stiffness, clipped at 0, restitution independent of k) or "constant" (2 zeta
+    sqrt(k mu), clipped: restitution falls with k) (docs/design.md, "Contact damping")."""
+    walls: str = "hertz"
+    """Wall law: "hertz" (the reference's: force wall_stiffness d^1.5 - 2 sqrt(wall_stiffness) sqrt(d) v, the same
+    for every mass, so a bounce's acceleration carries 1/m) or "spring" (the calibrated environment's: a
+    mass-independent acceleration set by wall_omega and wall_zeta)."""
+    wall_stiffness: float = 3000.0
+    """K of the Hertz walls (walls "hertz")."""
+    speed_cap: float = 3.0
+    """Both bodies' speeds are capped at this after every sub-step (the reference's V_CAP); 0: no cap."""
+    drag: str = "explicit"
+    """How object drag -gamma m v and finger damping are integrated: "explicit" (the reference's: in the force sum
+    of each semi-implicit Euler sub-step) or "exact" (the calibrated environment's: exponential factors per
+    sub-step, so a free glide decays as exp(-gamma t) to machine precision)."""
+    touch_units: str = "raw"
+    """Units of the touch force channels (and of touch_noise): "raw" simulator force (the reference's) or
+    "force_max" (divided by F_max, the calibrated environment's)."""
+    placement: str = "reference"
+    """Initial positions: "reference" (finger uniform in [0.15, 0.85]², object in [0.2, 0.8]², redrawn while the
+    centres are closer than r_f + r_o + 0.05) or "calibrated" (anywhere inside the walls with a 0.02 margin,
+    redrawn while closer than 2.5 (r_f + r_o))."""
     wall_omega: float = 60.0
     """Wall spring natural frequency (rad/s); wall accelerations are independent of m and k."""
     wall_zeta: float = 0.25
@@ -49,12 +70,12 @@ class PhysicsConfig:
     """Side length of the square arena."""
     image_size: int = 64
     """Rendered frames are image_size x image_size grayscale."""
-    object_intensity: float = 255.0
-    """Gray level of the object disk."""
-    finger_intensity: float = 128.0
-    """Gray level of the finger disk (distinguishable from the object)."""
+    object_intensity: float = 140.25
+    """Gray level of the object disk (the reference's 0.55 of 255; the calibrated environment's 255)."""
+    finger_intensity: float = 255.0
+    """Gray level of the finger disk (the reference's 1.0 of 255; the calibrated environment's 128)."""
     touch_noise: float = 0.02
-    """Std of Gaussian noise on the five force channels of touch (units of F_max)."""
+    """Std of Gaussian noise on the five force channels of touch (in ``touch_units``)."""
     frame_averaged_touch: bool = False
     """Ablation: replace sub-step statistics by frame averages (peak -> |mean|, end -> mean, fraction -> flag)."""
 
@@ -64,7 +85,11 @@ class PhysicsConfig:
               "finger_damping": Limit(0, 1e4), "finger_radius": positive(1e3), "object_radius": positive(1e3),
               "contact_zeta": FRACTION, "wall_omega": positive(1e5), "wall_zeta": Limit(0, 1e3),
               "arena": positive(1e3), "image_size": Limit(8, 1024), "object_intensity": Limit(0, 255),
-              "finger_intensity": Limit(0, 255), "touch_noise": Limit(0, 1e3)}
+              "finger_intensity": Limit(0, 255), "touch_noise": Limit(0, 1e3), "wall_stiffness": positive(1e8),
+              "speed_cap": Limit(0, 1e4)}
+    #: the choices of each law field (the first of each is the calibrated environment's)
+    CHOICES = {"walls": physics.WALL_LAWS, "drag": ("exact", "explicit"), "touch_units": ("force_max", "raw"),
+               "placement": ("calibrated", "reference")}
 
     def __post_init__(self) -> None:
         check_fields(self)
@@ -72,10 +97,22 @@ class PhysicsConfig:
             raise ConfigError(f"contact_zeta must be in [0, 1) (underdamped), got {self.contact_zeta}")
         if self.contact_damping not in physics.DAMPING_LAWS:
             raise ConfigError(f"contact_damping must be one of {physics.DAMPING_LAWS}, got {self.contact_damping!r}")
+        for name, choices in self.CHOICES.items():
+            if getattr(self, name) not in choices:
+                raise ConfigError(f"{name} must be one of {choices}, got {getattr(self, name)!r}")
         if 2 * (self.finger_radius + self.object_radius) >= self.arena:
             raise ConfigError("finger and object do not fit in the arena")
 
+    @property
+    def calibrated_dynamics(self) -> bool:
+        """Whether the calibrated environment's kernel steps this arena (:func:`physics.step_kernel`, kept bit for
+        bit); any reference law takes :func:`physics.step_kernel_reference`."""
+        return (self.contact_damping != "hertz" and self.walls == "spring" and self.speed_cap == 0
+                and self.drag == "exact" and self.touch_units == "force_max")
+
     def constants(self) -> np.ndarray:
+        if not self.calibrated_dynamics:
+            return self.reference_constants()
         c = np.zeros(physics.NUM_CONSTS)
         c[physics.C_DT] = self.dt
         c[physics.C_NSUB] = self.substeps
@@ -89,6 +126,21 @@ class PhysicsConfig:
         c[physics.C_WZETA] = self.wall_zeta
         c[physics.C_ARENA] = self.arena
         c[physics.C_DAMPING_LAW] = physics.DAMPING_LAWS.index(self.contact_damping)
+        return c
+
+    def reference_constants(self) -> np.ndarray:
+        c = np.zeros(physics.NUM_CONSTS_REFERENCE)
+        for i, name in ((physics.C_DT, "dt"), (physics.C_NSUB, "substeps"), (physics.C_FMAX, "force_max"),
+                        (physics.C_MF, "finger_mass"), (physics.C_CF, "finger_damping"),
+                        (physics.C_RF, "finger_radius"), (physics.C_RO, "object_radius"),
+                        (physics.C_ZETA, "contact_zeta"), (physics.C_WOMEGA, "wall_omega"),
+                        (physics.C_WZETA, "wall_zeta"), (physics.C_ARENA, "arena"), (physics.C_KWALL, "wall_stiffness"),
+                        (physics.C_VCAP, "speed_cap")):
+            c[i] = getattr(self, name)
+        c[physics.C_DAMPING_LAW] = physics.DAMPING_LAWS.index(self.contact_damping)
+        c[physics.C_WALL_LAW] = physics.WALL_LAWS.index(self.walls)
+        c[physics.C_TOUCH_RAW] = float(self.touch_units == "raw")
+        c[physics.C_DRAG_EXPLICIT] = float(self.drag == "explicit")
         return c
 
 
@@ -191,17 +243,9 @@ class PokeWorldSim:
                 raise ConfigError(f"parameter 'gamma' must be >= 0, got {value}")
             p[:, cols] = v.reshape(-1, len(cols)) if v.ndim and v.size == n * len(cols) else v
         self.params[idx] = p
-        c, r = self.cfg, self.cfg
+        c = self.cfg
         lo_f, hi_f = c.finger_radius, c.arena - c.finger_radius
-        lo_o, hi_o = c.object_radius + 0.02, c.arena - c.object_radius - 0.02
-        fp = self.rng.uniform(lo_f + 0.02, hi_f - 0.02, (n, 2))
-        op = self.rng.uniform(lo_o, hi_o, (n, 2))
-        # resample object placements that overlap (or nearly touch) the finger
-        for _ in range(100):
-            bad = np.linalg.norm(op - fp, axis=1) < 2.5 * (r.finger_radius + r.object_radius)
-            if not bad.any():
-                break
-            op[bad] = self.rng.uniform(lo_o, hi_o, (int(bad.sum()), 2))
+        fp, op = self._placements(n)
         fp = self._override(fp, finger_pos, "finger_pos", n, (lo_f, hi_f))
         op = self._override(op, object_pos, "object_pos", n, (c.object_radius, c.arena - c.object_radius))
         vmax, why = self.MAX_VEL, "per component (the velocity range of the proprio observation space)"
@@ -213,6 +257,26 @@ class PokeWorldSim:
         self.touch[idx] = 0.0
         self._render()
         return self.observe()
+
+    def _placements(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """Initial finger and object positions under ``placement`` (field doc); object placements that overlap
+        (or nearly touch) the finger are redrawn."""
+        c = self.cfg
+        if c.placement == "reference":
+            a = c.arena
+            fp = self.rng.uniform(0.15 * a, 0.85 * a, (n, 2))
+            lo_o, hi_o, gap = 0.2 * a, 0.8 * a, c.finger_radius + c.object_radius + 0.05 * a
+        else:
+            fp = self.rng.uniform(c.finger_radius + 0.02, c.arena - c.finger_radius - 0.02, (n, 2))
+            lo_o, hi_o = c.object_radius + 0.02, c.arena - c.object_radius - 0.02
+            gap = 2.5 * (c.finger_radius + c.object_radius)
+        op = self.rng.uniform(lo_o, hi_o, (n, 2))
+        for _ in range(100):
+            bad = np.linalg.norm(op - fp, axis=1) < gap
+            if not bad.any():
+                break
+            op[bad] = self.rng.uniform(lo_o, hi_o, (int(bad.sum()), 2))
+        return fp, op
 
     @staticmethod
     def _override(default: np.ndarray, value, name: str, n: int, bounds,
@@ -237,7 +301,8 @@ class PokeWorldSim:
         if not np.all(np.isfinite(a)):
             raise ConfigError("actions contain NaN or inf")
         a = np.clip(a, -1.0, 1.0)
-        physics.step_kernel(self.state, self.params, a, self._consts, self.touch_clean)
+        kernel = physics.step_kernel if self.cfg.calibrated_dynamics else physics.step_kernel_reference
+        kernel(self.state, self.params, a, self._consts, self.touch_clean)
         self._sense()
         if render:
             self._render()

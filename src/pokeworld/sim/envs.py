@@ -75,7 +75,8 @@ class PokeWorldEnv(gym.Env):
       :func:`vision_frames` drops the channel axis);
     * ``proprio``: (4,) finger position x, y in the unit arena and velocity vx, vy (within ±50);
     * ``touch``: (7,) statistics of the contact force on the finger over the control step's physics sub-steps,
-      forces in units of F_max: 0-1 mean force x, y; 2 peak force magnitude; 3-4 force x, y at the step's end;
+      forces in ``PhysicsConfig.touch_units`` (raw simulator force by default, the reference environment's; F_max
+      units in the calibrated one): 0-1 mean force x, y; 2 peak force magnitude; 3-4 force x, y at the step's end;
       5 fraction of sub-steps in contact; 6 contact flag (1 when in contact at any sub-step). Channels 0-4 carry
       Gaussian noise (``PhysicsConfig.touch_noise``).
 

@@ -22,7 +22,7 @@ from .generate_config import (  # the settings live there (the store reader chec
     resolved,
     store_bytes,
 )
-from .policy import MixedPolicy
+from .policy import make_policy
 from .stats import CONTEXT, HORIZON, corpus_stats
 
 
@@ -49,7 +49,7 @@ def simulate(cfg: GenerateConfig, progress: bool = True, render: bool = True) ->
         n = stop - start
         rng = batch_seeds[b]
         sim = PokeWorldSim(n, cfg.physics, cfg.ranges, seed=int(rng.integers(2**63)))
-        pol = MixedPolicy(cfg.policy, n, rng, cfg.physics.dt)
+        pol = make_policy(cfg.policy, n, rng, cfg.physics.dt)
         launch, vel = pol.reset()
         obs = sim.reset(object_vel=vel)
         params[start:stop] = sim.params
@@ -72,7 +72,8 @@ def simulate(cfg: GenerateConfig, progress: bool = True, render: bool = True) ->
     par["log_m"] = np.log(params[:, 0]).astype(np.float32)
     par["log_k"] = np.log(params[:, 2]).astype(np.float32)
     manifest = {"generator": "pokeworld.sim.generate", "version": __version__, "seed": cfg.seed,
-                "config": content_config(raw_cfg), "corpus": cfg.corpus, "kind": "pokeworld"}
+                "config": content_config(raw_cfg), "corpus": cfg.corpus, "kind": "pokeworld",
+                "environment": cfg.environment}
     ds = Dataset(frames=frames, proprio=proprio, touch=touch, actions=actions, labels=lab,
                  params=par, split=split, manifest=manifest)
     if T + 1 >= CONTEXT + HORIZON:

@@ -15,11 +15,11 @@ from ..config import (
     check_fields,
     check_fractions,
     from_dict,
-    from_preset,
     shown,
     to_dict,
 )
 from ..errors import ConfigError, DataError
+from . import environments
 from .core import ParamRanges, PhysicsConfig
 from .policy import PolicyConfig
 
@@ -33,12 +33,18 @@ class GenerateConfig:
     holding anything but a pokeworld store is refused, never emptied; ``.<name>.lock`` beside it marks a writer."""
     seed: int = 0
     """Master seed: the same seed and config give byte-identical arrays."""
+    environment: str = environments.DEFAULT
+    """Named environment (pokeworld.sim.environments): "reference" (the authors' released simulator, behaviour and
+    splits; the default) or "calibrated" (the environment of every record made before it). The base every other
+    setting is layered on (``--environment calibrated`` builds the config on that environment's physics, behaviour
+    and splits; flags given beside it still win); the manifest records it."""
     num_episodes: int = 2400
     """Number of episodes."""
     episode_steps: int = 64
     """Control steps per episode (frames are one more)."""
-    split_fractions: tuple[float, float, float] = (0.6, 0.2, 0.2)
-    """Fractions of episodes in train / probe-fit / probe-test (disjoint)."""
+    split_fractions: tuple[float, float, float] = (0.625, 0.25, 0.125)
+    """Fractions of episodes in train / probe-fit / probe-test (disjoint): the reference's 4,000 / 1,600 / 800
+    (its 400 validation episodes are never read by its training or probes, so none are generated)."""
     corpus: str = "standard"
     """Named corpus variant applied on top (see CORPORA): standard, contact_poor, frame_averaged, bias0.5, bias1.5,
     bias2.5, gain, open_loop."""
@@ -63,6 +69,7 @@ class GenerateConfig:
     def __post_init__(self) -> None:
         check_fields(self)
         check_fractions("GenerateConfig.split_fractions", self.split_fractions)
+        environments.check(self.environment)
         if self.corpus not in CORPORA:
             raise ConfigError(f"unknown corpus {self.corpus!r}; choose one of {sorted(CORPORA)}")
         size = store_bytes(self.num_episodes, self.episode_steps, self.physics.image_size)
@@ -99,12 +106,21 @@ CORPORA: dict[str, dict] = {
 PRESETS: dict[str, dict] = {
     "tiny": {"num_episodes": 48, "batch_envs": 48},
     "cpu": {"num_episodes": 2400},
-    "paper": {"num_episodes": 8000},
+    "paper": {"num_episodes": 6400},  # 4,000 / 1,600 / 800, the reference's
 }
+CALIBRATED_PRESETS = {"paper": {"num_episodes": 8000}}
+"""The calibrated environment's preset sizes where they differ (its paper corpus: 4,800 / 1,600 / 1,600)."""
 
 
 def make_config(preset: str = "cpu", **overrides) -> GenerateConfig:
-    return from_preset(GenerateConfig, PRESETS, preset, **overrides)
+    """The generator config of ``preset`` built on the environment ``overrides`` names (default the reference):
+    the environment's layer first, then the preset, then the overrides, so an explicit value always wins."""
+    env = environments.check(overrides.get("environment", environments.DEFAULT))
+    if preset not in PRESETS:
+        raise ConfigError(f"unknown preset {preset!r} for GenerateConfig; choose one of {sorted(PRESETS)}")
+    sizes = {**PRESETS[preset], **(CALIBRATED_PRESETS.get(preset, {}) if env == "calibrated" else {})}
+    cfg = apply_overrides(environments.layered(GenerateConfig(), env), {**sizes, "environment": env})
+    return apply_overrides(cfg, overrides) if overrides else cfg
 
 
 def resolved(cfg: GenerateConfig) -> GenerateConfig:
@@ -125,13 +141,24 @@ def content_config(cfg: GenerateConfig) -> dict:
     if d["policy"]["open_loop_share"] == 0:
         for k in ("open_loop_share", "open_loop_aim"):
             del d["policy"][k]
-    if d["physics"]["contact_damping"] == LEGACY_PHYSICS["contact_damping"]:
-        del d["physics"]["contact_damping"]  # the law every store had before the field existed: they stay current
+    for k, v in LEGACY_PHYSICS.items():  # the values every store had before the field existed: they stay current
+        if d["physics"][k] == v:
+            del d["physics"][k]
+    if d["physics"].get("walls", "spring") != "hertz":
+        d["physics"].pop("wall_stiffness")  # read by the Hertz walls only
+    if d["policy"]["behaviour"] == LEGACY_POLICY["behaviour"]:
+        for k in environments.NEW_POLICY_FIELDS:  # the calibrated behaviour reads none of them
+            del d["policy"][k]
+    if d["environment"] == environments.LEGACY:
+        del d["environment"]
     return d
 
 
-LEGACY_PHYSICS = {"contact_damping": "tangent"}
+LEGACY_PHYSICS = {"contact_damping": "tangent", "walls": "spring", "speed_cap": 0.0, "drag": "exact",
+                  "touch_units": "force_max", "placement": "calibrated"}
 """Physics fields a store's manifest may lack, with the value every store written before the field existed had."""
+LEGACY_POLICY = {"behaviour": "calibrated"}
+"""Policy fields a store's manifest may lack, with the value every store written before the field existed had."""
 
 
 def generator_config(manifest: dict, where: str = "the store's manifest") -> GenerateConfig:
@@ -148,8 +175,11 @@ def generator_config(manifest: dict, where: str = "the store's manifest") -> Gen
             raise ConfigError(f"its config {shown(config)} is not a JSON object of generator settings")
         if not (isinstance(seed, int) and not isinstance(seed, bool) and SEED.admits(seed)):
             raise ConfigError(f"its seed must be an integer {SEED}, got {shown(seed)}")
-        config = dict(config)
+        if not isinstance(config.get("policy", {}), dict):
+            raise ConfigError(f"its config's policy {shown(config.get('policy'))} is not a JSON object")
+        config = {"environment": environments.LEGACY, **config}
         config["physics"] = {**LEGACY_PHYSICS, **config.get("physics", {})}
+        config["policy"] = {**LEGACY_POLICY, **config.get("policy", {})}
         return from_dict(GenerateConfig, config)
     except ConfigError as e:
         problem = str(e)
@@ -164,4 +194,4 @@ MANIFEST_FIELDS = {"GenerateConfig": "", "PhysicsConfig": "physics.", "ParamRang
 """Where each config's fields sit in a store manifest's ``config``."""
 
 
-__all__ = ["GenerateConfig", "STEP_FLOATS", "store_bytes", "CORPORA", "PRESETS", "make_config", "resolved", "content_config", "LEGACY_PHYSICS", "generator_config", "MANIFEST_FIELDS"]
+__all__ = ["GenerateConfig", "STEP_FLOATS", "store_bytes", "CORPORA", "PRESETS", "make_config", "resolved", "content_config", "LEGACY_PHYSICS", "LEGACY_POLICY", "generator_config", "MANIFEST_FIELDS"]

@@ -16,6 +16,14 @@ impact transient) or the *constant* law ``c = 2 zeta sqrt(k mu)`` (restitution f
 a trace of stiffness in the post-contact trajectory).
 Walls are mass- and stiffness-independent (their accelerations do not depend on
 m or k), so no hidden parameter leaks into vision through a wall bounce.
+
+That is the *calibrated* environment's kernel (:func:`step_kernel`, kept bit for bit so its corpora keep their
+content hashes). The *reference* environment, the default (docs/design.md, "PokeWorld"), steps with
+:func:`step_kernel_reference`: the authors' released simulator's dynamics. Its contact law is the *hertz* law
+``k d^1.5 - 2 zeta sqrt(k mu) sqrt(d) * sep`` (not clipped: a separating contact can pull briefly), its walls are
+Hertz contacts ``K d^1.5 - 2 sqrt(K) sqrt(d) v`` whose *force* is mass-independent (so a wall bounce's
+acceleration carries 1/m), drag ``-gamma m v`` and finger damping enter the force sum of each explicit sub-step,
+both bodies' speeds are capped per sub-step, and touch is reported in raw force units.
 """
 
 from __future__ import annotations
@@ -28,9 +36,14 @@ from numba import njit, prange
 # indices into the per-episode constant vector passed to the kernels
 C_DT, C_NSUB, C_FMAX, C_MF, C_CF, C_RF, C_RO, C_ZETA, C_WOMEGA, C_WZETA, C_ARENA, C_DAMPING_LAW = range(12)
 NUM_CONSTS = 12
-DAMPING_LAWS = ("constant", "tangent")
+DAMPING_LAWS = ("constant", "tangent", "hertz")
 """Readings of "normal damping at zeta of critical" (:func:`hertz_normal_force`); index = the kernels' code."""
 TOUCH_DIM = 7
+# the reference kernel's extra constants (appended: the calibrated kernel's indices are unchanged)
+C_WALL_LAW, C_KWALL, C_VCAP, C_TOUCH_RAW, C_DRAG_EXPLICIT = range(12, 17)
+NUM_CONSTS_REFERENCE = 17
+WALL_LAWS = ("spring", "hertz")
+"""Wall contact laws: the calibrated mass-independent spring, the reference's Hertz contact (index = code)."""
 
 
 @njit(cache=True, inline="always")
@@ -188,3 +201,117 @@ def render_kernel(state, out, rf, ro, arena, object_value, finger_value):
         img[:, :] = 0
         _draw_disk(img, state[i, 4], state[i, 5], ro, arena, object_value)
         _draw_disk(img, state[i, 0], state[i, 1], rf, arena, finger_value)
+
+
+@njit(cache=True, inline="always")
+def hertz_damped_force(d: float, sep_speed: float, k: float, mu: float, zeta: float) -> float:
+    """The reference's contact law: ``k d^1.5 - 2 zeta sqrt(k mu) sqrt(d) * sep_speed``, not clipped.
+
+    Damping grows with sqrt(d) like the spring's tangent stiffness, but with the constant ``sqrt(k mu)`` in front
+    the damping ratio at the working overlap falls as k rises: restitution rises with k (0.74 / 0.77 / 0.79 at k
+    500 / 1732 / 6000, head-on at 1.3 with m 1.22), a post-contact trace of stiffness."""
+    sd = math.sqrt(d)
+    return k * d * sd - 2.0 * zeta * math.sqrt(k * mu) * sd * sep_speed
+
+
+@njit(cache=True, inline="always")
+def _hertz_wall_force(x: float, v: float, r: float, arena: float, kwall: float) -> float:
+    """Force (not acceleration) of the two walls of one axis on a disk of radius ``r``: Hertz, critically scaled
+    damping ``2 sqrt(K) sqrt(d) v``; the same for every mass, so the bounce's acceleration carries 1/m."""
+    f = 0.0
+    low = r - x
+    if low > 0.0:
+        sd = math.sqrt(low)
+        f += kwall * low * sd - 2.0 * math.sqrt(kwall) * v * sd
+    high = x - (arena - r)
+    if high > 0.0:
+        sd = math.sqrt(high)
+        f -= kwall * high * sd + 2.0 * math.sqrt(kwall) * v * sd
+    return f
+
+
+@njit(cache=True, inline="always")
+def _wall_force_on(x: float, v: float, r: float, arena: float, mass: float, consts) -> float:
+    if consts[C_WALL_LAW] == 1.0:
+        return _hertz_wall_force(x, v, r, arena, consts[C_KWALL])
+    return mass * _wall_accel(x, v, r, arena, consts[C_WOMEGA], consts[C_WZETA])
+
+
+@njit(cache=True, inline="always")
+def _contact(d: float, sep: float, k: float, mu: float, zeta: float, law: int) -> float:
+    if law == 2:
+        return hertz_damped_force(d, sep, k, mu, zeta)
+    return hertz_normal_force(d, sep, k, mu, zeta, law)
+
+
+@njit(cache=True, inline="always")
+def _cap(vx: float, vy: float, cap: float):
+    if cap > 0.0:
+        sp = math.sqrt(vx * vx + vy * vy)
+        if sp > cap:
+            return vx * cap / sp, vy * cap / sp
+    return vx, vy
+
+
+@njit(parallel=True, cache=True)
+def step_kernel_reference(state, params, actions, consts, touch):
+    """:func:`step_kernel` under the reference environment's laws (module docstring); the same state, parameter
+    and touch layouts. Per sub-step: forces from the current state (contact, drag, walls, command, damping), then
+    velocities, the speed cap, positions. Touch forces are raw (``consts[C_TOUCH_RAW]``) or divided by F_max."""
+    n = state.shape[0]
+    nsub = int(consts[C_NSUB])
+    h = consts[C_DT] / nsub
+    fmax, mf, cf = consts[C_FMAX], consts[C_MF], consts[C_CF]
+    rf, ro, zeta, arena = consts[C_RF], consts[C_RO], consts[C_ZETA], consts[C_ARENA]
+    law = int(consts[C_DAMPING_LAW])
+    vcap = consts[C_VCAP]
+    explicit = consts[C_DRAG_EXPLICIT] == 1.0
+    scale = 1.0 if consts[C_TOUCH_RAW] == 1.0 else 1.0 / fmax
+    dec_f = 1.0 if explicit else math.exp(-cf / mf * h)
+    for i in prange(n):
+        fx, fy, fvx, fvy = state[i, 0], state[i, 1], state[i, 2], state[i, 3]
+        ox, oy, ovx, ovy = state[i, 4], state[i, 5], state[i, 6], state[i, 7]
+        m, gam, k = params[i, 0], params[i, 1], params[i, 2]
+        cmdx = params[i, 5] * fmax * actions[i, 0] + params[i, 3]
+        cmdy = params[i, 5] * fmax * actions[i, 1] + params[i, 4]
+        mu = mf * m / (mf + m)
+        dec_o = 1.0 if explicit else math.exp(-gam * h)
+        sx, sy, peak, ncontact, cx, cy = 0.0, 0.0, 0.0, 0, 0.0, 0.0
+        for _ in range(nsub):
+            dx, dy = ox - fx, oy - fy
+            dist = math.sqrt(dx * dx + dy * dy)
+            d = rf + ro - dist
+            cx, cy = 0.0, 0.0
+            if d > 0.0 and dist > 1e-12:
+                nx, ny = dx / dist, dy / dist
+                fn = _contact(d, (ovx - fvx) * nx + (ovy - fvy) * ny, k, mu, zeta, law)
+                cx, cy = fn * nx, fn * ny
+                if abs(fn) > 1e-6:
+                    ncontact += 1
+                peak = max(peak, abs(fn))
+            ffx = cmdx - cx + _wall_force_on(fx, fvx, rf, arena, mf, consts)
+            ffy = cmdy - cy + _wall_force_on(fy, fvy, rf, arena, mf, consts)
+            fox = cx + _wall_force_on(ox, ovx, ro, arena, m, consts)
+            foy = cy + _wall_force_on(oy, ovy, ro, arena, m, consts)
+            if explicit:
+                ffx -= cf * fvx
+                ffy -= cf * fvy
+                fox -= gam * m * ovx
+                foy -= gam * m * ovy
+            fvx, fvy = _cap((fvx + ffx / mf * h) * dec_f, (fvy + ffy / mf * h) * dec_f, vcap)
+            ovx, ovy = _cap((ovx + fox / m * h) * dec_o, (ovy + foy / m * h) * dec_o, vcap)
+            fx += fvx * h
+            fy += fvy * h
+            ox += ovx * h
+            oy += ovy * h
+            sx -= cx
+            sy -= cy
+        state[i, 0], state[i, 1], state[i, 2], state[i, 3] = fx, fy, fvx, fvy
+        state[i, 4], state[i, 5], state[i, 6], state[i, 7] = ox, oy, ovx, ovy
+        touch[i, 0] = sx / nsub * scale
+        touch[i, 1] = sy / nsub * scale
+        touch[i, 2] = peak * scale
+        touch[i, 3] = -cx * scale
+        touch[i, 4] = -cy * scale
+        touch[i, 5] = ncontact / nsub
+        touch[i, 6] = 1.0 if ncontact > 0 else 0.0

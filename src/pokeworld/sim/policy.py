@@ -1,5 +1,11 @@
 """Scripted behaviour policies: pursuit, strike-retreat and Ornstein-Uhlenbeck drift, randomly switched.
 
+Two behaviours (``PolicyConfig.behaviour``). The *reference* behaviour (the default; :class:`ReferencePolicy`) is
+the authors' released simulator's: modes drawn uniformly and redrawn with probability 0.03 per step, pursuit
+``1.2 u + 0.4 ε``, a periodic strike (6 steps approaching at ``1.4 u``, 4 retreating at ``-u``, ``+ 0.3 ε``, phase
+random per episode) and an AR(1) drift ``0.85 a + 0.45 ε`` of the previous action, u the unit vector to the object.
+The *calibrated* behaviour (:class:`MixedPolicy`, the calibrated environment's) is described below.
+
 Vectorised over episodes. A fraction of episodes are *glide* episodes in which
 the finger avoids the object after it has been launched, giving contact-free
 decays (the contact-poor corpus sets this fraction to 0.95). Optionally a share
@@ -48,30 +54,41 @@ def aimed_knots(direction: np.ndarray, aim, rng: np.random.Generator) -> np.ndar
 class PolicyConfig:
     """Knobs of the mixed behaviour policy.
 
-    The defaults are calibrated (with F_max and finger damping) so that the default corpus matches
-    the paper's observable statistics (``pokeworld stats``; docs/design.md, "Calibration";
-    ``scripts/calibrate_env.py``), with every mode kept at a weight of at least 0.15.
+    The defaults are the reference behaviour's (module docstring). The calibrated environment's values
+    (docs/design.md, "Calibration"; :data:`pokeworld.sim.environments.ENVIRONMENTS`) were calibrated with F_max and
+    finger damping so that its corpus matched the paper's observable statistics, every mode at weight >= 0.15.
+    Fields marked "calibrated behaviour" are read by that behaviour only, "reference behaviour" by the other.
     """
 
-    mode_weights: tuple[float, float, float] = (0.2, 0.65, 0.15)
-    """Relative probabilities of pursuit / strike-retreat / OU drift when a mode is (re)drawn."""
-    switch_prob: float = 0.02
-    """Per-step probability of redrawing the mode."""
-    pursuit_gain: float = 0.89
-    """Action magnitude of sustained pushes (pursuit)."""
-    strike_gain: float = 1.0
-    """Action magnitude while striking."""
+    behaviour: str = "reference"
+    """Which scripted behaviour acts: "reference" (:class:`ReferencePolicy`) or "calibrated" (:class:`MixedPolicy`)."""
+    mode_weights: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    """Relative probabilities of pursuit / strike(-retreat) / drift when a mode is (re)drawn."""
+    switch_prob: float = 0.03
+    """Per-step probability of redrawing the mode (the reference behaviour may redraw the same mode)."""
+    pursuit_gain: float = 1.2
+    """Action magnitude of sustained pushes (pursuit; the reference's 1.2 saturates at the [-1, 1] clip)."""
+    strike_gain: float = 1.4
+    """Action magnitude while striking (approaching)."""
+    retreat_gain: float = 1.0
+    """Reference behaviour: action magnitude of the strike cycle's retreat (away from the object)."""
+    strike_cycle: tuple[int, int] = (6, 4)
+    """Reference behaviour: steps approaching, then steps retreating, of the periodic strike."""
+    mode_noise: tuple[float, float, float] = (0.4, 0.3, 0.45)
+    """Reference behaviour: std of the Gaussian noise of pursuit / strike / drift actions (one draw per step)."""
+    ou_persistence: float = 0.85
+    """Reference behaviour: the drift's action is ou_persistence times the previous action plus its noise."""
     retreat_steps: tuple[int, int] = (4, 7)
-    """Range of steps spent retreating after an impact (the object glides meanwhile)."""
+    """Calibrated behaviour: range of steps spent retreating after an impact (the object glides meanwhile)."""
     ou_theta: float = 1.5
-    """Mean-reversion rate of the OU drift (1/s)."""
+    """Calibrated behaviour: mean-reversion rate of the OU drift (1/s)."""
     ou_sigma: float = 2.8
-    """Diffusion of the OU drift."""
+    """Calibrated behaviour: diffusion of the OU drift."""
     action_noise: float = 0.1
-    """Std of Gaussian noise added to scripted actions."""
-    launch_fraction: float = 0.29
+    """Calibrated behaviour: std of Gaussian noise added to scripted actions."""
+    launch_fraction: float = 0.6
     """Fraction of episodes whose object starts with a random velocity."""
-    launch_speed: tuple[float, float] = (2.55, 5.0)
+    launch_speed: tuple[float, float] = (0.15, 0.9)
     """Launch speed range (arena units/s)."""
     glide_fraction: float = 0.0
     """Fraction of episodes that are contact-free glides (object launched, finger avoids it)."""
@@ -85,7 +102,8 @@ class PolicyConfig:
     (spread KNOT_SD per coordinate around it); 0 gives exactly the planner's first CEM proposal, N(0, KNOT_SD²).
     Aimed programs still miss often, and keep ``static16`` in band at a share of 0.2 where unaimed ones do not."""
 
-    LIMITS = {"mode_weights": Limit(0, 1e6), "switch_prob": FRACTION, "pursuit_gain": Limit(0, 100),
+    LIMITS = {"retreat_gain": Limit(0, 100), "strike_cycle": Limit(1, 10**4), "mode_noise": Limit(0, 1e3),
+              "ou_persistence": Limit(0, 1), "mode_weights": Limit(0, 1e6), "switch_prob": FRACTION, "pursuit_gain": Limit(0, 100),
               "strike_gain": Limit(0, 100), "retreat_steps": Limit(1, 10**4), "ou_theta": Limit(0, 1e4),
               "ou_sigma": Limit(0, 1e4), "action_noise": Limit(0, 1e3), "launch_fraction": FRACTION,
               "launch_speed": Limit(0, 1e3), "glide_fraction": FRACTION, "open_loop_share": FRACTION,
@@ -97,6 +115,17 @@ class PolicyConfig:
             raise ConfigError(f"mode_weights must be three non-negative numbers, not all 0, got {self.mode_weights}")
         if self.retreat_steps[1] < self.retreat_steps[0]:
             raise ConfigError(f"retreat_steps must be 1 <= lo <= hi, got {self.retreat_steps}")
+        if self.behaviour not in BEHAVIOURS:
+            raise ConfigError(f"behaviour must be one of {BEHAVIOURS}, got {self.behaviour!r}")
+
+
+BEHAVIOURS = ("reference", "calibrated")
+
+
+def make_policy(cfg: PolicyConfig, num_envs: int, rng: np.random.Generator, dt: float = 0.05):
+    """The behaviour ``cfg.behaviour`` names, for ``num_envs`` episodes."""
+    cls = ReferencePolicy if cfg.behaviour == "reference" else MixedPolicy
+    return cls(cfg, num_envs, rng, dt)
 
 
 class MixedPolicy:
@@ -169,4 +198,47 @@ class MixedPolicy:
             self.knots[self.open_loop] = aimed_knots(u[self.open_loop], c.open_loop_aim, rng)
         if self.open_loop.any():  # the program exactly, as the planner executes it
             a[self.open_loop] = programs(self.knots[self.open_loop])[:, step]
+        return a
+
+
+class ReferencePolicy(MixedPolicy):
+    """The reference behaviour (module docstring), with the calibrated behaviour's glide episodes (the finger
+    drifts at 0.15 ε, the object launched) and open-loop program slots, both off by default."""
+
+    def reset(self) -> tuple[np.ndarray, np.ndarray]:
+        n, c, rng = self.n, self.cfg, self.rng
+        self.glide = rng.random(n) < c.glide_fraction if c.glide_fraction > 0 else np.zeros(n, bool)
+        self.mode = np.where(self.glide, AVOID, rng.choice(3, n, p=self._p))
+        self.phase = rng.integers(0, sum(c.strike_cycle), n)
+        self.last = np.zeros((n, 2))
+        self.open_loop = np.zeros(n, bool)
+        self.t = 0
+        launch = self.glide | (rng.random(n) < c.launch_fraction)
+        ang = rng.uniform(0, 2 * np.pi, n)
+        speed = rng.uniform(*c.launch_speed, n)
+        return launch, np.stack([np.cos(ang), np.sin(ang)], 1) * (speed * launch)[:, None]
+
+    def act(self, proprio: np.ndarray, object_pos: np.ndarray, contact: np.ndarray) -> np.ndarray:
+        c, rng, n = self.cfg, self.rng, self.n
+        switch = ~self.glide & (rng.random(n) < c.switch_prob)
+        if switch.any():
+            self.mode[switch] = rng.choice(3, int(switch.sum()), p=self._p)
+        rel = object_pos - proprio[:, 0:2]
+        u = rel / np.maximum(np.linalg.norm(rel, axis=1, keepdims=True), 1e-8)
+        eps = rng.normal(size=(n, 2))
+        approach = ((self.t + self.phase) % sum(c.strike_cycle)) < c.strike_cycle[0]
+        strike = np.where(approach[:, None], c.strike_gain * u, -c.retreat_gain * u)
+        m = self.mode[:, None]
+        a = np.where(m == PURSUIT, c.pursuit_gain * u + c.mode_noise[0] * eps,
+                     np.where(m == STRIKE, strike + c.mode_noise[1] * eps,
+                              np.where(m == DRIFT, c.ou_persistence * self.last + c.mode_noise[2] * eps, 0.15 * eps)))
+        a = np.clip(a, -1.0, 1.0)
+        step = self.t % PROGRAM
+        self.t += 1
+        if c.open_loop_share > 0 and step == 0:
+            self.open_loop = ~self.glide & (rng.random(n) < c.open_loop_share)
+            self.knots[self.open_loop] = aimed_knots(u[self.open_loop], c.open_loop_aim, rng)
+        if self.open_loop.any():
+            a[self.open_loop] = programs(self.knots[self.open_loop])[:, step]
+        self.last = a
         return a

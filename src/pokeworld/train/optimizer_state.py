@@ -43,7 +43,7 @@ def check_optimizer_fits(model: torch.nn.Module, state: Any, path: Path | str) -
     groups = optimizer_params(model)
     if not (isinstance(state, dict) and isinstance(state.get("state"), dict)
             and isinstance(state.get("param_groups"), list)):
-        raise unfit(path, f"its 'optimizer' is not an optimizer state (a 'state' mapping and "
+        raise unfit(path, "its 'optimizer' is not an optimizer state (a 'state' mapping and "
                               "'param_groups' list); the checkpoint is damaged or was edited")
     saved = state["param_groups"]
     sizes = [len(g.get("params", ())) if isinstance(g, dict) and isinstance(g.get("params"), list) else None
@@ -55,7 +55,7 @@ def check_optimizer_fits(model: torch.nn.Module, state: Any, path: Path | str) -
     for g, params in zip(saved, groups):
         check_group(g, path)
         if not all(isinstance(i, int) and not isinstance(i, bool) for i in g["params"]):
-            raise unfit(path, f"its optimizer's parameter indices are not integers; it is damaged")
+            raise unfit(path, "its optimizer's parameter indices are not integers; it is damaged")
         by_index.update(zip(g["params"], params))
     for index, entry in state["state"].items():
         if index not in by_index or not isinstance(entry, dict):
