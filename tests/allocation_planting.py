@@ -94,3 +94,19 @@ def with_partial(tree: Path, run: str = PARTIAL, step: int = 5) -> None:
         prog["pending"] = [n for n in prog["pending"] if n != run]
 
     edit_json(tree / "progress.json", change)
+
+
+def current_model(**config) -> dict:
+    """``config`` with the objective-and-model fields the `paper` preset trains now (the real allocation predates the
+    aligned model, which `--plan` refuses to build on)."""
+    from pokeworld.train.config import PRESETS, REFERENCE_MODEL, field_defaults
+
+    now = {**field_defaults(), **PRESETS["paper"]}
+    return {**{k: list(v) if isinstance(v, tuple) else v for k, v in now.items() if k in REFERENCE_MODEL}, **config}
+
+
+def with_partial_current(tree: Path) -> None:
+    """:func:`with_partial` on records whose runs trained the current model (:func:`current_model`)."""
+    with_partial(tree)
+    for path in (tree / "runs").glob("*/config.json"):
+        edit_json(path, lambda cfg: cfg.update(current_model()))

@@ -18,7 +18,8 @@ from pathlib import Path
 import pytest
 import torch
 
-from allocation_planting import FINISHED, PARTIAL, edit_json, member, plant, tiny_checkpoint, with_partial
+from allocation_planting import (FINISHED, PARTIAL, edit_json, member, plant, tiny_checkpoint, with_partial,
+                                 current_model, with_partial_current)
 from pokeworld import checkpoint
 from pokeworld.checkpoint import CheckpointError
 from pokeworld.errors import DataError, PokeworldError
@@ -53,7 +54,8 @@ def test_plan_refuses_a_variant_that_is_a_command_and_quotes_every_folder(tmp_pa
     bad = plant(tmp_path / "bad", [member(PARTIAL, "ckpt", tiny_checkpoint(config=hostile))], edit=with_partial)
     fails(["--plan", str(bad)], "variant .* is not one of")
     folder = tmp_path / "returned $(touch pwned) 'a b'"
-    plant(folder, [member(PARTIAL, "ckpt", tiny_checkpoint())], edit=with_partial)
+    current = current_model(variant="VF", seed=0, steps=20000)
+    plant(folder, [member(PARTIAL, "ckpt", tiny_checkpoint(config=current))], edit=with_partial_current)
     from pokeworld.experiments.allocation_queue import split_folder_list
 
     allocations.main(["--plan", str(folder), "--commit", "abc; touch pwned"])

@@ -510,6 +510,9 @@ def plan(allocs: list[Allocation]) -> dict:
     the folder holding it, which the next allocation is given as ALLOC_RESUME), then :data:`.allocation_queue.PRIORITY`.
     ConfigError when the allocations do not share a corpus, map settings and model (:func:`check_agreement`), or trained
     another model than the preset trains now (:func:`check_model_form`)."""
+    for a in allocs:  # every returned run's words are checked before anything else is read of them
+        for name in [*a.progress.get("finished", []), *a.checkpoints]:
+            run_key(a, name)
     check_agreement(allocs)
     check_model_form(allocs)
     finished: set[tuple[str, int]] = set()
