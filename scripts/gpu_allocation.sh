@@ -20,7 +20,7 @@
 #
 # Usage (repository root; pokeworld importable, e.g. PYTHONPATH=/tmp/site:$PWD/src as in ../shared/device/README.md):
 #   bash scripts/gpu_allocation.sh OUT [RUNS...]     RUNS: VARIANT or VARIANT@SEED in priority order
-#                                                    (default VFX VF V VX_t VX_p VX, then VF@1 VFX@1)
+#                                                    (default VFX VF V VX_t VX_p VX at seed 0, then the same at @1)
 # Environment (all optional):
 #   ALLOC_MODE           train (default) or bench (full CUDA tests and the benchmark, no training)
 #   ALLOC_COMMIT         the commit this copy of the repository is (the device copy has no .git); into device.json

@@ -47,12 +47,8 @@ def spec_experiments(c: MapConfig) -> dict[str, list[str]]:
     """experiment -> run names (including runs shared with other experiments)."""
     return {exp: [s.name for s in experiment_specs(c, exp)] for exp in c.experiments}
 
-def ensure_corpus(c: MapConfig, corpus: str) -> Path:
-    """Generate corpus ``corpus`` into the map folder (skipped when it is there and current)."""
-    if corpus == "flow":  # derived from the standard corpus by the frozen flow sensor
-
-        return build_flow_corpus(ensure_corpus(c, "standard"), corpus_dir(c, "flow"), flow.make_config(c.preset))
-
+def corpus_config(c: MapConfig, corpus: str) -> generate.GenerateConfig:
+    """The generator config of the map's corpus ``corpus`` (not the derived flow corpus)."""
     overrides: dict[str, Any] = {"out": str(corpus_dir(c, corpus)), "corpus": corpus, "seed": c.data_seed}
     if c.num_episodes:
         overrides["num_episodes"] = c.num_episodes
@@ -60,8 +56,16 @@ def ensure_corpus(c: MapConfig, corpus: str) -> Path:
         overrides["split_fractions"] = tuple(c.split_fractions)
     if c.contact_damping != LEGACY_PHYSICS["contact_damping"]:  # the default law leaves the configs as they were
         overrides["physics"] = {"contact_damping": c.contact_damping}
+    return generate.make_config(c.preset, **overrides)
+
+def ensure_corpus(c: MapConfig, corpus: str) -> Path:
+    """Generate corpus ``corpus`` into the map folder (skipped when it is there and current)."""
+    if corpus == "flow":  # derived from the standard corpus by the frozen flow sensor
+
+        return build_flow_corpus(ensure_corpus(c, "standard"), corpus_dir(c, "flow"), flow.make_config(c.preset))
+
     try:
-        return generate.run(generate.make_config(c.preset, **overrides))
+        return generate.run(corpus_config(c, corpus))
     except PokeworldError as e:
         if "--overwrite" not in str(e):
             raise
@@ -232,7 +236,7 @@ def pack_results(c: MapConfig, dest: str | os.PathLike, quiet: bool = False) -> 
     return dest
 
 
-__all__ = ["experiment_specs", "all_specs", "spec_experiments", "ensure_corpus", "GATED", "with_standard_gate",
+__all__ = ["experiment_specs", "all_specs", "spec_experiments", "corpus_config", "ensure_corpus", "GATED", "with_standard_gate",
            "ensure_certificates", "certify_corpora", "execute", "job_train_config", "train_stacked_jobs", "jobs",
            "write_progress", "PACK_GLOBS", "pack_results"]
 
