@@ -26,6 +26,7 @@ progress.json and device.json again) and the finished runs' weights and the unfi
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import os
 import platform
@@ -54,8 +55,10 @@ from ..io import (
 )
 from ..rundir import model_from_checkpoint
 from . import merge, report, stages
+from .allocation_cpu import attach_cpu_side, record_lines
 from .allocation_pack import COMPACT_MIN_ELEMENTS, INDEX, RECORDS, load_member, read_stream
-from .allocation_queue import PRIORITY, order_queue, parse_token, token
+from . import allocation_plan
+from .allocation_plan import Returned, checked_key, configuration_key, plan_lines
 from .config import VARIANT_ORDER, MapConfig
 from .factorial import FACTORIAL
 from .runs import spec_measure_path
@@ -137,6 +140,8 @@ class Allocation:
     """Finished run -> 'returned' (its final weights restored as runs/NAME/final.pt), else why not."""
     checkpoints: dict[str, int] = field(default_factory=dict)
     """Unfinished run -> the step of its returned checkpoint (restored as runs/NAME/ckpt.pt)."""
+    configuration: str = ""
+    """The configuration key of its corpus (:func:`.allocation_plan.configuration_key` of the manifest's config)."""
 
 
 def read_json(path: Path, what: str) -> dict:
@@ -195,7 +200,9 @@ def open_allocation(path: str | os.PathLike, scratch: Path) -> Allocation:
         raise ConfigError(f"{path}: its corpus manifest records no content hash")
     a = Allocation(str(path), root, read_json(device_path, "a device record"),
                    read_json(root / "map_config.json", "a map config"), manifest["content_sha256"],
-                   read_json(root / "progress.json", "a map's progress record"))
+                   read_json(root / "progress.json", "a map's progress record"),
+                   configuration=configuration_key(manifest.get("config") if isinstance(manifest.get("config"), dict)
+                                                   else {}))
     if returned is not None:
         restore_returned(a, returned, scratch)
     return a
@@ -401,57 +408,71 @@ def run_lines(merged: dict) -> list[str]:
                         f"direct-16 {P.PREDICTION['direct16']} arena units (§4.2, one number, not per variant).", ""]
 
 
+def corpus_lines(merged: dict, level: str = "#") -> list[str]:
+    """One corpus's record: its allocations, the per-run table and, where computed, the CPU side's numbers."""
+    cpu = merged["provenance"].get("cpu_side")
+    certs = merged["certificates"].get("standard", {})
+    head = [f"{level} Corpus {merged['provenance']['corpus_sha256'][:12]}", "",
+            "Content hash of the seeded corpus every allocation below trained on (a record of one environment: a "
+            "corpus of another environment gets its own section). Paper values are the paper's own numbers, shown "
+            "beside ours; they are never used as ours. Certificates: "
+            + (f"computed on {certs.get('device')}, {str(certs.get('date'))[:10]}, settings "
+               f"`{json.dumps(certs.get('settings', {}), sort_keys=True)}`." if certs.get("device") else
+               "from a CPU-side certify JSON." if certs else "none given.")
+            + (f" CPU side (MLP probes, untrained bound, planning): {cpu['device']}, {str(cpu['date'])[:10]}."
+               if cpu else ""), ""]
+    return head + allocation_lines(merged) + run_lines(merged) + (record_lines(merged) if cpu else [])
+
+
 def markdown(merged: dict) -> str:
-    """The merged record's report: allocations and runs with their devices, then the map's own report."""
+    """The merged record's report: allocations and runs with their devices, then the map's own report, then the
+    records of other corpora kept in the same file (:func:`carry_other_corpora`)."""
     body = report.markdown(merged).split("\n", 1)[1]  # its sections, under this report's title
-    head = ["# Identifiability map at the paper's budget, from GPU allocations", "",
-            f"Corpus {merged['provenance']['corpus_sha256'][:12]} (content hash of the seeded corpus every allocation "
-            "trained on). Paper values are the paper's own numbers, shown beside ours; they are never used as ours. "
-            "Certificates: " + ("from a CPU-side certify JSON." if merged["certificates"] else "none given."), ""]
-    return "\n".join(head + allocation_lines(merged) + run_lines(merged)) + body
+    lines = ["# Identifiability map at the paper's budget, from GPU allocations", ""] + corpus_lines(merged, "##")
+    text = "\n".join(lines) + body
+    for rec in merged.get("other_corpora", {}).values():
+        text += "\n" + "\n".join(corpus_lines(rec, "##"))
+    return text
+
+
+def carry_other_corpora(merged: dict, previous: dict | None) -> dict:
+    """``merged`` with the records of other corpora that ``previous`` (the file at --out) held, by corpus hash, so
+    a merge of another environment's allocations adds its own record instead of replacing the earlier one's."""
+    if not isinstance(previous, dict) or not isinstance(previous.get("provenance"), dict):
+        return merged
+    sha = merged["provenance"]["corpus_sha256"]
+    others = {k: v for k, v in (previous.get("other_corpora") or {}).items() if k != sha and isinstance(v, dict)}
+    prev_sha = previous["provenance"].get("corpus_sha256")
+    if isinstance(prev_sha, str) and prev_sha != sha:
+        others[prev_sha] = {k: v for k, v in previous.items() if k != "other_corpora"}
+    if others:
+        merged["other_corpora"] = others
+    return merged
 
 
 # ---------------------------------------------------------------------- the next allocation
 
 
 def run_key(a: Allocation, name: str) -> tuple[str, int]:
-    """(variant, seed) of run ``name`` of ``a``, from its config.json."""
+    """(variant, seed) of run ``name`` of ``a``, from its config.json: a known variant and a whole seed, or one
+    ConfigError line (the words go into a printed command)."""
     cfg = read_json(a.root / "runs" / name / "config.json", "a run config")
-    return str(cfg.get("variant")), int(cfg.get("seed", 0))
+    return checked_key(cfg.get("variant"), cfg.get("seed", 0), f"{a.source}: run {name!r}")
 
 
-def plan(allocs: list[Allocation]) -> dict:
-    """The next allocation's queue from what ``allocs`` returned (:func:`.allocation_queue.order_queue`): runs any
-    of them finished are skipped, runs with a returned checkpoint come first (the furthest checkpoint of each, and
-    the folder holding it, which the next allocation is given as ALLOC_RESUME), then :data:`.allocation_queue.PRIORITY`.
-    ConfigError when the allocations do not share a corpus and map settings (:func:`check_agreement`)."""
-    check_agreement(allocs)
-    finished: set[tuple[str, int]] = set()
-    ckpts: dict[tuple[str, int], tuple[int, str]] = {}
-    for a in allocs:
-        finished |= {run_key(a, n) for n in a.progress.get("finished", [])}
-        for name, step in a.checkpoints.items():
-            key = run_key(a, name)
-            if step > ckpts.get(key, (-1, ""))[0]:
-                ckpts[key] = (step, a.source)
-    resumable = {k: v for k, v in ckpts.items() if k not in finished}
-    requested = [parse_token(t) for t in PRIORITY]
-    requested += [k for k in resumable if k not in requested]  # a checkpoint outside the priority list resumes too
-    queue = order_queue(requested, finished, set(resumable))
-    return {"queue": [token(k) for k in queue], "finished": sorted(token(k) for k in finished),
-            "resume": {token(k): {"step": step, "from": src} for k, (step, src) in resumable.items()},
-            "resume_from": sorted({src for _, src in resumable.values()}),
-            "commits": sorted({str(a.device.get("git", "?")) for a in allocs})}
+def returned_of(a: Allocation) -> Returned:
+    return Returned(a.source, a.configuration, a.corpus_sha256, str(a.device.get("git", "?")),
+                    {run_key(a, n) for n in a.progress.get("finished", [])},
+                    {run_key(a, n): step for n, step in a.checkpoints.items()})
 
 
-def plan_lines(p: dict, commit: str) -> list[str]:
-    """The plan in words, ending with the next allocation's command."""
-    resume = " ".join(f"{t} (step {r['step']}, {r['from']})" for t, r in p["resume"].items())
-    env = f"ALLOC_COMMIT={commit}" + (f" ALLOC_RESUME=\"{' '.join(p['resume_from'])}\"" if p["resume_from"] else "")
-    return [f"[plan] earlier allocations ran commits {', '.join(p['commits'])}; finished: "
-            f"{' '.join(p['finished']) or 'none'}; checkpoints to resume: {resume or 'none'}",
-            f"[plan] next allocation, in this order: {' '.join(p['queue']) or 'nothing left'}",
-            f"{env} bash scripts/gpu_allocation.sh OUT {' '.join(p['queue'])}"]
+def plan(allocs: list[Allocation], configuration: str | None = None) -> dict:
+    """The next lease for ``configuration`` (default: this checkout's at the preset the allocations ran,
+    :func:`.allocation_plan.checkout_configuration`) from what ``allocs`` returned (:func:`.allocation_plan.plan`)."""
+    if configuration is None:
+        presets = {str(a.map_config.get("preset", "paper")) for a in allocs}
+        configuration = allocation_plan.checkout_configuration(presets.pop() if len(presets) == 1 else "paper")
+    return allocation_plan.plan([returned_of(a) for a in allocs], configuration)
 
 
 def export_runs(allocs: list[Allocation], merged: dict, dest: Path) -> list[str]:
@@ -483,6 +504,10 @@ def write_merged(a: argparse.Namespace, allocs: list[Allocation], words: list[st
     cert = read_certificates(a.certificates, allocs[0].corpus_sha256) if a.certificates else None
     merged = merge_allocations(allocs, cert, a.tol,
                                command=" ".join(["python scripts/merge_allocations.py", *map(str, words)]))
+    if a.cpu_side:
+        attach_cpu_side(merged, a.cpu_side)
+    previous = read_json(a.out, "an earlier merged record") if a.out.exists() else None
+    merged = carry_other_corpora(merged, previous)
     write_json(a.out, merged)
     if a.markdown:
         save_text(a.markdown, markdown(merged))
@@ -507,6 +532,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, help="the merged record (results.json format)")
     ap.add_argument("--markdown", type=Path, help="also write its report here")
     ap.add_argument("--certificates", type=Path, help="certify JSON of the same corpus, computed on the CPU side")
+    ap.add_argument("--cpu-side", type=Path, help="the work folder of scripts/complete_allocations.py: its MLP "
+                                                  "probes, untrained bound, certificates and planning of these runs")
     ap.add_argument("--figure", type=Path, help="the identifiability-map figure (.png, a .pdf beside it); "
                                                 "default: --out with .png")
     ap.add_argument("--no-figure", action="store_true", help="write no figure")
@@ -534,7 +561,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 __all__ = ["DEVICE_FILE", "AGREE", "Allocation", "device_record", "commit", "gpu_name", "write_device", "read_json",
-           "unpack", "open_allocation", "restore_returned", "training_facts", "run_key", "plan", "plan_lines",
+           "unpack", "open_allocation", "restore_returned", "training_facts", "run_key", "returned_of", "plan",
+           "plan_lines", "corpus_lines", "carry_other_corpora",
            "export_runs", "write_merged", "allocation_record", "check_agreement", "read_certificates",
            "ridge_difference", "merge_allocations", "allocation_summary", "allocation_lines", "run_lines", "markdown",
            "main"]

@@ -1,0 +1,206 @@
+"""What a GPU allocation leaves to the CPU side, computed from what it returned: the certificates of the same seeded
+corpus, the MLP probes and the untrained bound of each returned run, and planning with the returned runs.
+
+A device allocation trains and measures with ridge probes only (``scripts/gpu_allocation.sh``: its minutes go to
+training), so every other number of the paper's tables for those runs is computed here, from the returned weights:
+
+1. the seeded corpus the allocations trained on is generated here (the same map settings, so the same bytes) and
+   refused unless its content hash is the allocations' (:func:`ensure_same_corpus`);
+2. each finished run with its returned weights is written as a run folder (:func:`.allocations.export_runs`; a
+   folder already holding the same weights is kept, so its measurement stays up to date);
+3. each is measured at the ``paper`` measurement preset (every window, ridge and MLP probes, the untrained bound,
+   the prediction errors and the glide test) by :func:`pokeworld.evaluate.measure.run`, on this machine;
+4. the certificates (:func:`pokeworld.certify.run`; the instruments, window cap, fit set and epochs are options,
+   recorded, because the paper's full set takes hours on a small CPU);
+5. planning with the runs and a random controller (:func:`pokeworld.plan.plan_runs`, the paper's CEM by default;
+   ``--plan-episodes`` below the paper's 100 is recorded as such).
+
+Every stage writes its output under ``--work`` and is skipped when its output is up to date, so the command can be
+run again after an interruption; ``cpu_side.json`` names this machine, each stage's settings, its UTC date and its
+wall time (or that it was computed by an earlier invocation), and ``scripts/merge_allocations.py --cpu-side WORK``
+puts these numbers beside the device's.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import sys
+import tempfile
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+
+from .. import certify, plan
+from ..config import from_dict, to_dict
+from ..data import read_manifest
+from ..errors import ConfigError, PokeworldError
+from ..evaluate import measure
+from ..io import read_json_if_present, write_json
+from . import allocations, stages
+from .config import MapConfig
+
+CPU_SIDE = "cpu_side.json"
+"""The record of the CPU side's stages, in its work folder."""
+GATE_ESTIMATORS = ("gru", "linear", "drag")
+"""The gate's instruments (the GRU oracle, the linear floor, the drag fit): the default certificate set."""
+
+
+def now() -> str:
+    return datetime.now(timezone.utc).isoformat(timespec="seconds")
+
+
+def ensure_same_corpus(allocs: list[allocations.Allocation], work: Path) -> Path:
+    """The allocations' seeded corpus generated under ``work/map`` from their own map settings; ConfigError when its
+    content differs from what they trained on (another environment in this checkout)."""
+    allocations.check_agreement(allocs)
+    c = from_dict(MapConfig, {**allocs[0].map_config, "out": str(work / "map")})
+    corpus = stages.ensure_corpus(c, "standard")
+    sha = read_manifest(corpus).get("content_sha256")
+    if sha != allocs[0].corpus_sha256:
+        raise ConfigError(f"the corpus generated here ({str(sha)[:12]}) is not the one the allocations trained on "
+                          f"({allocs[0].corpus_sha256[:12]}): this checkout generates another environment; run this "
+                          "from the commit the allocations ran (device.json 'git')")
+    return corpus
+
+
+def same_weights(a: Path, b: Path) -> bool:
+    return a.exists() and b.exists() and hashlib.sha256(a.read_bytes()).digest() == \
+        hashlib.sha256(b.read_bytes()).digest()
+
+
+def export_new_runs(allocs: list[allocations.Allocation], merged: dict, runs: Path, scratch: Path) -> list[str]:
+    """The runs with returned weights as run folders under ``runs``; a folder that already holds the same
+    final.pt is left as it is (its DONE, and so its measurement's key, unchanged)."""
+    fresh = scratch / "export"
+    names = allocations.export_runs(allocs, merged, fresh)
+    for name in names:
+        if not same_weights(fresh / name / "final.pt", runs / name / "final.pt"):
+            allocations.export_runs(allocs, {"runs": {name: merged["runs"][name]}}, runs)
+    return names
+
+
+def timed(record: dict, stage: str, settings: dict, fn, up_to_date: bool) -> object:
+    """Run ``fn`` and record the stage (settings, date, wall time; or that its output was up to date)."""
+    t0 = time.monotonic()
+    result = fn()
+    entry = {"settings": settings, "date": now()}
+    entry.update({"computed": "earlier (output up to date)"} if up_to_date
+                 else {"wall_s": round(time.monotonic() - t0, 1)})
+    record["stages"][stage] = entry
+    return result
+
+
+def measure_runs(names: list[str], runs: Path, corpus: Path, record: dict) -> None:
+    for name in names:
+        cfg = measure.make_config("paper", run_dir=str(runs / name), data=str(corpus), device="cpu")
+        out = measure.measure_path(cfg.run_dir, cfg.data)
+        prev = read_json_if_present(out, "a run's measurement")
+        fresh = prev is not None and prev.get("key", {}).get("config", {}).get("mlp") and \
+            prev.get("key", {}).get("data_sha256") == read_manifest(corpus).get("content_sha256")
+        print(f"[cpu-side] measuring {name} (paper preset: ridge and MLP probes, untrained bound)", flush=True)
+        timed(record, f"measure {name}", {"preset": "paper", "mlp": cfg.mlp, "untrained": cfg.untrained,
+                                          "max_windows": cfg.max_windows, "file": out.name},
+              lambda: measure.run(cfg), bool(fresh))
+
+
+def certify_corpus(a: argparse.Namespace, corpus: Path, work: Path, record: dict) -> Path:
+    overrides = {"data": str(corpus), "out": str(work / "certificates.json"), "estimators": tuple(a.certify_estimators),
+                 "kinds": ("contact",)}
+    for field, value in (("max_windows", a.certify_max_windows), ("fit_episodes", a.certify_fit_episodes),
+                         ("epochs", a.certify_epochs)):
+        if value is not None:
+            overrides[field] = value
+    cfg = certify.make_config("paper", **overrides)
+    prev = read_json_if_present(Path(cfg.out), "a certificate record (certificates.json)")
+    print(f"[cpu-side] certificates: {', '.join(cfg.estimators)}, contact windows, at most {cfg.max_windows} "
+          f"windows, {cfg.epochs} epochs, fit on {cfg.fit_episodes or 'the probe-fit split'}", flush=True)
+    up = isinstance(prev, dict) and prev.get("config") == to_dict(cfg)
+    return timed(record, "certify", {k: v for k, v in to_dict(cfg).items() if k not in ("data", "out")},
+                 lambda: certify.run(cfg), up)
+
+
+def plan_with_runs(a: argparse.Namespace, names: list[str], merged: dict, runs: Path, corpus: Path, work: Path,
+                   record: dict) -> None:
+    cfg = plan.make_config("paper", out=str(work / "planning"), seed=0, runs=(), device="cpu",
+                           **({"episodes": a.plan_episodes} if a.plan_episodes else {}))
+    by_variant: dict[str, list[str]] = {}
+    for name in names:
+        by_variant.setdefault(merged["runs"][name]["train"]["variant"], []).append(str(runs / name))
+    key = {"config": to_dict(cfg), "runs": {v: [Path(d).name for d in ds] for v, ds in by_variant.items()},
+           "weights": {n: hashlib.sha256((runs / n / "final.pt").read_bytes()).hexdigest()[:16] for n in names}}
+    path = Path(cfg.out) / "planning.json"
+    prev = read_json_if_present(path, "the CPU side's planning record")
+    if isinstance(prev, dict) and prev.get("key") == key:
+        record["stages"]["planning"] = {**record["stages"].get("planning", {}), "computed": "earlier (output up to date)"}
+        return
+    paper = plan.make_config("paper")
+    print(f"[cpu-side] planning: {cfg.episodes} episodes (the paper's {paper.episodes}), population "
+          f"{cfg.population}, {cfg.iterations} iterations; {', '.join(by_variant)} and random", flush=True)
+
+    def run_planner():
+        planned = plan.plan_runs(cfg, by_variant, data=str(corpus))
+        plan.write_outputs(planned, Path(cfg.out), cfg.goal_radius)
+        write_json(path, {"key": key, "config": to_dict(cfg), "summary": planned["summary"], "runs": by_variant,
+                          "paper_budget": cfg.episodes == paper.episodes and cfg.population == paper.population
+                          and cfg.iterations == paper.iterations})
+
+    timed(record, "planning", {"episodes": cfg.episodes, "paper_episodes": paper.episodes,
+                               "population": cfg.population, "iterations": cfg.iterations, "steps": cfg.steps},
+          run_planner, False)
+
+
+def complete(a: argparse.Namespace) -> Path:
+    """Every stage of the module docstring; returns the path of ``cpu_side.json``."""
+    work = a.work.resolve()
+    work.mkdir(parents=True, exist_ok=True)
+    record = read_json_if_present(work / CPU_SIDE, "the CPU side's record") or {}
+    record = {"device": allocations.device_record(), "stages": dict(record.get("stages", {}))}
+    with tempfile.TemporaryDirectory(prefix="pokeworld-cpu-side-") as scratch:
+        allocs = [allocations.open_allocation(p, Path(scratch)) for p in a.allocations]
+        merged = allocations.merge_allocations(allocs)
+        t0 = time.monotonic()
+        corpus = ensure_same_corpus(allocs, work)
+        record["corpus"] = {"path": str(corpus), "content_sha256": allocs[0].corpus_sha256,
+                            "wall_s": round(time.monotonic() - t0, 1)}
+        names = export_new_runs(allocs, merged, work / "runs", Path(scratch))
+    record["runs"] = names
+    stages_wanted = set(a.stages)
+    if "measure" in stages_wanted:
+        measure_runs(names, work / "runs", corpus, record)
+        write_json(work / CPU_SIDE, record)
+    if "certify" in stages_wanted:
+        certify_corpus(a, corpus, work, record)
+        write_json(work / CPU_SIDE, record)
+    if "planning" in stages_wanted:
+        plan_with_runs(a, names, merged, work / "runs", corpus, work, record)
+    write_json(work / CPU_SIDE, record)
+    return work / CPU_SIDE
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description="The CPU side of GPU allocations: the same seeded corpus, its "
+                                             "certificates, MLP probes and the untrained bound of the returned runs, "
+                                             "and planning with them.")
+    ap.add_argument("allocations", nargs="+", type=Path, help="allocation folders as returned")
+    ap.add_argument("--work", type=Path, required=True, help="where the corpus, the runs and the outputs go")
+    ap.add_argument("--stages", nargs="+", default=["measure", "certify", "planning"],
+                    choices=["measure", "certify", "planning"], help="which stages to run (default: all)")
+    ap.add_argument("--certify-estimators", nargs="+", default=list(GATE_ESTIMATORS),
+                    help="certificate instruments (default: the gate's)")
+    ap.add_argument("--certify-max-windows", type=int, help="cap on fit windows (default: the paper preset's)")
+    ap.add_argument("--certify-fit-episodes", type=int, help="certificate-corpus episodes to fit on; 0 = the "
+                                                            "probe-fit split (default: the paper preset's)")
+    ap.add_argument("--certify-epochs", type=int, help="maximum epochs (default: the paper preset's)")
+    ap.add_argument("--plan-episodes", type=int, default=0, help="planning episodes (default: the paper's)")
+    a = ap.parse_args(argv)
+    try:
+        path = complete(a)
+    except PokeworldError as e:
+        raise SystemExit(f"error: {e}") from None
+    print(f"[cpu-side] -> {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
