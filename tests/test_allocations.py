@@ -224,3 +224,46 @@ def test_the_script_keeps_the_heavy_work_folder_out_of_what_comes_back(tmp_path)
                           text=True, timeout=60)
     assert proc.returncode == 2 and "must not lie inside OUT" in proc.stderr
     assert not out.exists()  # refused before anything was written
+
+
+@pytest.mark.slow
+def test_the_cpu_side_completes_the_returned_runs_and_the_merge_shows_it(allocation_a, tmp_path):
+    """complete_allocations.py on a tiny allocation (cpu measurement preset: MLP probes and the untrained bound;
+    small certificates; two planning episodes), then the merge with --cpu-side: every number with its machine."""
+    out, _ = allocation_a
+    work = tmp_path / "side"
+    proc = subprocess.run([sys.executable, "scripts/complete_allocations.py", str(out), "--work", str(work),
+                           "--preset", "cpu", "--certify-max-windows", "300", "--certify-fit-episodes", "0",
+                           "--certify-epochs", "2", "--plan-episodes", "2"], cwd=ROOT, capture_output=True,
+                          text=True, timeout=900, env={**os.environ, "PYTHONPATH": str(ROOT / "src")})
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    stages = {json.loads(p.read_text())["stage"] for p in (work / "cpu_side").glob("*.json") if p.name != "machine.json"}
+    assert stages == {f"measure {V}", f"measure {VFX}", "certify", "planning"}
+    merged, md = _merge(tmp_path, out, "--cpu-side", work)
+    for name in (V, VFX):
+        run = merged["runs"][name]
+        assert "contact" in run["probes"]["mlp"] and "log_k" in run["untrained"]["ridge"]["contact"]
+        cpu = run["cpu_measurement"]
+        assert cpu["device"].startswith("cpu") and datetime.fromisoformat(cpu["date"])
+        # the same returned weights read on the same corpus: the CPU's ridge numbers are the device's, up to the
+        # bfloat16 rounding of the trip and a different window cap
+        assert isinstance(cpu["largest_ridge_difference"], float)
+    assert merged["certificates"]["standard"]["settings"]["epochs"] == 2
+    assert merged["planning"]["config"]["episodes"] == 2 and merged["planning"]["paper_budget"] is False
+    assert "NOT the paper's 100" in md and "Every number of each run" in md
+    # the CPU side of another corpus is refused
+    machine = work / "cpu_side" / "machine.json"
+    m = json.loads(machine.read_text())
+    machine.write_text(json.dumps({**m, "corpus": {**m["corpus"], "content_sha256": "0" * 64}}))
+    with pytest.raises(SystemExit, match="another corpus"):
+        _merge(tmp_path, out, "--cpu-side", work)
+
+
+def test_a_record_of_another_corpus_is_kept_beside_the_new_one():
+    old = {"provenance": {"corpus_sha256": "a" * 64}, "runs": {"VFX": {}}}
+    new = {"provenance": {"corpus_sha256": "b" * 64}, "runs": {"VF": {}}}
+    merged = allocations.carry_other_corpora(dict(new), old)
+    assert merged["other_corpora"] == {"a" * 64: old} and merged["runs"] == {"VF": {}}
+    again = allocations.carry_other_corpora({"provenance": {"corpus_sha256": "a" * 64}, "runs": {}}, merged)
+    assert set(again["other_corpora"]) == {"b" * 64}  # the newer record of corpus a replaces the carried one
+    assert allocations.carry_other_corpora(dict(new), {"provenance": {"corpus_sha256": "b" * 64}}) == new

@@ -16,8 +16,8 @@ training), so every other number of the paper's tables for those runs is compute
    ``--plan-episodes`` below the paper's 100 is recorded as such).
 
 Every stage writes its output under ``--work`` and is skipped when its output is up to date, so the command can be
-run again after an interruption; ``cpu_side.json`` names this machine, each stage's settings, its UTC date and its
-wall time (or that it was computed by an earlier invocation), and ``scripts/merge_allocations.py --cpu-side WORK``
+run again after an interruption (or stages and runs split over concurrent invocations); ``cpu_side/`` names this
+machine and holds one record per stage: its settings, its UTC date and its wall time, and ``scripts/merge_allocations.py --cpu-side WORK``
 puts these numbers beside the device's.
 """
 
@@ -40,8 +40,9 @@ from ..io import read_json_if_present, write_json
 from . import allocations, stages
 from .config import MapConfig
 
-CPU_SIDE = "cpu_side.json"
-"""The record of the CPU side's stages, in its work folder."""
+CPU_SIDE = "cpu_side"
+"""The folder of the CPU side's records in its work folder: ``machine.json`` (this machine, the corpus) and one
+JSON per stage (so that stages run by concurrent invocations never overwrite each other's record)."""
 GATE_ESTIMATORS = ("gru", "linear", "drag")
 """The gate's instruments (the GRU oracle, the linear floor, the drag fit): the default certificate set."""
 
@@ -80,49 +81,59 @@ def export_new_runs(allocs: list[allocations.Allocation], merged: dict, runs: Pa
     return names
 
 
-def timed(record: dict, stage: str, settings: dict, fn, up_to_date: bool) -> object:
-    """Run ``fn`` and record the stage (settings, date, wall time; or that its output was up to date)."""
+def stage_path(work: Path, stage: str) -> Path:
+    return work / CPU_SIDE / (stage.replace(" ", "_").replace("/", "_") + ".json")
+
+
+def timed(work: Path, stage: str, settings: dict, fn, up_to_date: bool) -> object:
+    """Run ``fn`` and record the stage in its own file (this machine, settings, date and wall time; or that its
+    output was up to date, in which case the earlier record is kept)."""
     t0 = time.monotonic()
     result = fn()
-    entry = {"settings": settings, "date": now()}
+    if up_to_date and stage_path(work, stage).exists():
+        return result
+    entry = {"stage": stage, "device": allocations.device_record(), "settings": settings, "date": now()}
     entry.update({"computed": "earlier (output up to date)"} if up_to_date
                  else {"wall_s": round(time.monotonic() - t0, 1)})
-    record["stages"][stage] = entry
+    write_json(stage_path(work, stage), entry)
     return result
 
 
-def measure_runs(names: list[str], runs: Path, corpus: Path, record: dict) -> None:
+def measure_runs(a: argparse.Namespace, names: list[str], work: Path, corpus: Path) -> None:
+    kinds = {"kinds": tuple(a.measure_kinds), "action_conditioned_kinds": ()} if a.measure_kinds else {}
     for name in names:
-        cfg = measure.make_config("paper", run_dir=str(runs / name), data=str(corpus), device="cpu")
+        cfg = measure.make_config(a.preset, run_dir=str(work / "runs" / name), data=str(corpus), device="cpu", **kinds)
         out = measure.measure_path(cfg.run_dir, cfg.data)
         prev = read_json_if_present(out, "a run's measurement")
         fresh = prev is not None and prev.get("key", {}).get("config", {}).get("mlp") and \
             prev.get("key", {}).get("data_sha256") == read_manifest(corpus).get("content_sha256")
-        print(f"[cpu-side] measuring {name} (paper preset: ridge and MLP probes, untrained bound)", flush=True)
-        timed(record, f"measure {name}", {"preset": "paper", "mlp": cfg.mlp, "untrained": cfg.untrained,
-                                          "max_windows": cfg.max_windows, "file": out.name},
-              lambda: measure.run(cfg), bool(fresh))
+        print(f"[cpu-side] measuring {name} ({a.preset} preset: ridge{' and MLP' if cfg.mlp else ''} probes, untrained bound; "
+              f"{', '.join(cfg.kinds)} windows)", flush=True)
+        timed(work, f"measure {name}", {"preset": a.preset, "mlp": cfg.mlp, "untrained": cfg.untrained,
+                                        "max_windows": cfg.max_windows, "kinds": list(cfg.kinds),
+                                        "action_conditioned_kinds": list(cfg.action_conditioned_kinds),
+                                        "file": out.name}, lambda: measure.run(cfg), bool(fresh))
 
 
-def certify_corpus(a: argparse.Namespace, corpus: Path, work: Path, record: dict) -> Path:
+def certify_corpus(a: argparse.Namespace, corpus: Path, work: Path) -> Path:
     overrides = {"data": str(corpus), "out": str(work / "certificates.json"), "estimators": tuple(a.certify_estimators),
                  "kinds": ("contact",)}
     for field, value in (("max_windows", a.certify_max_windows), ("fit_episodes", a.certify_fit_episodes),
                          ("epochs", a.certify_epochs)):
         if value is not None:
             overrides[field] = value
-    cfg = certify.make_config("paper", **overrides)
+    cfg = certify.make_config(a.preset, **overrides)
     prev = read_json_if_present(Path(cfg.out), "a certificate record (certificates.json)")
     print(f"[cpu-side] certificates: {', '.join(cfg.estimators)}, contact windows, at most {cfg.max_windows} "
           f"windows, {cfg.epochs} epochs, fit on {cfg.fit_episodes or 'the probe-fit split'}", flush=True)
     up = isinstance(prev, dict) and prev.get("config") == to_dict(cfg)
-    return timed(record, "certify", {k: v for k, v in to_dict(cfg).items() if k not in ("data", "out")},
+    return timed(work, "certify", {k: v for k, v in to_dict(cfg).items() if k not in ("data", "out")},
                  lambda: certify.run(cfg), up)
 
 
-def plan_with_runs(a: argparse.Namespace, names: list[str], merged: dict, runs: Path, corpus: Path, work: Path,
-                   record: dict) -> None:
-    cfg = plan.make_config("paper", out=str(work / "planning"), seed=0, runs=(), device="cpu",
+def plan_with_runs(a: argparse.Namespace, names: list[str], merged: dict, corpus: Path, work: Path) -> None:
+    runs = work / "runs"
+    cfg = plan.make_config(a.preset, out=str(work / "planning"), seed=0, runs=(), device="cpu",
                            **({"episodes": a.plan_episodes} if a.plan_episodes else {}))
     by_variant: dict[str, list[str]] = {}
     for name in names:
@@ -132,7 +143,7 @@ def plan_with_runs(a: argparse.Namespace, names: list[str], merged: dict, runs: 
     path = Path(cfg.out) / "planning.json"
     prev = read_json_if_present(path, "the CPU side's planning record")
     if isinstance(prev, dict) and prev.get("key") == key:
-        record["stages"]["planning"] = {**record["stages"].get("planning", {}), "computed": "earlier (output up to date)"}
+        print(f"[cpu-side] {path} is up to date; skipping planning")
         return
     paper = plan.make_config("paper")
     print(f"[cpu-side] planning: {cfg.episodes} episodes (the paper's {paper.episodes}), population "
@@ -145,37 +156,45 @@ def plan_with_runs(a: argparse.Namespace, names: list[str], merged: dict, runs: 
                           "paper_budget": cfg.episodes == paper.episodes and cfg.population == paper.population
                           and cfg.iterations == paper.iterations})
 
-    timed(record, "planning", {"episodes": cfg.episodes, "paper_episodes": paper.episodes,
+    timed(work, "planning", {"episodes": cfg.episodes, "paper_episodes": paper.episodes,
                                "population": cfg.population, "iterations": cfg.iterations, "steps": cfg.steps},
           run_planner, False)
 
 
 def complete(a: argparse.Namespace) -> Path:
-    """Every stage of the module docstring; returns the path of ``cpu_side.json``."""
+    """Every stage of the module docstring asked for; returns the folder of the records."""
     work = a.work.resolve()
     work.mkdir(parents=True, exist_ok=True)
-    record = read_json_if_present(work / CPU_SIDE, "the CPU side's record") or {}
-    record = {"device": allocations.device_record(), "stages": dict(record.get("stages", {}))}
     with tempfile.TemporaryDirectory(prefix="pokeworld-cpu-side-") as scratch:
         allocs = [allocations.open_allocation(p, Path(scratch)) for p in a.allocations]
         merged = allocations.merge_allocations(allocs)
         t0 = time.monotonic()
-        corpus = ensure_same_corpus(allocs, work)
-        record["corpus"] = {"path": str(corpus), "content_sha256": allocs[0].corpus_sha256,
-                            "wall_s": round(time.monotonic() - t0, 1)}
+        corpus = given_corpus(allocs, a.corpus) if a.corpus else ensure_same_corpus(allocs, work)
+        write_json(work / CPU_SIDE / "machine.json", {
+            "device": allocations.device_record(), "corpus": {"path": str(corpus), "content_sha256":
+                                                              allocs[0].corpus_sha256,
+                                                              "seconds_to_generate_or_check": round(time.monotonic() - t0, 1)}})
         names = export_new_runs(allocs, merged, work / "runs", Path(scratch))
-    record["runs"] = names
-    stages_wanted = set(a.stages)
-    if "measure" in stages_wanted:
-        measure_runs(names, work / "runs", corpus, record)
-        write_json(work / CPU_SIDE, record)
-    if "certify" in stages_wanted:
-        certify_corpus(a, corpus, work, record)
-        write_json(work / CPU_SIDE, record)
-    if "planning" in stages_wanted:
-        plan_with_runs(a, names, merged, work / "runs", corpus, work, record)
-    write_json(work / CPU_SIDE, record)
+    unknown = [r for r in a.runs if r not in names]
+    if unknown:
+        raise ConfigError(f"--runs {unknown}: not a finished run with returned weights ({names})")
+    names = [n for n in names if not a.runs or n in a.runs]
+    if "measure" in a.stages:
+        measure_runs(a, names, work, corpus)
+    if "certify" in a.stages:
+        certify_corpus(a, corpus, work)
+    if "planning" in a.stages:
+        plan_with_runs(a, names, merged, corpus, work)
     return work / CPU_SIDE
+
+
+def given_corpus(allocs: list[allocations.Allocation], corpus: Path) -> Path:
+    """An existing store of the allocations' corpus (--corpus), refused unless its content hash is theirs."""
+    sha = read_manifest(corpus).get("content_sha256")
+    if sha != allocs[0].corpus_sha256:
+        raise ConfigError(f"{corpus} holds corpus {str(sha)[:12]}, the allocations trained on "
+                          f"{allocs[0].corpus_sha256[:12]}")
+    return corpus.resolve()
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -193,6 +212,15 @@ def main(argv: list[str] | None = None) -> int:
                                                             "probe-fit split (default: the paper preset's)")
     ap.add_argument("--certify-epochs", type=int, help="maximum epochs (default: the paper preset's)")
     ap.add_argument("--plan-episodes", type=int, default=0, help="planning episodes (default: the paper's)")
+    ap.add_argument("--preset", default="paper", choices=["tiny", "cpu", "paper"],
+                    help="measurement, certificate and planning preset (default paper, the paper's budgets; the "
+                         "others check the command on small allocations)")
+    ap.add_argument("--corpus", type=Path, help="an existing store of the allocations' corpus (checked by its content "
+                                                "hash) instead of generating it under --work")
+    ap.add_argument("--runs", nargs="+", default=[], help="only these runs (default: every returned run)")
+    ap.add_argument("--measure-kinds", nargs="+", choices=["contact", "glide", "all"],
+                    help="window kinds the CPU measurement probes (default: the paper preset's: all three and the "
+                         "action-conditioned contact readout)")
     a = ap.parse_args(argv)
     try:
         path = complete(a)

@@ -21,8 +21,9 @@ from ..io import read_json
 from ..released_values import MULTI_HORIZON, SINGLE_HORIZON, SOURCE_COMMIT, SOURCE_REPO, released
 from .factorial import FACTORIAL, FACTORIAL_MLP
 
-CPU_SIDE = "cpu_side.json"
+CPU_SIDE = "cpu_side"
 MAX_JSON_BYTES = 4 << 20
+MAX_STAGES = 256
 GATED = ("log_m", "gamma", "log_k")
 
 
@@ -57,7 +58,7 @@ def attach_measurements(merged: dict, work: Path, side: dict) -> list[str]:
         if "mlp" in m.get("probes", {}):
             run["probes"]["mlp"] = m["probes"]["mlp"]
         run["untrained"] = m.get("untrained", {})
-        run["cpu_measurement"] = {**where(side["device"], stage.get("date")), "stage": stage,
+        run["cpu_measurement"] = {**where(stage.get("device", side["device"]), stage.get("date")), "stage": stage,
                                   "ridge_contact": cpu_ridge, "prediction": m.get("prediction", {}),
                                   "largest_ridge_difference": max(diffs) if diffs else None}
         attached.append(name)
@@ -73,7 +74,8 @@ def attach_certificates(merged: dict, work: Path, side: dict) -> bool:
         raise ConfigError(f"{path} certifies another corpus than the allocations trained on")
     merged["certificates"]["standard"] = {"certificate": cert.get("certificate", {}), "gate": gate_of(cert),
                                           "estimators": cert.get("estimators", {}), "counts": cert.get("counts", {}),
-                                          **where(side["device"], side.get("stages", {}).get("certify", {}).get("date")),
+                                          **where(side["stages"].get("certify", {}).get("device", side["device"]),
+                                                  side["stages"].get("certify", {}).get("date")),
                                           "settings": side.get("stages", {}).get("certify", {}).get("settings", {})}
     return True
 
@@ -86,16 +88,32 @@ def attach_planning(merged: dict, work: Path, side: dict) -> bool:
     stage = side.get("stages", {}).get("planning", {})
     merged["planning"] = {"config": pl["config"], "summary": pl["summary"], "runs": pl.get("runs", {}),
                           "figure": [], "paper_budget": bool(pl.get("paper_budget")),
-                          **where(side["device"], stage.get("date")), "stage": stage}
+                          **where(stage.get("device", side["device"]), stage.get("date")), "stage": stage}
     return True
+
+
+def read_side(work: Path) -> dict:
+    """The CPU side's records under ``work`` (:mod:`.allocation_complete`): ``{"device", "corpus", "stages"}``."""
+    folder = work / CPU_SIDE
+    machine = read_side_json(folder / "machine.json", "the CPU side's machine record")
+    if not isinstance(machine.get("device"), dict) or not isinstance(machine.get("corpus"), dict):
+        raise ConfigError(f"{folder / 'machine.json'} names no machine and corpus; it is not a record "
+                          "complete_allocations.py wrote")
+    files = sorted(p for p in folder.glob("*.json") if p.name != "machine.json")
+    if len(files) > MAX_STAGES:
+        raise ConfigError(f"{folder} holds {len(files)} stage records; complete_allocations.py writes a few")
+    stages = {}
+    for p in files:
+        entry = read_side_json(p, "a CPU-side stage record")
+        if isinstance(entry.get("stage"), str) and isinstance(entry.get("device"), dict):
+            stages[entry["stage"]] = entry
+    return {**machine, "stages": stages}
 
 
 def attach_cpu_side(merged: dict, work: Path) -> dict:
     """``merged`` completed with the CPU side computed under ``work`` (:mod:`.allocation_complete`) and each run's
     released values (:mod:`pokeworld.released_values`); returns what was attached."""
-    side = read_side_json(work / CPU_SIDE, "the CPU side's record")
-    if not isinstance(side.get("device"), dict):
-        raise ConfigError(f"{work / CPU_SIDE} names no machine; it is not a record complete_allocations.py wrote")
+    side = read_side(work)
     if side.get("corpus", {}).get("content_sha256") != merged["provenance"]["corpus_sha256"]:
         raise ConfigError(f"{work} holds the CPU side of another corpus than the allocations trained on")
     done = {"measured": attach_measurements(merged, work, side), "certificates": attach_certificates(merged, work, side),
@@ -202,5 +220,5 @@ def headline_lines(merged: dict) -> list[str]:
     return lines + ([""] if lines else [])
 
 
-__all__ = ["CPU_SIDE", "attach_cpu_side", "attach_measurements", "attach_certificates", "attach_planning",
+__all__ = ["CPU_SIDE", "read_side", "attach_cpu_side", "attach_measurements", "attach_certificates", "attach_planning",
            "record_lines", "headline_lines", "run_rows", "planning_rows"]
