@@ -16,7 +16,7 @@ from pathlib import Path
 from .. import paper_values as P
 from ..certify import gate_of
 from ..errors import ConfigError, PokeworldError
-from ..evaluate.tables import fmt
+from ..evaluate.tables import LABELS, fmt
 from ..io import read_json
 from ..released_values import MULTI_HORIZON, SINGLE_HORIZON, SOURCE_COMMIT, SOURCE_REPO, released
 from .factorial import FACTORIAL, FACTORIAL_MLP
@@ -134,8 +134,10 @@ def cell(v, digits: int = 2) -> str:
 
 
 def short(d: dict) -> str:
-    dev, date = str(d.get("device") or "—"), str(d.get("date") or "—")[:10]
-    return f"{dev.replace('NVIDIA ', '').split(' 80GB')[0]}, {date}"
+    """'H100, 2026-11-27' for a device and date; 'not computed' without one."""
+    if not d.get("device"):
+        return "not computed"
+    return f"{str(d['device']).replace('NVIDIA ', '').split(' 80GB')[0]}, {str(d.get('date') or '—')[:10]}"
 
 
 def run_rows(run: dict) -> list[tuple[str, object, object, object, str, int]]:
@@ -147,11 +149,11 @@ def run_rows(run: dict) -> list[tuple[str, object, object, object, str, int]]:
     mlp = run["probes"].get("mlp", {}).get("contact", {})
     unt = run.get("untrained", {}).get("ridge", {}).get("contact", {})
     pred, glide = run.get("prediction", {}), run.get("prediction", {}).get("glide_test", {})
-    rows = [(f"{q.replace('_', ' ')} ridge", ridge.get(q), FACTORIAL.get(v, {}).get(q) if q != "gamma" else None,
+    rows = [(f"{LABELS[q]} ridge", ridge.get(q), FACTORIAL.get(v, {}).get(q) if q != "gamma" else None,
              rel.get("ridge", {}).get(q), gpu, 2) for q in ("log_k", "log_m", "gamma")]
-    rows += [(f"{q.replace('_', ' ')} MLP", mlp.get(q), FACTORIAL_MLP.get(v, {}).get(q), rel.get("mlp", {}).get(q),
+    rows += [(f"{LABELS[q]} MLP", mlp.get(q), FACTORIAL_MLP.get(v, {}).get(q), rel.get("mlp", {}).get(q),
               cpu, 2) for q in ("log_k", "log_m", "gamma")]
-    rows += [(f"{q.replace('_', ' ')} untrained bound (ridge)", unt.get(q), None, None, cpu, 2) for q in GATED]
+    rows += [(f"{LABELS[q]} untrained bound (ridge)", unt.get(q), None, None, cpu, 2) for q in GATED]
     rows += [("object position ridge", ridge.get("object_pos"), None, rel.get("object_pos_frame"), gpu, 2),
              ("direct-16 (arena units)", pred.get("direct16"), P.PREDICTION["direct16"], rel.get("direct16"), gpu, 3),
              ("rollout-16", pred.get("rollout16"), P.PREDICTION["rollout16"], rel.get("rollout16"), gpu, 3),
