@@ -36,7 +36,7 @@ from ..config import from_dict, to_dict
 from ..data import read_manifest
 from ..errors import ConfigError, PokeworldError
 from ..evaluate import measure
-from ..io import read_json_if_present, write_json
+from ..io import read_json_if_present, read_regular_bytes, write_json
 from . import allocations, stages
 from .config import MapConfig
 
@@ -65,9 +65,16 @@ def ensure_same_corpus(allocs: list[allocations.Allocation], work: Path) -> Path
     return corpus
 
 
+MAX_WEIGHTS_BYTES = 256 << 20
+"""Largest final.pt read to compare or key (a paper-preset run's is 17 MiB)."""
+
+
+def weights_sha256(path: Path) -> str:
+    return hashlib.sha256(read_regular_bytes(path, "a run's final weights", MAX_WEIGHTS_BYTES)).hexdigest()
+
+
 def same_weights(a: Path, b: Path) -> bool:
-    return a.exists() and b.exists() and hashlib.sha256(a.read_bytes()).digest() == \
-        hashlib.sha256(b.read_bytes()).digest()
+    return a.exists() and b.exists() and weights_sha256(a) == weights_sha256(b)
 
 
 def export_new_runs(allocs: list[allocations.Allocation], merged: dict, runs: Path, scratch: Path) -> list[str]:
@@ -139,7 +146,7 @@ def plan_with_runs(a: argparse.Namespace, names: list[str], merged: dict, corpus
     for name in names:
         by_variant.setdefault(merged["runs"][name]["train"]["variant"], []).append(str(runs / name))
     key = {"config": to_dict(cfg), "runs": {v: [Path(d).name for d in ds] for v, ds in by_variant.items()},
-           "weights": {n: hashlib.sha256((runs / n / "final.pt").read_bytes()).hexdigest()[:16] for n in names}}
+           "weights": {n: weights_sha256(runs / n / "final.pt")[:16] for n in names}}
     path = Path(cfg.out) / "planning.json"
     prev = read_json_if_present(path, "the CPU side's planning record")
     if isinstance(prev, dict) and prev.get("key") == key:

@@ -24,6 +24,7 @@ import shlex
 from dataclasses import dataclass, field
 
 from ..errors import ConfigError
+from ..io import parse_json
 from ..models.xjepa import VARIANTS
 from ..sim.generate_config import content_config
 from .allocation_queue import PRIORITY, order_queue, parse_token, token
@@ -45,7 +46,9 @@ def configuration_key(config: dict) -> str:
 
 def checkout_configuration_of(c: MapConfig) -> str:
     """The configuration key of map ``c``'s standard corpus as this checkout generates it."""
-    return configuration_key(json.loads(json.dumps(content_config(corpus_config(c, "standard")))))
+    # through JSON, as a manifest stores it (tuples become lists)
+    return configuration_key(parse_json(json.dumps(content_config(corpus_config(c, "standard"))).encode(),
+                                        "<this checkout's corpus config>", "a corpus config"))
 
 
 def checkout_configuration(preset: str = "paper") -> str:
