@@ -42,6 +42,10 @@
 #   ALLOC_BENCH_CONFIGS  bench mode: configurations (default "fast fast+reduce-overhead": eager and CUDA graphs)
 #   ALLOC_BENCH_STEPS    bench mode: timed steps per configuration (default 30)
 #   ALLOC_BENCH_MAX_S    bench mode: seconds the benchmark may take (default 150)
+#   ALLOC_MEASURE_DEVICE where each finished run is measured (ridge probes, prediction, glide test) before the next
+#                        starts: auto (default: the GPU it trained on) or cpu (the machine's CPU cores); the MLP
+#                        probes, the untrained bound, certificates and planning are left to the CPU side
+#                        (scripts/complete_allocations.py; docs/model.md "Measurement on or off the training path")
 #   ALLOC_WORK           the map's working folder (corpus, checkpoints; default a new folder under /tmp, never in OUT)
 #   PYTHON               the interpreter (default python3)
 set -uo pipefail
@@ -108,6 +112,7 @@ else
   [ ${#RUNS[@]} -gt 0 ] && args+=(--runs "${RUNS[@]}")
   [ -n "${ALLOC_S_PER_STEP:-}" ] && args+=(--prior-s-per-step "$ALLOC_S_PER_STEP")
   [ -n "${ALLOC_OVERHEAD_S:-}" ] && args+=(--prior-overhead-s "$ALLOC_OVERHEAD_S")
+  [ -n "${ALLOC_MEASURE_DEVICE:-}" ] && args+=(--measure-device "$ALLOC_MEASURE_DEVICE")
   # shellcheck disable=SC2086  # ALLOC_RESUME is a list of folders
   [ -n "${ALLOC_RESUME:-}" ] && args+=(--resume $ALLOC_RESUME)
   log "training: preset $PRESET, runs ${RUNS[*]:-(the default queue)}, budget $BUDGET_MIN min"

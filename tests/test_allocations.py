@@ -267,3 +267,15 @@ def test_a_record_of_another_corpus_is_kept_beside_the_new_one():
     again = allocations.carry_other_corpora({"provenance": {"corpus_sha256": "a" * 64}, "runs": {}}, merged)
     assert set(again["other_corpora"]) == {"b" * 64}  # the newer record of corpus a replaces the carried one
     assert allocations.carry_other_corpora(dict(new), {"provenance": {"corpus_sha256": "b" * 64}}) == new
+
+
+def test_the_measurement_device_is_a_choice_every_job_carries(tmp_path):
+    from pokeworld.experiments import stages
+
+    c = experiment.make_config("tiny", out=str(tmp_path / "m"), variants=("VFX",), seeds=(0,), measure_device="cpu")
+    job = stages.jobs(c, stages.all_specs(c), 0)[0]
+    assert job["measure"]["device"] == "cpu" and job["measure"]["probe_device"] == "host"
+    auto = experiment.make_config("tiny", out=str(tmp_path / "m"), variants=("VFX",), seeds=(0,))
+    assert "device" not in stages.jobs(auto, stages.all_specs(auto), 0)[0]["measure"]
+    with pytest.raises(ConfigError, match="measure_device"):
+        experiment.make_config("tiny", measure_device="gpu2")

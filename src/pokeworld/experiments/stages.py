@@ -184,7 +184,8 @@ def jobs(c: MapConfig, specs: list[RunSpec], threads: int, deadline: float = 0.0
             tr["threads"] = threads
         measure_data = str(corpus_dir(c, s.measure_corpus)) if s.measure_corpus != s.corpus else ""
         measure = ({"kinds": tuple(c.measure_kinds)} if c.measure_kinds else {}) | (
-            {"max_windows": c.measure_max_windows} if c.measure_max_windows else {}) | dict(s.measure)
+            {"max_windows": c.measure_max_windows} if c.measure_max_windows else {}) | (
+            {"device": "cpu", "probe_device": "host"} if c.measure_device == "cpu" else {}) | dict(s.measure)
         out.append({"name": s.name, "preset": c.preset, "train_preset": c.train_preset or c.preset, "train": tr,
                      "measure_data": measure_data,
                      "mlp": c.mlp_probes, "untrained": c.untrained, "threads": threads, "deadline": deadline,
