@@ -279,3 +279,20 @@ def test_the_measurement_device_is_a_choice_every_job_carries(tmp_path):
     assert "device" not in stages.jobs(auto, stages.all_specs(auto), 0)[0]["measure"]
     with pytest.raises(ConfigError, match="measure_device"):
         experiment.make_config("tiny", measure_device="gpu2")
+
+
+def test_a_probe_subset_names_its_corpus_and_keeps_only_probe_episodes(tiny_dataset, tmp_path):
+    from pokeworld.data import load, read_manifest, save
+    from pokeworld.experiments.allocation_complete import probe_subset
+
+    corpus = save(tiny_dataset, tmp_path / "corpus")
+    sub = probe_subset(corpus, 5, tmp_path)
+    ds, man = load(sub), read_manifest(sub)
+    assert len(ds.episodes("probe_fit")) == 5 and len(ds.episodes("probe_test")) == 5 and ds.num_episodes == 10
+    assert man["subset_of"]["content_sha256"] == read_manifest(corpus)["content_sha256"]
+    picked = man["subset_of"]["episodes"]
+    assert (ds.frames == tiny_dataset.frames[picked]).all()  # the corpus's own episodes, in corpus order
+    assert probe_subset(corpus, 5, tmp_path) == sub  # reused
+    too_many = len(tiny_dataset.episodes("probe_fit")) + 1
+    with pytest.raises(ConfigError, match="probe_fit episodes"):
+        probe_subset(corpus, too_many, tmp_path / "other")

@@ -25,6 +25,8 @@ from __future__ import annotations
 
 import argparse
 import hashlib
+
+import numpy as np
 import sys
 import tempfile
 import time
@@ -33,7 +35,7 @@ from pathlib import Path
 
 from .. import certify, plan
 from ..config import from_dict, to_dict
-from ..data import read_manifest
+from ..data import load, read_manifest, save
 from ..errors import ConfigError, PokeworldError
 from ..evaluate import measure
 from ..io import read_json_if_present, read_regular_bytes, write_json
@@ -106,20 +108,45 @@ def timed(work: Path, stage: str, settings: dict, fn, up_to_date: bool) -> objec
     return result
 
 
+def probe_subset(corpus: Path, n: int, work: Path) -> Path:
+    """A store of ``n`` probe-fit and ``n`` probe-test episodes of ``corpus`` (a seeded draw, kept in corpus order;
+    no training episodes, which a measurement does not read), its manifest naming the corpus and the episodes;
+    reused when it is there."""
+    out = work / f"probe-subset-{n}"
+    parent = read_manifest(corpus).get("content_sha256")
+    if out.exists() and (read_manifest(out).get("subset_of") or {}).get("content_sha256") == parent:
+        return out
+    ds = load(corpus)
+    rng = np.random.default_rng(0)
+    parts = []
+    for split in ("probe_fit", "probe_test"):
+        eps = ds.episodes(split)
+        if n > len(eps):
+            raise ConfigError(f"--probe-episodes {n}: the corpus has {len(eps)} {split} episodes")
+        parts.append(rng.choice(eps, n, replace=False))
+    idx = np.sort(np.concatenate(parts))
+    save(ds.subset(idx), out, manifest={"subset_of": {"content_sha256": parent, "episodes": idx.tolist(),
+                                                      "what": f"{n} probe-fit and {n} probe-test episodes"}})
+    return out
+
+
 def measure_runs(a: argparse.Namespace, names: list[str], work: Path, corpus: Path) -> None:
     kinds = {"kinds": tuple(a.measure_kinds), "action_conditioned_kinds": ()} if a.measure_kinds else {}
+    data = probe_subset(corpus, a.probe_episodes, work) if a.probe_episodes else corpus
+    subset = {"probe_episodes": a.probe_episodes, "data_sha256": read_manifest(data).get("content_sha256"),
+              "corpus_sha256": read_manifest(corpus).get("content_sha256")}
     for name in names:
-        cfg = measure.make_config(a.preset, run_dir=str(work / "runs" / name), data=str(corpus), device="cpu", **kinds)
+        cfg = measure.make_config(a.preset, run_dir=str(work / "runs" / name), data=str(data), device="cpu", **kinds)
         out = measure.measure_path(cfg.run_dir, cfg.data)
         prev = read_json_if_present(out, "a run's measurement")
         fresh = prev is not None and prev.get("key", {}).get("config", {}).get("mlp") and \
-            prev.get("key", {}).get("data_sha256") == read_manifest(corpus).get("content_sha256")
+            prev.get("key", {}).get("data_sha256") == subset["data_sha256"]
         print(f"[cpu-side] measuring {name} ({a.preset} preset: ridge{' and MLP' if cfg.mlp else ''} probes, untrained bound; "
               f"{', '.join(cfg.kinds)} windows)", flush=True)
         timed(work, f"measure {name}", {"preset": a.preset, "mlp": cfg.mlp, "untrained": cfg.untrained,
                                         "max_windows": cfg.max_windows, "kinds": list(cfg.kinds),
                                         "action_conditioned_kinds": list(cfg.action_conditioned_kinds),
-                                        "file": out.name}, lambda: measure.run(cfg), bool(fresh))
+                                        "file": out.name, **subset}, lambda: measure.run(cfg), bool(fresh))
 
 
 def certify_corpus(a: argparse.Namespace, corpus: Path, work: Path) -> Path:
@@ -145,7 +172,8 @@ def plan_with_runs(a: argparse.Namespace, names: list[str], merged: dict, corpus
     by_variant: dict[str, list[str]] = {}
     for name in names:
         by_variant.setdefault(merged["runs"][name]["train"]["variant"], []).append(str(runs / name))
-    key = {"config": to_dict(cfg), "runs": {v: [Path(d).name for d in ds] for v, ds in by_variant.items()},
+    key = {"config": to_dict(cfg), "decoder_probe_episodes": a.probe_episodes,
+           "runs": {v: [Path(d).name for d in ds] for v, ds in by_variant.items()},
            "weights": {n: weights_sha256(runs / n / "final.pt")[:16] for n in names}}
     path = Path(cfg.out) / "planning.json"
     prev = read_json_if_present(path, "the CPU side's planning record")
@@ -156,15 +184,19 @@ def plan_with_runs(a: argparse.Namespace, names: list[str], merged: dict, corpus
     print(f"[cpu-side] planning: {cfg.episodes} episodes (the paper's {paper.episodes}), population "
           f"{cfg.population}, {cfg.iterations} iterations; {', '.join(by_variant)} and random", flush=True)
 
+    # the position decoder is fit on the corpus the runs trained on, or on the same probe subset as the measurement
+    decoder_data = probe_subset(corpus, a.probe_episodes, work) if a.probe_episodes else corpus
+
     def run_planner():
-        planned = plan.plan_runs(cfg, by_variant, data=str(corpus))
+        planned = plan.plan_runs(cfg, by_variant, data=str(decoder_data))
         plan.write_outputs(planned, Path(cfg.out), cfg.goal_radius)
         write_json(path, {"key": key, "config": to_dict(cfg), "summary": planned["summary"], "runs": by_variant,
                           "paper_budget": cfg.episodes == paper.episodes and cfg.population == paper.population
                           and cfg.iterations == paper.iterations})
 
     timed(work, "planning", {"episodes": cfg.episodes, "paper_episodes": paper.episodes,
-                               "population": cfg.population, "iterations": cfg.iterations, "steps": cfg.steps},
+                               "population": cfg.population, "iterations": cfg.iterations, "steps": cfg.steps,
+                               "decoder_probe_episodes": a.probe_episodes or "all"},
           run_planner, False)
 
 
@@ -224,6 +256,9 @@ def main(argv: list[str] | None = None) -> int:
                          "others check the command on small allocations)")
     ap.add_argument("--corpus", type=Path, help="an existing store of the allocations' corpus (checked by its content "
                                                 "hash) instead of generating it under --work")
+    ap.add_argument("--probe-episodes", type=int, default=0,
+                    help="measure on this many probe-fit and as many probe-test episodes of the corpus (a seeded "
+                         "draw, recorded; default 0: all of them)")
     ap.add_argument("--runs", nargs="+", default=[], help="only these runs (default: every returned run)")
     ap.add_argument("--measure-kinds", nargs="+", choices=["contact", "glide", "all"],
                     help="window kinds the CPU measurement probes (default: the paper preset's: all three and the "

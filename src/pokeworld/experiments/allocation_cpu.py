@@ -44,14 +44,16 @@ def attach_measurements(merged: dict, work: Path, side: dict) -> list[str]:
     sha = merged["provenance"]["corpus_sha256"]
     attached = []
     for name, run in merged["runs"].items():
-        path = work / "runs" / name / "measure-standard.json"
-        if not path.exists():
+        stage = side["stages"].get(f"measure {name}", {})
+        settings = stage.get("settings", {})
+        path = work / "runs" / name / str(settings.get("file", "measure-standard.json"))
+        if not stage or not path.exists() or path.parent.parent != work / "runs":
             continue
         m = read_side_json(path, "a CPU-side measurement")
-        if m.get("key", {}).get("data_sha256") != sha:
-            raise ConfigError(f"{path} measured corpus {str(m.get('key', {}).get('data_sha256'))[:12]}, the "
-                              f"allocations trained on {sha[:12]}")
-        stage = side.get("stages", {}).get(f"measure {name}", {})
+        measured = m.get("key", {}).get("data_sha256")
+        # a measurement on a subset of the corpus's probe episodes names the subset and the corpus
+        if settings.get("corpus_sha256", measured) != sha or measured != settings.get("data_sha256", measured):
+            raise ConfigError(f"{path} measured corpus {str(measured)[:12]}, the allocations trained on {sha[:12]}")
         device_ridge = run["probes"].get("ridge", {}).get("contact", {})
         cpu_ridge = m.get("probes", {}).get("ridge", {}).get("contact", {})
         diffs = [abs(cpu_ridge[q] - device_ridge[q]) for q in cpu_ridge if isinstance(device_ridge.get(q), float)]
@@ -60,7 +62,8 @@ def attach_measurements(merged: dict, work: Path, side: dict) -> list[str]:
         run["untrained"] = m.get("untrained", {})
         run["cpu_measurement"] = {**where(stage.get("device", side["device"]), stage.get("date")), "stage": stage,
                                   "ridge_contact": cpu_ridge, "prediction": m.get("prediction", {}),
-                                  "largest_ridge_difference": max(diffs) if diffs else None}
+                                  "largest_ridge_difference": max(diffs) if diffs else None,
+                                  "probe_episodes": settings.get("probe_episodes") or "all"}
         attached.append(name)
     return attached
 
@@ -145,6 +148,9 @@ def run_rows(run: dict) -> list[tuple[str, object, object, object, str, int]]:
     v, seed = run["train"]["variant"], int(run["train"]["seed"])
     rel = released(v, seed, MULTI_HORIZON)
     gpu, cpu = short(run.get("allocation", {})), short(run.get("cpu_measurement", {}))
+    n = run.get("cpu_measurement", {}).get("probe_episodes")
+    if isinstance(n, int):  # measured on a seeded subset of the probe splits
+        cpu += f", {n} + {n} of the probe-fit + probe-test episodes"
     ridge = run["probes"].get("ridge", {}).get("contact", {})
     mlp = run["probes"].get("mlp", {}).get("contact", {})
     unt = run.get("untrained", {}).get("ridge", {}).get("contact", {})
@@ -170,6 +176,9 @@ def planning_rows(merged: dict, variant: str) -> list[tuple[str, object, object,
         return []
     s, p = pl["summary"][variant], P.PLANNING.get(variant, (None, None))
     on = short(pl) + ("" if pl.get("paper_budget") else f", {pl['config']['episodes']} episodes")
+    n = pl.get("stage", {}).get("settings", {}).get("decoder_probe_episodes")
+    if isinstance(n, int):
+        on += f", decoder fit on {n} probe-fit episodes"
     return [("planning: goal-region reach", s.get("reach"), p[0], None, on, 2),
             ("planning: median distance improvement", s.get("median_improvement"), p[1], None, on, 3)]
 
