@@ -109,9 +109,10 @@ def main() -> None:
         row = {"configuration": label, **(launch(a, kind, n, deadline) if time.monotonic() < deadline else
                                          {"measured": False, "why": "not started: --max-s reached"})}
         rows.append(row)
-        print(f"[gpu_concurrency] {label}: " + (f"{row['sec_per_model_step']:.4f} s per model-step "
-                                                f"(each process {', '.join(f'{s:.4f}' for s in row['sec_per_step_each'])} s/step)"
-                                                if row["measured"] else f"not measured ({row['why']})"), flush=True)
+        each = ", ".join(f"{s:.4f}" for s in row.get("sec_per_step_each", []))
+        print(f"[gpu_concurrency] {label}: " + (f"{row['sec_per_model_step']:.4f} s per model-step (each process "
+                                                f"{each} s/step)" if row["measured"] else
+                                                f"not measured ({row['why']})"), flush=True)
         if a.out:
             a.out.parent.mkdir(parents=True, exist_ok=True)
             a.out.write_text(json.dumps({"meta": meta, "results": rows}, indent=1))

@@ -237,7 +237,8 @@ def test_the_cpu_side_completes_the_returned_runs_and_the_merge_shows_it(allocat
                            "--certify-epochs", "2", "--plan-episodes", "2"], cwd=ROOT, capture_output=True,
                           text=True, timeout=900, env={**os.environ, "PYTHONPATH": str(ROOT / "src")})
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
-    stages = {json.loads(p.read_text())["stage"] for p in (work / "cpu_side").glob("*.json") if p.name != "machine.json"}
+    stages = {json.loads(p.read_text())["stage"] for p in (work / "cpu_side").glob("*.json")
+              if p.name != "machine.json"}
     assert stages == {f"measure {V}", f"measure {VFX}", "certify", "planning"}
     merged, md = _merge(tmp_path, out, "--cpu-side", work)
     for name in (V, VFX):

@@ -17,7 +17,8 @@ training), so every other number of the paper's tables for those runs is compute
 
 Every stage writes its output under ``--work`` and is skipped when its output is up to date, so the command can be
 run again after an interruption (or stages and runs split over concurrent invocations); ``cpu_side/`` names this
-machine and holds one record per stage: its settings, its UTC date and its wall time, and ``scripts/merge_allocations.py --cpu-side WORK``
+machine and holds one record per stage: its settings, its UTC date and its wall time, and
+``scripts/merge_allocations.py --cpu-side WORK``
 puts these numbers beside the device's.
 """
 
@@ -141,7 +142,8 @@ def measure_runs(a: argparse.Namespace, names: list[str], work: Path, corpus: Pa
         prev = read_json_if_present(out, "a run's measurement")
         fresh = prev is not None and prev.get("key", {}).get("config", {}).get("mlp") and \
             prev.get("key", {}).get("data_sha256") == subset["data_sha256"]
-        print(f"[cpu-side] measuring {name} ({a.preset} preset: ridge{' and MLP' if cfg.mlp else ''} probes, untrained bound; "
+        print(f"[cpu-side] measuring {name} ({a.preset} preset: ridge{' and MLP' if cfg.mlp else ''} probes, "
+              "untrained bound; "
               f"{', '.join(cfg.kinds)} windows)", flush=True)
         timed(work, f"measure {name}", {"preset": a.preset, "mlp": cfg.mlp, "untrained": cfg.untrained,
                                         "max_windows": cfg.max_windows, "kinds": list(cfg.kinds),
@@ -209,10 +211,11 @@ def complete(a: argparse.Namespace) -> Path:
         merged = allocations.merge_allocations(allocs)
         t0 = time.monotonic()
         corpus = given_corpus(allocs, a.corpus) if a.corpus else ensure_same_corpus(allocs, work)
+        seconds = round(time.monotonic() - t0, 1)
         write_json(work / CPU_SIDE / "machine.json", {
-            "device": allocations.device_record(), "corpus": {"path": str(corpus), "content_sha256":
-                                                              allocs[0].corpus_sha256,
-                                                              "seconds_to_generate_or_check": round(time.monotonic() - t0, 1)}})
+            "device": allocations.device_record(),
+            "corpus": {"path": str(corpus), "content_sha256": allocs[0].corpus_sha256,
+                       "seconds_to_generate_or_check": seconds}})
         names = export_new_runs(allocs, merged, work / "runs", Path(scratch))
     unknown = [r for r in a.runs if r not in names]
     if unknown:

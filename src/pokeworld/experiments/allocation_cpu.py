@@ -119,8 +119,8 @@ def attach_cpu_side(merged: dict, work: Path) -> dict:
     side = read_side(work)
     if side.get("corpus", {}).get("content_sha256") != merged["provenance"]["corpus_sha256"]:
         raise ConfigError(f"{work} holds the CPU side of another corpus than the allocations trained on")
-    done = {"measured": attach_measurements(merged, work, side), "certificates": attach_certificates(merged, work, side),
-            "planning": attach_planning(merged, work, side)}
+    done = {"measured": attach_measurements(merged, work, side),
+            "certificates": attach_certificates(merged, work, side), "planning": attach_planning(merged, work, side)}
     merged["provenance"]["cpu_side"] = {**where(side["device"]), "work": str(work), **done}
     for run in merged["runs"].values():
         key = (run["train"]["variant"], int(run["train"]["seed"]))

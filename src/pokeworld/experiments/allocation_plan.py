@@ -134,7 +134,8 @@ def plan_lines(p: dict, commit: str) -> list[str]:
              f"{' '.join(p['finished']) or 'none'}; checkpoints to resume: {resume or 'none'}"]
     for key, o in p["other_configurations"].items():
         lines.append(f"[plan] configuration {key} (another environment than this checkout's; not queued): corpora "
-                     f"{', '.join(o['corpora'])}, commits {', '.join(o['commits'])}, finished {' '.join(o['finished'])}")
+                     f"{', '.join(o['corpora'])}, commits {', '.join(o['commits'])}, "
+                     f"finished {' '.join(o['finished'])}")
     lines.append(f"[plan] next lease, in this order: {' '.join(p['queue']) or 'nothing left'}")
     if not p["queue"]:
         return lines
@@ -146,5 +147,6 @@ def plan_lines(p: dict, commit: str) -> list[str]:
                     "# 2. collect, issued at once:", cmds[1], "# 3. final collect:", cmds[2]]
 
 
-__all__ = ["configuration_key", "checkout_configuration_of", "checkout_configuration", "Returned", "checked_key", "queue_of", "plan",
+__all__ = ["configuration_key", "checkout_configuration_of", "checkout_configuration", "Returned", "checked_key",
+           "queue_of", "plan",
            "resume_value", "lease_commands", "plan_lines", "SETUP"]

@@ -420,7 +420,8 @@ def corpus_lines(merged: dict, level: str = "#") -> list[str]:
                f"`{json.dumps(certs.get('settings', {}), sort_keys=True)}`." if certs.get("device") else
                "from a CPU-side certify JSON." if certs else "none given.")
             + (f" CPU side ({cpu['device']}): MLP probes and the untrained bound of "
-               f"{', '.join(cpu['measured']) or 'no run yet'}; certificates {'computed' if cpu['certificates'] else 'not yet'}; "
+               f"{', '.join(cpu['measured']) or 'no run yet'}; "
+               f"certificates {'computed' if cpu['certificates'] else 'not yet'}; "
                f"planning {'computed' if cpu['planning'] else 'not yet'}." if cpu else ""), ""]
     return head + allocation_lines(merged) + run_lines(merged) + (record_lines(merged) if cpu else [])
 

@@ -237,8 +237,8 @@ def pack_results(c: MapConfig, dest: str | os.PathLike, quiet: bool = False) -> 
     return dest
 
 
-__all__ = ["experiment_specs", "all_specs", "spec_experiments", "corpus_config", "ensure_corpus", "GATED", "with_standard_gate",
-           "ensure_certificates", "certify_corpora", "execute", "job_train_config", "train_stacked_jobs", "jobs",
+__all__ = ["experiment_specs", "all_specs", "spec_experiments", "corpus_config", "ensure_corpus", "GATED",
+           "with_standard_gate", "ensure_certificates", "certify_corpora", "execute", "job_train_config", "train_stacked_jobs", "jobs",
            "write_progress", "PACK_GLOBS", "pack_results"]
 
 
