@@ -40,7 +40,7 @@ from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 
-from .. import __version__, checkpoint, paper_values as P
+from .. import __version__, certify, checkpoint, paper_values as P
 from ..config import from_dict
 from ..errors import ConfigError, PokeworldError
 from ..evaluate.tables import fmt, git_commit, probe
@@ -408,6 +408,16 @@ def run_lines(merged: dict) -> list[str]:
                         f"direct-16 {P.PREDICTION['direct16']} arena units (§4.2, one number, not per variant).", ""]
 
 
+def smaller_than_paper(certs: dict) -> str:
+    """Words for certificates fit with less than the paper preset's budget (empty when they were not)."""
+    paper = certify.PRESETS["paper"]
+    used = certs.get("settings", {})
+    less = {k: (used.get(k), v) for k, v in paper.items() if k in used and used.get(k) != v}
+    return ("" if not less else " — less than the paper preset's " + ", ".join(f"{k} {v}" for k, (_, v) in
+                                                                              less.items())
+            + " (0 fit episodes: the corpus's own probe-fit split)")
+
+
 def corpus_lines(merged: dict, level: str = "#") -> list[str]:
     """One corpus's record: its allocations, the per-run table and, where computed, the CPU side's numbers."""
     cpu = merged["provenance"].get("cpu_side")
@@ -417,7 +427,8 @@ def corpus_lines(merged: dict, level: str = "#") -> list[str]:
             "corpus of another environment gets its own section). Paper values are the paper's own numbers, shown "
             "beside ours; they are never used as ours. Certificates: "
             + (f"computed on {certs.get('device')}, {str(certs.get('date'))[:10]}, settings "
-               f"`{json.dumps(certs.get('settings', {}), sort_keys=True)}`." if certs.get("device") else
+               f"`{json.dumps(certs.get('settings', {}), sort_keys=True)}`{smaller_than_paper(certs)}."
+               if certs.get("device") else
                "from a CPU-side certify JSON." if certs else "none given.")
             + (f" CPU side ({cpu['device']}): MLP probes and the untrained bound of "
                f"{', '.join(cpu['measured']) or 'no run yet'}; "
