@@ -133,7 +133,12 @@ def attach_cpu_side(merged: dict, work: Path) -> dict:
 
 
 def cell(v, digits: int = 2) -> str:
-    return fmt(v, digits) if isinstance(v, (int, float)) else "—"
+    """A number as the tables write it; text as it is (a share already in %); '—' for none."""
+    return v if isinstance(v, str) else fmt(v, digits) if isinstance(v, (int, float)) else "—"
+
+
+def share(v) -> str | None:
+    return f"{v:.0%}" if isinstance(v, (int, float)) else None
 
 
 def short(d: dict) -> str:
@@ -179,7 +184,7 @@ def planning_rows(merged: dict, variant: str) -> list[tuple[str, object, object,
     n = pl.get("stage", {}).get("settings", {}).get("decoder_probe_episodes")
     if isinstance(n, int):
         on += f", decoder fit on {n} probe-fit episodes"
-    return [("planning: goal-region reach", s.get("reach"), p[0], None, on, 2),
+    return [("planning: goal-region reach", share(s.get("reach")), share(p[0]), None, on, 2),
             ("planning: median distance improvement", s.get("median_improvement"), p[1], None, on, 3)]
 
 
@@ -196,6 +201,12 @@ def record_lines(merged: dict) -> list[str]:
         lines += [f"### {name}", "", "| quantity | ours | paper | released | computed on |", "|---|---|---|---|---|"]
         for q, ours, paper, rel, on, d in run_rows(run) + planning_rows(merged, run["train"]["variant"]):
             lines.append(f"| {q} | {cell(ours, d)} | {cell(paper, d)} | {cell(rel, d)} | {on} |")
+        single = released(run["train"]["variant"], int(run["train"]["seed"]), SINGLE_HORIZON)
+        if single:
+            r = single["ridge"]
+            lines.append(f"\nThe authors' single-horizon run of the same variant ({single['source']}: Δ = 1 only, "
+                         f"not the configuration of Table \"targets\"): ridge log k {cell(r['log_k'])}, log m "
+                         f"{cell(r['log_m'])}, γ {cell(r['gamma'])}.")
         check = run.get("cpu_measurement", {}).get("largest_ridge_difference")
         if isinstance(check, float):
             lines.append(f"\nThe CPU's ridge readout of the returned weights differs from the device's by at most "
@@ -207,8 +218,8 @@ def record_lines(merged: dict) -> list[str]:
         budget = ("the paper's CEM budget" if pl.get("paper_budget") else
                   f"{pl['config']['episodes']} episodes, NOT the paper's 100 (the rest of the paper's CEM: population "
                   f"{pl['config']['population']}, {pl['config']['iterations']} iterations)")
-        lines += [f"Random controller (same starts and goals; {budget}; {short(pl)}): reach {cell(r.get('reach'))} "
-                  f"(paper {P.PLANNING['random'][0]}), median improvement {cell(r.get('median_improvement'), 3)} "
+        lines += [f"Random controller (same starts and goals; {budget}; {short(pl)}): reach {share(r.get('reach'))} "
+                  f"(paper {share(P.PLANNING['random'][0])}), median improvement {cell(r.get('median_improvement'), 3)} "
                   f"(paper {P.PLANNING['random'][1]}).", ""]
     return lines + headline_lines(merged)
 
