@@ -21,7 +21,7 @@
 #
 # Usage (repository root; pokeworld importable, e.g. PYTHONPATH=/tmp/site:$PWD/src as in ../shared/device/README.md):
 #   bash scripts/gpu_allocation.sh OUT [RUNS...]     RUNS: VARIANT or VARIANT@SEED in priority order
-#                                                    (default VFX VF V VX_t VX_p VX, then VF@1 VFX@1)
+#                                                    (default VFX VF V VX_t VX_p VX at seed 0, then the same at @1)
 # Environment (all optional):
 #   ALLOC_MODE           train (default) or bench (full CUDA tests and the benchmark, no training)
 #   ALLOC_COMMIT         the commit this copy of the repository is (the device copy has no .git); into device.json
@@ -33,7 +33,9 @@
 #   ALLOC_PRESET         map preset (default paper; tiny checks the script on a CPU in seconds)
 #   ALLOC_STEPS          training steps per run (default 0: the preset's, 20,000 at paper)
 #   ALLOC_TESTS          smoke (default in train mode), full (default in bench mode) or 0 (none)
-#   ALLOC_TESTS_MAX_S    seconds the tests may take (default 60 for smoke, 180 for full)
+#   ALLOC_TESTS_MAX_S    seconds the tests may take before they are killed (default 60 for smoke, 180 for full)
+#   ALLOC_TESTS_BUDGET_S the tests' budget: a test that would start past it is skipped, by name (default 50 for
+#                        smoke, 120 for full; tests/test_cuda.py runs the map's path first)
 #   ALLOC_SNAPSHOT_S     seconds between checkpoint snapshots into OUT while a run trains (default 30)
 #   ALLOC_S_PER_STEP     s/step predicted before this allocation has timed a run (default: the preset's prior,
 #                        0.0104 at paper, the H200's with CUDA graphs)
@@ -42,6 +44,10 @@
 #   ALLOC_BENCH_CONFIGS  bench mode: configurations (default "fast fast+reduce-overhead": eager and CUDA graphs)
 #   ALLOC_BENCH_STEPS    bench mode: timed steps per configuration (default 30)
 #   ALLOC_BENCH_MAX_S    bench mode: seconds the benchmark may take (default 150)
+#   ALLOC_MEASURE_DEVICE where each finished run is measured (ridge probes, prediction, glide test) before the next
+#                        starts: auto (default: the GPU it trained on) or cpu (the machine's CPU cores); the MLP
+#                        probes, the untrained bound, certificates and planning are left to the CPU side
+#                        (scripts/complete_allocations.py; docs/model.md "Measurement on or off the training path")
 #   ALLOC_WORK           the map's working folder (corpus, checkpoints; default a new folder under /tmp, never in OUT)
 #   PYTHON               the interpreter (default python3)
 set -uo pipefail
@@ -80,12 +86,16 @@ if [ "$TESTS" = smoke ]; then
   # the map's path on the GPU: CUDA-graph training with its resume in the paper preset's objective and model (the
   # released reference's form), and the measurement of a GPU-trained run
   log "smoke check: tests/test_cuda.py, the map's path (at most $TESTS_MAX_S s)"
-  timeout "$TESTS_MAX_S" "$PY" -m pytest -q -p no:cacheprovider tests/test_cuda.py \
+  POKEWORLD_CUDA_BUDGET_S=${ALLOC_TESTS_BUDGET_S:-50} timeout "$TESTS_MAX_S" "$PY" -m pytest -q -rs \
+    -p no:cacheprovider tests/test_cuda.py \
     -k "(cuda_default_trains_as_eager_and_resumes and reference) or gpu_trained_run_is_measured" 2>&1 | tail -n 5
   log "smoke check exit status ${PIPESTATUS[0]}"
 elif [ "$TESTS" = full ]; then
   log "CUDA tests (at most $TESTS_MAX_S s) -> cuda_tests.log"
-  timeout "$TESTS_MAX_S" "$PY" -m pytest -q -p no:cacheprovider tests/test_cuda.py >"$OUT/cuda_tests.log" 2>&1
+  # ordered and budgeted (tests/test_cuda.py): the tests past the budget are skipped by name, and the measured
+  # duration of each test that ran comes back in cuda_times.json, the next allocation's expectation
+  POKEWORLD_CUDA_BUDGET_S=${ALLOC_TESTS_BUDGET_S:-120} POKEWORLD_CUDA_TIMES="$OUT/cuda_times.json" \
+    timeout "$TESTS_MAX_S" "$PY" -m pytest -q -rs -p no:cacheprovider tests/test_cuda.py >"$OUT/cuda_tests.log" 2>&1
   echo "exit status $?" >>"$OUT/cuda_tests.log"
   tail -n 3 "$OUT/cuda_tests.log"
 fi
@@ -105,6 +115,7 @@ else
   [ ${#RUNS[@]} -gt 0 ] && args+=(--runs "${RUNS[@]}")
   [ -n "${ALLOC_S_PER_STEP:-}" ] && args+=(--prior-s-per-step "$ALLOC_S_PER_STEP")
   [ -n "${ALLOC_OVERHEAD_S:-}" ] && args+=(--prior-overhead-s "$ALLOC_OVERHEAD_S")
+  [ -n "${ALLOC_MEASURE_DEVICE:-}" ] && args+=(--measure-device "$ALLOC_MEASURE_DEVICE")
   # ALLOC_RESUME is a shell-quoted list of folders (as merge_allocations.py --plan prints it): passed as one word
   # and split by Python's shlex, never by this shell's word splitting or expansion
   [ -n "${ALLOC_RESUME:-}" ] && args+=(--resume-list "$ALLOC_RESUME")

@@ -84,10 +84,10 @@ def test_the_next_allocation_resumes_the_cut_run_and_the_plan_puts_it_first(kill
     out, base = killed
     allocations.main(["--plan", str(out), "--commit", "feed123"])
     plan = capsys.readouterr().out.splitlines()
-    assert plan[1] == "[plan] next allocation, in this order: VFX@0 VF@0 VX_t@0 VX_p@0 VX@0 VF@1 VFX@1"
-    # every word shell-quoted (a plain path needs no quotes; shlex.quote adds them only where the shell would act)
-    assert plan[2].startswith(f"ALLOC_COMMIT=feed123 ALLOC_RESUME={shlex.quote(str(out))} bash "
-                              "scripts/gpu_allocation.sh OUT VFX@0")
+    assert plan[1] == ("[plan] next lease, in this order: VFX@0 VF@0 VX_t@0 VX_p@0 VX@0 VFX@1 VF@1 V@1 VX_t@1 "
+                       "VX_p@1 VX@1")
+    assert f'ALLOC_COMMIT=feed123 ALLOC_RESUME={shlex.quote(str(out))} bash scripts/gpu_lease.sh start "$OUT" VFX@0' \
+        in plan[4]
     step = allocations.open_allocation(out, tmp_path).checkpoints[VFX]
     carried = tmp_path / "carried"  # the returned files as they travel to the next machine
     shutil.copytree(out, carried)
@@ -238,23 +238,24 @@ def test_the_plan_and_the_merge_keep_the_first_paper_model_apart_from_the_aligne
     first = _allocation(tmp_path, "first", ["VFX-s0"], {}, map_config=paper)  # configs from before the fields
     now = _allocation(tmp_path, "now", ["VF-s0"], {"V-s0": 100}, map_config=paper, **aligned)
     with pytest.raises(ConfigError, match="encoder.*start the next allocation afresh"):
-        allocations.plan([first])
+        allocations.plan([first], configuration="")
     with pytest.raises(ConfigError, match="another objective or model than first.*head_form"):
-        allocations.plan([first, now])
-    p = allocations.plan([now])
+        allocations.plan([first, now], configuration="")
+    p = allocations.plan([now], configuration="")
     assert p["finished"] == ["VF@0"] and p["queue"][0] == "V@0"
 
 
 def test_the_plan_resumes_checkpoints_first_then_follows_the_priority(tmp_path):
     a = _allocation(tmp_path, "A", ["VFX-s0", "VF-s0"], {"V-s0": 500})
     b = _allocation(tmp_path, "B", ["V-s0"], {"VX_p-s0": 100, "VX-s1": 300}, git="def5678")
-    p = allocations.plan([a, b])
-    # V@0 finished in B after A's checkpoint: not resumed; VX@1 is outside the priority list but resumes
-    assert p["queue"] == ["VX_p@0", "VX@1", "VX_t@0", "VX@0", "VF@1", "VFX@1"]
+    p = allocations.plan([a, b], configuration="")
+    # V@0 finished in B after A's checkpoint: not resumed; the checkpoints come first, in the priority's order
+    assert p["queue"] == ["VX_p@0", "VX@1", "VX_t@0", "VX@0", "VFX@1", "VF@1", "V@1", "VX_t@1", "VX_p@1"]
     assert p["finished"] == ["V@0", "VF@0", "VFX@0"] and p["resume_from"] == ["B"]
     assert p["resume"]["VX_p@0"] == {"step": 100, "from": "B"} and p["commits"] == ["abc1234", "def5678"]
-    assert allocations.plan_lines(p, "c0ffee")[-1] == (
-        'ALLOC_COMMIT=c0ffee ALLOC_RESUME=B bash scripts/gpu_allocation.sh OUT VX_p@0 VX@1 VX_t@0 VX@0 VF@1 VFX@1')
+    assert allocations.plan_lines(p, "c0ffee")[-5].endswith(
+        "ALLOC_COMMIT=c0ffee ALLOC_RESUME=B bash scripts/gpu_lease.sh start \"$OUT\" VX_p@0 VX@1 VX_t@0 VX@0 VFX@1 "
+        "VF@1 V@1 VX_t@1 VX_p@1")
     assert order_queue([parse_token(t) for t in ("V", "VF@1", "VX")], {("VX", 0)}, {("VF", 1)}) == [
         ("VF", 1), ("V", 0)]
     with pytest.raises(ConfigError, match="VARIANT@SEED"):

@@ -224,3 +224,76 @@ def test_the_script_keeps_the_heavy_work_folder_out_of_what_comes_back(tmp_path)
                           text=True, timeout=60)
     assert proc.returncode == 2 and "must not lie inside OUT" in proc.stderr
     assert not out.exists()  # refused before anything was written
+
+
+@pytest.mark.slow
+def test_the_cpu_side_completes_the_returned_runs_and_the_merge_shows_it(allocation_a, tmp_path):
+    """complete_allocations.py on a tiny allocation (cpu measurement preset: MLP probes and the untrained bound;
+    small certificates; two planning episodes), then the merge with --cpu-side: every number with its machine."""
+    out, _ = allocation_a
+    work = tmp_path / "side"
+    proc = subprocess.run([sys.executable, "scripts/complete_allocations.py", str(out), "--work", str(work),
+                           "--preset", "cpu", "--certify-max-windows", "300", "--certify-fit-episodes", "0",
+                           "--certify-epochs", "2", "--plan-episodes", "2"], cwd=ROOT, capture_output=True,
+                          text=True, timeout=900, env={**os.environ, "PYTHONPATH": str(ROOT / "src")})
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    stages = {json.loads(p.read_text())["stage"] for p in (work / "cpu_side").glob("*.json")
+              if p.name != "machine.json"}
+    assert stages == {f"measure {V}", f"measure {VFX}", "certify", "planning"}
+    merged, md = _merge(tmp_path, out, "--cpu-side", work)
+    for name in (V, VFX):
+        run = merged["runs"][name]
+        assert "contact" in run["probes"]["mlp"] and "log_k" in run["untrained"]["ridge"]["contact"]
+        cpu = run["cpu_measurement"]
+        assert cpu["device"].startswith("cpu") and datetime.fromisoformat(cpu["date"])
+        # the same returned weights read on the same corpus: the CPU's ridge numbers are the device's, up to the
+        # bfloat16 rounding of the trip and a different window cap
+        assert isinstance(cpu["largest_ridge_difference"], float)
+    assert merged["certificates"]["standard"]["settings"]["epochs"] == 2
+    assert merged["planning"]["config"]["episodes"] == 2 and merged["planning"]["paper_budget"] is False
+    assert "NOT the paper's 100" in md and "Every number of each run" in md
+    # the CPU side of another corpus is refused
+    machine = work / "cpu_side" / "machine.json"
+    m = json.loads(machine.read_text())
+    machine.write_text(json.dumps({**m, "corpus": {**m["corpus"], "content_sha256": "0" * 64}}))
+    with pytest.raises(SystemExit, match="another corpus"):
+        _merge(tmp_path, out, "--cpu-side", work)
+
+
+def test_a_record_of_another_corpus_is_kept_beside_the_new_one():
+    old = {"provenance": {"corpus_sha256": "a" * 64}, "runs": {"VFX": {}}}
+    new = {"provenance": {"corpus_sha256": "b" * 64}, "runs": {"VF": {}}}
+    merged = allocations.carry_other_corpora(dict(new), old)
+    assert merged["other_corpora"] == {"a" * 64: old} and merged["runs"] == {"VF": {}}
+    again = allocations.carry_other_corpora({"provenance": {"corpus_sha256": "a" * 64}, "runs": {}}, merged)
+    assert set(again["other_corpora"]) == {"b" * 64}  # the newer record of corpus a replaces the carried one
+    assert allocations.carry_other_corpora(dict(new), {"provenance": {"corpus_sha256": "b" * 64}}) == new
+
+
+def test_the_measurement_device_is_a_choice_every_job_carries(tmp_path):
+    from pokeworld.experiments import stages
+
+    c = experiment.make_config("tiny", out=str(tmp_path / "m"), variants=("VFX",), seeds=(0,), measure_device="cpu")
+    job = stages.jobs(c, stages.all_specs(c), 0)[0]
+    assert job["measure"]["device"] == "cpu" and job["measure"]["probe_device"] == "host"
+    auto = experiment.make_config("tiny", out=str(tmp_path / "m"), variants=("VFX",), seeds=(0,))
+    assert "device" not in stages.jobs(auto, stages.all_specs(auto), 0)[0]["measure"]
+    with pytest.raises(ConfigError, match="measure_device"):
+        experiment.make_config("tiny", measure_device="gpu2")
+
+
+def test_a_probe_subset_names_its_corpus_and_keeps_only_probe_episodes(tiny_dataset, tmp_path):
+    from pokeworld.data import load, read_manifest, save
+    from pokeworld.experiments.allocation_complete import probe_subset
+
+    corpus = save(tiny_dataset, tmp_path / "corpus")
+    sub = probe_subset(corpus, 5, tmp_path)
+    ds, man = load(sub), read_manifest(sub)
+    assert len(ds.episodes("probe_fit")) == 5 and len(ds.episodes("probe_test")) == 5 and ds.num_episodes == 10
+    assert man["subset_of"]["content_sha256"] == read_manifest(corpus)["content_sha256"]
+    picked = man["subset_of"]["episodes"]
+    assert (ds.frames == tiny_dataset.frames[picked]).all()  # the corpus's own episodes, in corpus order
+    assert probe_subset(corpus, 5, tmp_path) == sub  # reused
+    too_many = len(tiny_dataset.episodes("probe_fit")) + 1
+    with pytest.raises(ConfigError, match="probe_fit episodes"):
+        probe_subset(corpus, too_many, tmp_path / "other")

@@ -58,13 +58,17 @@ def test_plan_refuses_a_variant_that_is_a_command_and_quotes_every_folder(tmp_pa
     plant(folder, [member(PARTIAL, "ckpt", tiny_checkpoint(config=current))], edit=with_partial_current)
     from pokeworld.experiments.allocation_queue import split_folder_list
 
-    allocations.main(["--plan", str(folder), "--commit", "abc; touch pwned"])
-    line = capsys.readouterr().out.strip().splitlines()[-1]
-    printed = as_bash(line, tmp_path).splitlines()
+    fails(["--plan", str(folder), "--commit", "abc; touch pwned"], "hexadecimal")
+    # the planted records are of an earlier environment, whose runs the checkout's plan only names: plan them as
+    # their own configuration's, so that the hostile folder is one to resume from
+    (tmp_path / "scratch").mkdir()
+    returned = allocations.open_allocation(folder, tmp_path / "scratch")
+    lines = allocations.plan_lines(allocations.plan([returned], configuration=returned.configuration), "abc1234")
+    start = next(x for x in lines if "gpu_lease.sh start" in x)
+    printed = as_bash(start.split(" && ", 1)[1], tmp_path).splitlines()  # after the wheels' install
     assert not marker.exists() and not (tmp_path / "pwned").exists()
     assert split_folder_list(printed[0]) == [str(folder)]  # ALLOC_RESUME: one folder, spaces and all
-    assert printed[1:4] == ["scripts/gpu_allocation.sh", "OUT", "VF@0"]
-    assert "ALLOC_COMMIT='abc; touch pwned'" in line
+    assert printed[1:5] == ["scripts/gpu_lease.sh", "start", "", "VF@0"]
 
 
 # ---------------------------------------------------------------------- 2. archive and checkpoint bombs

@@ -13,9 +13,9 @@ import shlex
 from ..errors import ConfigError
 from ..models.xjepa import VARIANTS
 
-PRIORITY = ("VFX@0", "VF@0", "V@0", "VX_t@0", "VX_p@0", "VX@0", "VF@1", "VFX@1")
+PRIORITY = ("VFX@0", "VF@0", "V@0", "VX_t@0", "VX_p@0", "VX@0", "VFX@1", "VF@1", "V@1", "VX_t@1", "VX_p@1", "VX@1")
 """The paper-budget queue: every factorial variant at seed 0 (the central comparison VFX against VF first), then the
-second seed of VF and VFX."""
+same at seed 1 (the paper's tables are means of two seeds)."""
 
 def parse_token(token: str) -> tuple[str, int]:
     """(variant, seed) of ``VARIANT`` or ``VARIANT@SEED``; ConfigError otherwise."""

@@ -181,7 +181,7 @@ def allocate(a: argparse.Namespace) -> int:
     deadline = started + 60 * a.budget_min - 60 * a.reserve_min
     requested = [parse_token(t) for t in a.runs]
     base = dict(out=str(a.work / "map"), experiments=("factorial",), certify=False, mlp_probes=False,
-                untrained=False, workers=1, train_steps=a.steps)
+                untrained=False, workers=1, train_steps=a.steps, measure_device=a.measure_device)
     c = make_config(a.preset, **base, variants=tuple(dict.fromkeys(v for v, _ in requested)),
                     seeds=tuple(sorted({s for _, s in requested})))
     specs = {spec_key(s): s for s in stages.all_specs(c)}
@@ -226,6 +226,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--snapshot-s", type=float, default=30.0, help="seconds between checkpoint snapshots")
     ap.add_argument("--prior-s-per-step", type=float, default=0.0, help="s/step before one is measured")
     ap.add_argument("--prior-overhead-s", type=float, default=-1.0, help="seconds per run beside its steps")
+    ap.add_argument("--measure-device", choices=("auto", "cpu"), default="auto",
+                    help="measure each finished run on its device (auto: the GPU) or on the machine's CPU cores")
     a = ap.parse_args(argv)
     try:
         a.resume = [*a.resume, *map(Path, split_folder_list(a.resume_list))]

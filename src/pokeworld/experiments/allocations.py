@@ -28,6 +28,7 @@ progress.json and device.json again) and the finished runs' weights and the unfi
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import os
 import re
@@ -41,7 +42,7 @@ from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 
-from .. import __version__, checkpoint, paper_values as P
+from .. import __version__, certify, checkpoint, paper_values as P
 from ..bounded_tar import TarBounds, extract
 from ..config import from_dict
 from ..errors import ConfigError, PokeworldError
@@ -60,8 +61,11 @@ from ..io import (
 from ..rundir import model_from_checkpoint
 from ..train.optimizer_state import check_optimizer_fits
 from . import merge, report, stages
+from .allocation_cpu import attach_cpu_side, record_lines
 from .allocation_pack import COMPACT_MIN_ELEMENTS, INDEX, RECORDS, load_member, read_stream
-from .allocation_queue import PRIORITY, checked_key, folder_list, order_queue, parse_token, run_word, shell_line
+from . import allocation_plan
+from .allocation_plan import Returned, configuration_key, plan_lines
+from .allocation_queue import checked_key
 from .config import VARIANT_ORDER, MapConfig, recorded_map_config
 from .factorial import FACTORIAL
 from .runs import spec_measure_path
@@ -145,6 +149,8 @@ class Allocation:
     """Finished run -> 'returned' (its final weights restored as runs/NAME/final.pt), else why not."""
     checkpoints: dict[str, int] = field(default_factory=dict)
     """Unfinished run -> the step of its returned checkpoint (restored as runs/NAME/ckpt.pt)."""
+    configuration: str = ""
+    """The configuration key of its corpus (:func:`.allocation_plan.configuration_key` of the manifest's config)."""
 
 
 def read_json(path: Path, what: str) -> dict:
@@ -195,7 +201,9 @@ def open_allocation(path: str | os.PathLike, scratch: Path) -> Allocation:
     a = Allocation(str(path), root, read_json(device_path, "a device record"),
                    read_json(root / "map_config.json", "a map config"), manifest["content_sha256"],
                    check_progress(read_json(root / "progress.json", "a map's progress record"),
-                                  root / "progress.json"))
+                                  root / "progress.json"),
+                   configuration=configuration_key(manifest.get("config") if isinstance(manifest.get("config"), dict)
+                                                   else {}))
     if returned is not None:
         restore_returned(a, returned, scratch)
     return a
@@ -483,14 +491,59 @@ def run_lines(merged: dict) -> list[str]:
                         f"direct-16 {P.PREDICTION['direct16']} arena units (§4.2, one number, not per variant).", ""]
 
 
+def smaller_than_paper(certs: dict) -> str:
+    """Words for certificates fit with less than the paper preset's budget (empty when they were not)."""
+    paper = certify.PRESETS["paper"]
+    used = certs.get("settings", {})
+    less = {k: (used.get(k), v) for k, v in paper.items() if k in used and used.get(k) != v}
+    return ("" if not less else " — less than the paper preset's " + ", ".join(f"{k} {v}" for k, (_, v) in
+                                                                              less.items())
+            + " (0 fit episodes: the corpus's own probe-fit split)")
+
+
+def corpus_lines(merged: dict, level: str = "#") -> list[str]:
+    """One corpus's record: its allocations, the per-run table and, where computed, the CPU side's numbers."""
+    cpu = merged["provenance"].get("cpu_side")
+    certs = merged["certificates"].get("standard", {})
+    head = [f"{level} Corpus {merged['provenance']['corpus_sha256'][:12]}", "",
+            "Content hash of the seeded corpus every allocation below trained on (a record of one environment: a "
+            "corpus of another environment gets its own section). Paper values are the paper's own numbers, shown "
+            "beside ours; they are never used as ours. Certificates: "
+            + (f"computed on {certs.get('device')}, {str(certs.get('date'))[:10]}, settings "
+               f"`{json.dumps(certs.get('settings', {}), sort_keys=True)}`{smaller_than_paper(certs)}."
+               if certs.get("device") else
+               "from a CPU-side certify JSON." if certs else "none given.")
+            + (f" CPU side ({cpu['device']}): MLP probes and the untrained bound of "
+               f"{', '.join(cpu['measured']) or 'no run yet'}; "
+               f"certificates {'computed' if cpu['certificates'] else 'not yet'}; "
+               f"planning {'computed' if cpu['planning'] else 'not yet'}." if cpu else ""), ""]
+    return head + allocation_lines(merged) + run_lines(merged) + (record_lines(merged) if cpu else [])
+
+
 def markdown(merged: dict) -> str:
-    """The merged record's report: allocations and runs with their devices, then the map's own report."""
+    """The merged record's report: allocations and runs with their devices, then the map's own report, then the
+    records of other corpora kept in the same file (:func:`carry_other_corpora`)."""
     body = report.markdown(merged).split("\n", 1)[1]  # its sections, under this report's title
-    head = ["# Identifiability map at the paper's budget, from GPU allocations", "",
-            f"Corpus {merged['provenance']['corpus_sha256'][:12]} (content hash of the seeded corpus every allocation "
-            "trained on). Paper values are the paper's own numbers, shown beside ours; they are never used as ours. "
-            "Certificates: " + ("from a CPU-side certify JSON." if merged["certificates"] else "none given."), ""]
-    return "\n".join(head + allocation_lines(merged) + run_lines(merged)) + body
+    lines = ["# Identifiability map at the paper's budget, from GPU allocations", ""] + corpus_lines(merged, "##")
+    text = "\n".join(lines) + body
+    for rec in merged.get("other_corpora", {}).values():
+        text += "\n" + "\n".join(corpus_lines(rec, "##"))
+    return text
+
+
+def carry_other_corpora(merged: dict, previous: dict | None) -> dict:
+    """``merged`` with the records of other corpora that ``previous`` (the file at --out) held, by corpus hash, so
+    a merge of another environment's allocations adds its own record instead of replacing the earlier one's."""
+    if not isinstance(previous, dict) or not isinstance(previous.get("provenance"), dict):
+        return merged
+    sha = merged["provenance"]["corpus_sha256"]
+    others = {k: v for k, v in (previous.get("other_corpora") or {}).items() if k != sha and isinstance(v, dict)}
+    prev_sha = previous["provenance"].get("corpus_sha256")
+    if isinstance(prev_sha, str) and prev_sha != sha:
+        others[prev_sha] = {k: v for k, v in previous.items() if k != "other_corpora"}
+    if others:
+        merged["other_corpora"] = others
+    return merged
 
 
 # ---------------------------------------------------------------------- the next allocation
@@ -498,52 +551,35 @@ def markdown(merged: dict) -> str:
 
 def run_key(a: Allocation, name: str) -> tuple[str, int]:
     """(variant, seed) of run ``name`` of ``a``, from its config.json: a known variant and an integer seed
-    (:func:`.allocation_queue.checked_key`), else one ConfigError line naming the file."""
+    (:func:`.allocation_queue.checked_key`), else one ConfigError line naming the file (the words go into a printed
+    command)."""
     path = a.root / "runs" / name / "config.json"
     cfg = read_json(path, "a run config")
     return checked_key(cfg.get("variant"), cfg.get("seed", 0), str(path))
 
 
-def plan(allocs: list[Allocation]) -> dict:
-    """The next allocation's queue from what ``allocs`` returned (:func:`.allocation_queue.order_queue`): runs any
-    of them finished are skipped, runs with a returned checkpoint come first (the furthest checkpoint of each, and
-    the folder holding it, which the next allocation is given as ALLOC_RESUME), then :data:`.allocation_queue.PRIORITY`.
-    ConfigError when the allocations do not share a corpus, map settings and model (:func:`check_agreement`), or trained
-    another model than the preset trains now (:func:`check_model_form`)."""
-    for a in allocs:  # every returned run's words are checked before anything else is read of them
-        for name in [*a.progress.get("finished", []), *a.checkpoints]:
-            run_key(a, name)
-    check_agreement(allocs)
-    check_model_form(allocs)
-    finished: set[tuple[str, int]] = set()
-    ckpts: dict[tuple[str, int], tuple[int, str]] = {}
-    for a in allocs:
-        finished |= {run_key(a, n) for n in a.progress.get("finished", [])}
-        for name, step in a.checkpoints.items():
-            key = run_key(a, name)
-            if step > ckpts.get(key, (-1, ""))[0]:
-                ckpts[key] = (step, a.source)
-    resumable = {k: v for k, v in ckpts.items() if k not in finished}
-    requested = [parse_token(t) for t in PRIORITY]
-    requested += [k for k in resumable if k not in requested]  # a checkpoint outside the priority list resumes too
-    queue = order_queue(requested, finished, set(resumable))
-    return {"queue": [run_word(k) for k in queue], "finished": sorted(run_word(k) for k in finished),
-            "resume": {run_word(k): {"step": step, "from": src} for k, (step, src) in resumable.items()},
-            "resume_from": sorted({src for _, src in resumable.values()}),
-            "commits": sorted({str(a.device.get("git", "?")) for a in allocs})}
+def returned_of(a: Allocation) -> Returned:
+    """What ``a`` returned, as the plan needs it: every run's words checked (:func:`run_key`)."""
+    return Returned(a.source, a.configuration, a.corpus_sha256, str(a.device.get("git", "?")),
+                    {run_key(a, n) for n in a.progress.get("finished", [])},
+                    {run_key(a, n): step for n, step in a.checkpoints.items()})
 
 
-def plan_lines(p: dict, commit: str) -> list[str]:
-    """The plan in words, ending with the next allocation's command: its run words checked
-    (:func:`.allocation_queue.run_word`) and every word quoted for the shell (:func:`.allocation_queue.shell_line`),
-    the folders to resume as one quoted ALLOC_RESUME list (:func:`.allocation_queue.folder_list`)."""
-    queue = [run_word(parse_token(t)) for t in p["queue"]]
-    resume = " ".join(f"{t} (step {r['step']}, {r['from']!r})" for t, r in p["resume"].items())
-    env = {"ALLOC_COMMIT": commit, **({"ALLOC_RESUME": folder_list(p["resume_from"])} if p["resume_from"] else {})}
-    return [f"[plan] earlier allocations ran commits {', '.join(map(repr, p['commits']))}; finished: "
-            f"{' '.join(p['finished']) or 'none'}; checkpoints to resume: {resume or 'none'}",
-            f"[plan] next allocation, in this order: {' '.join(queue) or 'nothing left'}",
-            shell_line(["bash", "scripts/gpu_allocation.sh", "OUT", *queue], env)]
+def plan(allocs: list[Allocation], configuration: str | None = None) -> dict:
+    """The next lease for ``configuration`` (default: this checkout's at the preset the allocations ran,
+    :func:`.allocation_plan.checkout_configuration`) from what ``allocs`` returned (:func:`.allocation_plan.plan`).
+    Every returned run's words are checked first; ConfigError when the allocations of this configuration disagree
+    (:func:`check_agreement`) or trained another objective or model than the preset trains now (:func:`check_model_form`: the configuration key names
+    the environment, not the model, and a plan built on another model's runs would skip runs never trained)."""
+    returned = [returned_of(a) for a in allocs]
+    if configuration is None:
+        presets = {str(a.map_config.get("preset", "paper")) for a in allocs}
+        configuration = allocation_plan.checkout_configuration(presets.pop() if len(presets) == 1 else "paper")
+    same = [a for a in allocs if a.configuration == configuration]
+    if same:
+        check_agreement(same)
+        check_model_form(same)
+    return allocation_plan.plan(returned, configuration)
 
 
 EXPORTED = ("config.json", "metrics.jsonl", "final.pt", "measure.json")
@@ -603,6 +639,10 @@ def write_merged(a: argparse.Namespace, allocs: list[Allocation], words: list[st
     cert = read_certificates(a.certificates, allocs[0].corpus_sha256) if a.certificates else None
     merged = merge_allocations(allocs, cert, a.tol,
                                command=" ".join(["python scripts/merge_allocations.py", *map(str, words)]))
+    if a.cpu_side:
+        attach_cpu_side(merged, a.cpu_side)
+    previous = read_json(a.out, "an earlier merged record") if a.out.exists() else None
+    merged = carry_other_corpora(merged, previous)
     files = [p for p in output_paths(a) if p != a.runs_out]
     if a.runs_out:
         files += export_targets(export_plan(allocs, merged, a.runs_out), a.runs_out)
@@ -632,6 +672,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, help="the merged record (results.json format)")
     ap.add_argument("--markdown", type=Path, help="also write its report here")
     ap.add_argument("--certificates", type=Path, help="certify JSON of the same corpus, computed on the CPU side")
+    ap.add_argument("--cpu-side", type=Path, help="the work folder of scripts/complete_allocations.py: its MLP "
+                                                  "probes, untrained bound, certificates and planning of these runs")
     ap.add_argument("--figure", type=Path, help="the identifiability-map figure (.png, a .pdf beside it); "
                                                 "default: --out with .png")
     ap.add_argument("--no-figure", action="store_true", help="write no figure")
@@ -644,7 +686,7 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("--out is required (or --plan)")
     try:
         if not a.plan:  # before anything is read: no output may be, or lie inside, an input
-            check_apart([*a.allocations, a.certificates], output_paths(a))
+            check_apart([*a.allocations, a.certificates, a.cpu_side], output_paths(a))
         with tempfile.TemporaryDirectory(prefix="pokeworld-allocations-") as scratch:
             allocs = [open_allocation(p, Path(scratch)) for p in a.allocations]
             if a.plan:
@@ -662,7 +704,7 @@ def main(argv: list[str] | None = None) -> int:
 
 __all__ = ["DEVICE_FILE", "AGREE", "Allocation", "device_record", "commit", "gpu_name", "write_device", "read_json",
            "unpack", "open_allocation", "check_progress", "check_step", "restore_returned", "training_facts",
-           "run_key", "plan", "plan_lines",
+           "run_key", "returned_of", "plan", "plan_lines", "corpus_lines", "carry_other_corpora",
            "export_plan", "export_targets", "export_runs", "output_paths", "write_merged",
            "allocation_record", "check_agreement", "read_certificates",
            "ridge_difference", "merge_allocations", "allocation_summary", "allocation_lines", "run_lines", "markdown",

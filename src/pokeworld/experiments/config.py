@@ -122,6 +122,10 @@ class MapConfig(LaunchOptions):
     the demo probes contact windows only, the ones its tables show."""
     untrained: bool = True
     """Probe randomly initialised models too (the untrained bound)."""
+    measure_device: str = "auto"
+    """Where each finished run is measured: 'auto' (on the device it trained on, the GPU when there is one, its
+    probes there too) or 'cpu' (the machine's CPU cores, probes on the host: on a GPU allocation the device's own
+    cores). Not part of a measurement's key: both read the same numbers to float rounding (tests/test_cuda.py)."""
     time_budget_min: float = 0.0
     """Wall-clock budget of this invocation in minutes (0 = none). Training stops with a checkpoint
     ``time_reserve_min`` before it ends, unfinished runs are reported in progress.json, the command
@@ -173,6 +177,8 @@ class MapConfig(LaunchOptions):
                               f"got {self.split_fractions}")
         if self.split_fractions:
             check_fractions("MapConfig.split_fractions", self.split_fractions)
+        if self.measure_device not in ("auto", "cpu"):
+            raise ConfigError(f"measure_device must be 'auto' or 'cpu', got {self.measure_device!r}")
         if set(self.measure_kinds) - set(KINDS):
             raise ConfigError(f"unknown measure_kinds {sorted(set(self.measure_kinds) - set(KINDS))}; choose from {list(KINDS)}")
         if self.preset not in ("tiny", "cpu", "paper"):

@@ -46,12 +46,8 @@ def spec_experiments(c: MapConfig) -> dict[str, list[str]]:
     """experiment -> run names (including runs shared with other experiments)."""
     return {exp: [s.name for s in experiment_specs(c, exp)] for exp in c.experiments}
 
-def ensure_corpus(c: MapConfig, corpus: str) -> Path:
-    """Generate corpus ``corpus`` into the map folder (skipped when it is there and current)."""
-    if corpus == "flow":  # derived from the standard corpus by the frozen flow sensor
-
-        return build_flow_corpus(ensure_corpus(c, "standard"), corpus_dir(c, "flow"), flow.make_config(c.preset))
-
+def corpus_config(c: MapConfig, corpus: str) -> generate.GenerateConfig:
+    """The generator config of the map's corpus ``corpus`` (not the derived flow corpus)."""
     overrides: dict[str, Any] = {"out": str(corpus_dir(c, corpus)), "corpus": corpus, "seed": c.data_seed}
     if c.num_episodes:
         overrides["num_episodes"] = c.num_episodes
@@ -60,8 +56,16 @@ def ensure_corpus(c: MapConfig, corpus: str) -> Path:
     overrides["environment"] = c.environment
     if c.contact_damping:  # empty: the environment's own law
         overrides["physics"] = {"contact_damping": c.contact_damping}
+    return generate.make_config(c.preset, **overrides)
+
+def ensure_corpus(c: MapConfig, corpus: str) -> Path:
+    """Generate corpus ``corpus`` into the map folder (skipped when it is there and current)."""
+    if corpus == "flow":  # derived from the standard corpus by the frozen flow sensor
+
+        return build_flow_corpus(ensure_corpus(c, "standard"), corpus_dir(c, "flow"), flow.make_config(c.preset))
+
     try:
-        return generate.run(generate.make_config(c.preset, **overrides))
+        return generate.run(corpus_config(c, corpus))
     except PokeworldError as e:
         if "--overwrite" not in str(e):
             raise
@@ -180,7 +184,8 @@ def jobs(c: MapConfig, specs: list[RunSpec], threads: int, deadline: float = 0.0
             tr["threads"] = threads
         measure_data = str(corpus_dir(c, s.measure_corpus)) if s.measure_corpus != s.corpus else ""
         measure = ({"kinds": tuple(c.measure_kinds)} if c.measure_kinds else {}) | (
-            {"max_windows": c.measure_max_windows} if c.measure_max_windows else {}) | dict(s.measure)
+            {"max_windows": c.measure_max_windows} if c.measure_max_windows else {}) | (
+            {"device": "cpu", "probe_device": "host"} if c.measure_device == "cpu" else {}) | dict(s.measure)
         out.append({"name": s.name, "preset": c.preset, "train_preset": c.train_preset or c.preset, "train": tr,
                      "measure_data": measure_data,
                      "mlp": c.mlp_probes, "untrained": c.untrained, "threads": threads, "deadline": deadline,
@@ -232,10 +237,10 @@ def pack_results(c: MapConfig, dest: str | os.PathLike, quiet: bool = False) -> 
     return dest
 
 
-__all__ = ["experiment_specs", "all_specs", "spec_experiments", "ensure_corpus", "GATED", "with_standard_gate",
-           "ensure_certificates", "certify_corpora", "execute", "job_train_config", "train_stacked_jobs", "jobs",
-           "write_progress", "PACK_GLOBS", "pack_results", "plan_line", "timed_training", "training_estimate",
-           "whole_job_costs", "whole_job_line", "corpus_stage", "TRAINING_STAGE", "REPORT_STAGE"]
+__all__ = ["experiment_specs", "all_specs", "spec_experiments", "corpus_config", "ensure_corpus", "GATED",
+           "with_standard_gate", "ensure_certificates", "certify_corpora", "execute", "job_train_config",
+           "train_stacked_jobs", "jobs", "write_progress", "PACK_GLOBS", "pack_results", "plan_line", "timed_training",
+           "training_estimate", "whole_job_costs", "whole_job_line", "corpus_stage", "TRAINING_STAGE", "REPORT_STAGE"]
 
 
 def plan_line(c: MapConfig) -> str:

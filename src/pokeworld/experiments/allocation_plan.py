@@ -1,0 +1,138 @@
+"""The next device lease, from what earlier allocations returned: its queue per environment configuration and the
+exact commands whoever holds the device runs (``scripts/merge_allocations.py --plan``).
+
+A record is one environment's: allocations are grouped by their **configuration key**, the first 12 hex digits of
+the sha256 of the corpus generator's content config (the manifest's ``config``: physics, policy, ranges, seed,
+episodes, splits), which decides the corpus bytes. The next lease trains this checkout's configuration (the key of
+the ``paper`` map's corpus as this checkout would generate it): its runs that any allocation of the same key
+finished are skipped, those with a returned checkpoint come first, then :data:`.allocation_queue.PRIORITY` (the
+seed-0 factorial, VFX and VF first, before seed 1). Runs of other configurations (an earlier environment) are named
+and never queued: they cannot be trained from this checkout.
+
+Every word printed for a shell comes from a closed set or is checked: run tokens are re-made from a known variant
+and an integer seed (:func:`.allocation_queue.parse_token`), the commit must be hexadecimal, and each folder to
+resume from is quoted into ALLOC_RESUME's list and the list quoted for the shell (a folder with spaces stays one).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+import shlex
+from dataclasses import dataclass, field
+
+from ..errors import ConfigError
+from ..io import parse_json
+from ..sim.generate_config import content_config
+from .allocation_queue import PRIORITY, folder_list, order_queue, parse_token, token
+from .config import MapConfig
+from .presets import make_config
+from .stages import corpus_config
+
+Key = tuple[str, int]
+COMMIT = re.compile(r"[0-9a-f]{4,40}")
+#: What a device command runs first (docs/model.md "GPU allocations": the wheels carried in .whl).
+SETUP = ("python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site "
+         ".whl/*.whl && export PYTHONPATH=/tmp/site:$PWD/src PYTHONUNBUFFERED=1")
+
+
+def configuration_key(config: dict) -> str:
+    """The key of a corpus generator content config (a manifest's ``config``)."""
+    return hashlib.sha256(json.dumps(config, sort_keys=True).encode()).hexdigest()[:12]
+
+
+def checkout_configuration_of(c: MapConfig) -> str:
+    """The configuration key of map ``c``'s standard corpus as this checkout generates it."""
+    # through JSON, as a manifest stores it (tuples become lists)
+    return configuration_key(parse_json(json.dumps(content_config(corpus_config(c, "standard"))).encode(),
+                                        "<this checkout's corpus config>", "a corpus config"))
+
+
+def checkout_configuration(preset: str = "paper") -> str:
+    """:func:`checkout_configuration_of` the map's default config at ``preset``."""
+    return checkout_configuration_of(make_config(preset))
+
+
+@dataclass
+class Returned:
+    """What one allocation returned, as the plan needs it."""
+
+    source: str
+    configuration: str
+    corpus_sha256: str
+    git: str
+    finished: set[Key] = field(default_factory=set)
+    checkpoints: dict[Key, int] = field(default_factory=dict)
+
+
+def queue_of(group: list[Returned]) -> dict:
+    """The queue of one configuration (finished runs skipped, checkpoints first, then the priority)."""
+    finished: set[Key] = set().union(*(r.finished for r in group)) if group else set()
+    ckpts: dict[Key, tuple[int, str]] = {}
+    for r in group:
+        for key, step in r.checkpoints.items():
+            if step > ckpts.get(key, (-1, ""))[0]:
+                ckpts[key] = (step, r.source)
+    resumable = {k: v for k, v in ckpts.items() if k not in finished}
+    requested = [parse_token(t) for t in PRIORITY]
+    requested += [k for k in resumable if k not in requested]  # a checkpoint outside the priority list resumes too
+    queue = order_queue(requested, finished, set(resumable))
+    return {"queue": [token(k) for k in queue], "finished": sorted(token(k) for k in finished),
+            "resume": {token(k): {"step": step, "from": src} for k, (step, src) in resumable.items()},
+            "resume_from": sorted({src for _, src in resumable.values()}),
+            "commits": sorted({r.git for r in group}), "corpora": sorted({r.corpus_sha256[:12] for r in group})}
+
+
+def plan(returned: list[Returned], configuration: str) -> dict:
+    """The next lease for ``configuration`` (this checkout's), and what the records hold of other configurations."""
+    groups: dict[str, list[Returned]] = {}
+    for r in returned:
+        groups.setdefault(r.configuration, []).append(r)
+    return {"configuration": configuration, **queue_of(groups.get(configuration, [])),
+            "other_configurations": {k: {"finished": queue_of(g)["finished"], "corpora": queue_of(g)["corpora"],
+                                         "commits": queue_of(g)["commits"]}
+                                     for k, g in sorted(groups.items()) if k != configuration}}
+
+
+def resume_value(folders: list[str]) -> str:
+    """ALLOC_RESUME's value as a shell word: the folders as one list, each quoted for the list
+    (:func:`.allocation_queue.folder_list`, read back by :func:`.allocation_queue.split_folder_list`), the list
+    quoted again for the shell; a folder with spaces or quotes stays one folder."""
+    return shlex.quote(folder_list(folders))
+
+
+def lease_commands(p: dict, commit: str) -> list[str]:
+    """The three device commands of the next lease (docs/model.md "GPU allocations: a lease"), each a line."""
+    if not COMMIT.fullmatch(commit):
+        raise ConfigError(f"the commit must be hexadecimal (4 to 40 digits), got {commit!r}; pass --commit SHA")
+    runs = [token(parse_token(t)) for t in p["queue"]]  # re-made from a known variant and an integer seed
+    env = f"ALLOC_COMMIT={commit}" + (f" ALLOC_RESUME={resume_value(p['resume_from'])}" if p["resume_from"] else "")
+    return [f'{SETUP} && {env} bash scripts/gpu_lease.sh start "$OUT" {" ".join(runs)}',
+            'bash scripts/gpu_lease.sh collect "$OUT"',
+            'bash scripts/gpu_lease.sh final "$OUT"']
+
+
+def plan_lines(p: dict, commit: str) -> list[str]:
+    """The plan in words, then the commands of the next lease."""
+    resume = " ".join(f"{t} (step {r['step']}, {r['from']})" for t, r in p["resume"].items())
+    lines = [f"[plan] configuration {p['configuration']} (this checkout's paper corpus): earlier allocations ran "
+             f"commits {', '.join(p['commits']) or 'none'} on corpora {', '.join(p['corpora']) or 'none'}; finished: "
+             f"{' '.join(p['finished']) or 'none'}; checkpoints to resume: {resume or 'none'}"]
+    for key, o in p["other_configurations"].items():
+        lines.append(f"[plan] configuration {key} (another environment than this checkout's; not queued): corpora "
+                     f"{', '.join(o['corpora'])}, commits {', '.join(o['commits'])}, "
+                     f"finished {' '.join(o['finished'])}")
+    lines.append(f"[plan] next lease, in this order: {' '.join(p['queue']) or 'nothing left'}")
+    if not p["queue"]:
+        return lines
+    cmds = lease_commands(p, commit)
+    carry = ".whl" + "".join(f" {shlex.quote(f)}" for f in p["resume_from"])
+    return lines + [f"[plan] the lease: three device commands, each issued as soon as the previous returns "
+                    f"(carry: {carry}; $OUT: the command's output folder)",
+                    "# 1. start and collect (returns after 9 minutes):", cmds[0],
+                    "# 2. collect, issued at once:", cmds[1], "# 3. final collect:", cmds[2]]
+
+
+__all__ = ["configuration_key", "checkout_configuration_of", "checkout_configuration", "Returned", "queue_of", "plan",
+           "resume_value", "lease_commands", "plan_lines", "SETUP"]

@@ -1,0 +1,79 @@
+"""The next device lease (scripts/merge_allocations.py --plan, pokeworld.experiments.allocation_plan): the queue of
+this checkout's configuration only, and commands whose every word is checked or shell-quoted."""
+
+import json
+import shlex
+
+import pytest
+from allocation_planting import current_model
+
+from pokeworld.errors import ConfigError
+from pokeworld.experiments import allocation_plan as ap, allocations, stages
+from pokeworld.experiments.allocation_queue import split_folder_list
+from pokeworld.experiments.presets import make_config
+
+
+def _allocation(tmp_path, name, runs, configuration, finished=(), checkpoints=None, git="abc1234"):
+    """An allocation whose runs' config.json say ``runs`` (name -> (variant, seed) as written), trained with the
+    objective and model the `paper` preset trains now."""
+    root = tmp_path / name
+    for run, (variant, seed) in runs.items():
+        (root / "runs" / run).mkdir(parents=True)
+        (root / "runs" / run / "config.json").write_text(json.dumps(current_model(variant=variant, seed=seed)))
+    return allocations.Allocation(name, root, {"git": git}, {"preset": "paper"}, "ab" * 32,
+                                  {"finished": list(finished)}, checkpoints=dict(checkpoints or {}),
+                                  configuration=configuration)
+
+
+def test_the_configuration_key_is_the_corpus_a_checkout_generates(tmp_path):
+    corpus = stages.ensure_corpus(make_config("tiny", out=str(tmp_path / "map"), num_episodes=6), "standard")
+    manifest = json.loads((corpus / "manifest.json").read_text())
+    assert ap.configuration_key(manifest["config"]) == ap.checkout_configuration_of(
+        make_config("tiny", num_episodes=6))
+    # another environment (here another seed) is another configuration
+    assert ap.checkout_configuration_of(make_config("tiny", num_episodes=6, data_seed=1)) != \
+        ap.configuration_key(manifest["config"])
+
+
+def test_only_this_configurations_runs_count_and_others_are_named(tmp_path):
+    old = _allocation(tmp_path, "old", {"VFX-s0": ("VFX", 0), "VF-s0": ("VF", 0)}, "aaaaaaaaaaaa",
+                      finished=["VFX-s0", "VF-s0"], git="ad841ac")
+    new = _allocation(tmp_path, "new", {"VFX-s0": ("VFX", 0), "V-s0": ("V", 0)}, "bbbbbbbbbbbb",
+                      finished=["VFX-s0"], checkpoints={"V-s0": 700}, git="c0ffee1")
+    p = allocations.plan([old, new], configuration="bbbbbbbbbbbb")
+    # the old environment's VF does not count for the new one; the seed-0 factorial comes before seed 1
+    assert p["queue"] == ["V@0", "VF@0", "VX_t@0", "VX_p@0", "VX@0", "VFX@1", "VF@1", "V@1", "VX_t@1", "VX_p@1",
+                          "VX@1"]
+    assert p["finished"] == ["VFX@0"] and p["resume"] == {"V@0": {"step": 700, "from": "new"}}
+    assert p["other_configurations"] == {"aaaaaaaaaaaa": {"finished": ["VF@0", "VFX@0"], "corpora": ["abababababab"],
+                                                          "commits": ["ad841ac"]}}
+    lines = ap.plan_lines(p, "c0ffee1")
+    assert any("configuration aaaaaaaaaaaa (another environment" in x for x in lines)
+    start, collect, final = lines[-5], lines[-3], lines[-1]
+    words = shlex.split(start.split(" && ")[-1])
+    assert words[:5] == ["ALLOC_COMMIT=c0ffee1", "ALLOC_RESUME=new", "bash", "scripts/gpu_lease.sh", "start"]
+    assert words[6:] == p["queue"]
+    assert start.startswith(ap.SETUP)
+    assert (collect, final) == ('bash scripts/gpu_lease.sh collect "$OUT"', 'bash scripts/gpu_lease.sh final "$OUT"')
+
+
+@pytest.mark.parametrize("variant, seed", [("VFX; touch /tmp/x", 0), ("VFX", "1; touch /tmp/x"), ("VFX", True),
+                                           ("VFX", 1.5), ("VFX", -1), (["VFX"], 0)])
+def test_a_returned_run_that_is_not_a_known_variant_and_whole_seed_is_refused(tmp_path, variant, seed):
+    a = _allocation(tmp_path, "a", {"r": (variant, seed)}, "k", finished=["r"])
+    with pytest.raises(ConfigError, match="is not (one of|an integer)"):
+        allocations.plan([a], configuration="k")
+
+
+def test_every_folder_and_the_commit_are_checked_or_quoted(tmp_path):
+    runs = {"V-s0": ("V", 0)}
+    hostile = _allocation(tmp_path, "$(id)>x", runs, "k", checkpoints={"V-s0": 10})
+    p = allocations.plan([hostile], configuration="k")
+    start = ap.plan_lines(p, "abc1234")[-5]
+    env = shlex.split(start.split(" && ")[-1])[1]  # the shell's reading: one word, nothing run
+    assert env.startswith("ALLOC_RESUME=") and split_folder_list(env.split("=", 1)[1]) == p["resume_from"]
+    with pytest.raises(ConfigError, match="hexadecimal"):
+        ap.lease_commands(p, "abc1234; touch pwned")
+    spaced = allocations.plan([_allocation(tmp_path, "a b", runs, "k", checkpoints={"V-s0": 10})], configuration="k")
+    env = shlex.split(ap.plan_lines(spaced, "abc1234")[-5].split(" && ")[-1])[1]
+    assert split_folder_list(env.split("=", 1)[1]) == spaced["resume_from"]  # a folder with a space stays one

@@ -1,0 +1,108 @@
+"""A device lease as the unit (scripts/gpu_lease.sh, docs/model.md "GPU allocations: a lease"), dry-run at the tiny
+preset on this CPU with a kill at each step: the allocation runs detached and survives every command; each command
+only collects its latest returned state, so whatever a killed command had collected comes back readable, and the
+last command's folder holds the whole lease."""
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from pokeworld.errors import PokeworldError
+from pokeworld.experiments import allocation_pack as ap, allocations
+
+ROOT = Path(__file__).resolve().parents[1]
+V, VFX = (f"{v}-h1-4-16-lam0.02-standard-s0" for v in ("V", "VFX"))
+
+
+def _env(lease: Path) -> dict:
+    return {**os.environ, "PYTHON": sys.executable, "PYTHONPATH": str(ROOT / "src"), "ALLOC_PRESET": "tiny",
+            "ALLOC_STEPS": "400", "ALLOC_TESTS": "0", "ALLOC_SNAPSHOT_S": "3", "ALLOC_BUDGET_MIN": "8",
+            "ALLOC_LEASE_DIR": str(lease), "ALLOC_POLL_S": "1", "ALLOC_COLLECT_S": "400"}
+
+
+def _returned(out: Path) -> set[tuple[str, str]]:
+    try:
+        return {(m.run, m.kind) for m in ap.read_stream(out)}
+    except (PokeworldError, OSError):
+        return set()
+
+
+def _command(args: list[str], env: dict) -> subprocess.Popen:
+    return subprocess.Popen(["bash", "scripts/gpu_lease.sh", *args], cwd=ROOT, env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, start_new_session=True)
+
+
+def _kill_when(proc: subprocess.Popen, done, what: str, limit_s: float = 400) -> None:
+    """SIGKILL the command's whole process group once ``done()`` holds (as a device's time limit would)."""
+    t0 = time.time()
+    try:
+        while not done():
+            assert proc.poll() is None, f"the command ended before {what}: {proc.stdout.read()[-2000:]}"
+            assert time.time() - t0 < limit_s, f"no {what} within {limit_s} s"
+            time.sleep(0.2)
+    finally:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+
+
+def _alive(lease: Path) -> bool:
+    pid = int((lease / "pid").read_text())
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    return True
+
+
+@pytest.mark.slow
+def test_a_lease_survives_a_kill_of_each_command_and_its_last_folder_holds_every_run(tmp_path):
+    lease, env = tmp_path / "lease", _env(tmp_path / "lease")
+    out1, out2, out3, out4 = (tmp_path / f"out{i}" for i in range(1, 5))
+    for i in range(1, 5):
+        (tmp_path / f"s{i}").mkdir()  # scratch folders the returned packs are unpacked into
+    try:
+        # 1. start and collect, killed once the first run came back
+        start = _command(["start", str(out1), "V", "VFX"], env)
+        _kill_when(start, lambda: (V, "final") in _returned(out1), "the first run back")
+        assert _alive(lease), "the detached allocation died with the command that started it"
+        a = allocations.open_allocation(out1, tmp_path / "s1")
+        assert a.progress["finished"] == [V] and a.weights == {V: "returned"}
+        assert ap.check_return_folder(out1) == []
+        # 2. collect, killed once it has collected anything
+        collect = _command(["collect", str(out2)], env)
+        _kill_when(collect, lambda: (out2 / "records.tar.gz").exists(), "a collected state")
+        assert allocations.open_allocation(out2, tmp_path / "s2").progress["finished"][0] == V
+        # a second start on the same machine does not start a second allocation
+        again = subprocess.run(["bash", "scripts/gpu_lease.sh", "start", str(out3)], cwd=ROOT, env={
+            **env, "ALLOC_COLLECT_S": "0"}, capture_output=True, text=True, timeout=120)
+        assert again.returncode == 0 and ("already runs" in again.stdout or "has ended" in again.stdout)
+        # collect until the allocation ends, then 3. the final collect
+        rest = subprocess.run(["bash", "scripts/gpu_lease.sh", "collect", str(out3)], cwd=ROOT, env=env,
+                              capture_output=True, text=True, timeout=600)
+        assert rest.returncode == 0 and "the allocation is not running" in rest.stdout, rest.stdout[-2000:]
+        final = subprocess.run(["bash", "scripts/gpu_lease.sh", "final", str(out4)], cwd=ROOT, env=env,
+                               capture_output=True, text=True, timeout=120)
+        assert final.returncode == 0 and "has ended" in final.stdout
+    finally:
+        if (lease / "pid").exists() and _alive(lease):
+            os.killpg(int((lease / "pid").read_text()), signal.SIGKILL)
+    last = allocations.open_allocation(out4, tmp_path / "s4")
+    assert last.progress["finished"] == [V, VFX] and last.weights == {V: "returned", VFX: "returned"}
+    assert ap.check_return_folder(out4) == [] and not (out4 / ".incoming").exists()
+    merged = allocations.merge_allocations([last])
+    assert set(merged["runs"]) == {V, VFX}
+
+
+def test_the_lease_refuses_a_bad_mode_or_a_state_inside_out(tmp_path):
+    bad = subprocess.run(["bash", "scripts/gpu_lease.sh", "begin", str(tmp_path / "o")], cwd=ROOT,
+                         capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "start, collect or final" in bad.stderr
+    inside = subprocess.run(["bash", "scripts/gpu_lease.sh", "final", str(tmp_path / "o")], cwd=ROOT,
+                            env={**os.environ, "ALLOC_LEASE_DIR": str(tmp_path / "o" / "lease")},
+                            capture_output=True, text=True, timeout=60)
+    assert inside.returncode == 2 and "must not lie inside OUT" in inside.stderr
