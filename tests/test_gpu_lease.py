@@ -32,6 +32,17 @@ def _returned(out: Path) -> set[tuple[str, str]]:
         return set()
 
 
+def _finished(out: Path) -> list[str]:
+    """The runs OUT's records list as finished (none while they are unreadable or not there yet)."""
+    import tempfile
+
+    try:
+        with tempfile.TemporaryDirectory() as scratch:
+            return allocations.open_allocation(out, Path(scratch)).progress.get("finished", [])
+    except (PokeworldError, OSError):
+        return []
+
+
 def _command(args: list[str], env: dict) -> subprocess.Popen:
     return subprocess.Popen(["bash", "scripts/gpu_lease.sh", *args], cwd=ROOT, env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True, start_new_session=True)
@@ -68,7 +79,9 @@ def test_a_lease_survives_a_kill_of_each_command_and_its_last_folder_holds_every
     try:
         # 1. start and collect, killed once the first run came back
         start = _command(["start", str(out1), "V", "VFX"], env)
-        _kill_when(start, lambda: (V, "final") in _returned(out1), "the first run back")
+        # a collect copies the weight parts before the records (nothing is listed finished without its weights), so
+        # the first run is back once both are: killed between the two, the run would be weights without a record
+        _kill_when(start, lambda: (V, "final") in _returned(out1) and _finished(out1) == [V], "the first run back")
         assert _alive(lease), "the detached allocation died with the command that started it"
         a = allocations.open_allocation(out1, tmp_path / "s1")
         assert a.progress["finished"] == [V] and a.weights == {V: "returned"}

@@ -67,7 +67,8 @@ def _oracle(monkeypatch):
 def test_cem_with_a_true_physics_scorer_pushes_objects_to_goals_random_does_not(monkeypatch):
     """Planted: score candidates by rolling the real simulator forward from the true state. Planning must then
     move objects and reach goals 0.55 away within the 48 steps, so the metrics can come out high; random must not."""
-    cfg = make_config("tiny", episodes=12, steps=48, population=32, elites=4, iterations=2)
+    # the reference environment's finger is capped at 3 units/s: its search needs 64 × 3 candidates to reach
+    cfg = make_config("tiny", episodes=12, steps=48, population=64, elites=4, iterations=3)
     setup = episode_setup(cfg)
     oracle = control(cfg, setup, _oracle(monkeypatch))
     rand = control(cfg, setup, None)
@@ -233,7 +234,7 @@ def test_the_simulator_controller_is_the_planners_ceiling(tmp_path):
     reach goals that random does not, and `pokeworld plan` runs with it alone."""
     from pokeworld import plan
 
-    cfg = make_config("tiny", episodes=12, steps=48, population=32, elites=4, iterations=2, simulator_controller=True,
+    cfg = make_config("tiny", episodes=12, steps=48, population=64, elites=4, iterations=3, simulator_controller=True,
                       runs=(), out=str(tmp_path / "p"))
     summary = plan.plan_runs(cfg, {})["summary"]
     assert set(summary) == {"random", "simulator"}
