@@ -32,7 +32,7 @@ import gymnasium as gym
 import numpy as np
 
 from ..errors import ConfigError
-from ..io import OwnedDir, check_owned_dir, record_owned, remove_own_file, remove_owned_dir, staging_path
+from ..io import OwnedDir, check_owned_dir, record_owned, remove_own_file, remove_owned_dir, temporary_folder
 from ..plan import GOAL_BOX, PlanConfig
 from ..sim.core import PARAM_NAMES, ParamRanges, PhysicsConfig, PokeWorldSim
 from .require import stable_worldmodel
@@ -247,10 +247,13 @@ class CollectConfig:
 
 @contextlib.contextmanager
 def _staged(out: Path) -> Iterator[Path]:
-    """A sibling path with ``out``'s suffix (swm's writers pick the layout from it) renamed to ``out`` only when
-    the block succeeds, so an interrupted collection leaves no half-written dataset under the final name."""
-    staging = staging_path(out)
-    _remove(staging)
+    """A path with ``out``'s name (swm's writers pick the layout from its suffix) inside a new private folder beside
+    it (:func:`pokeworld.io.temporary_folder`: an unpredictable name, mode 0700, so nobody can plant a link where the
+    writer writes), renamed to ``out`` only when the block succeeds, so an interrupted collection leaves no
+    half-written dataset under the final name; the folder goes either way (one a crash leaves is one
+    :func:`pokeworld.io.remove_stale_temporaries` recognises)."""
+    private = temporary_folder(out)
+    staging = private / out.name
     try:
         yield staging
         _remove(out)
@@ -258,7 +261,19 @@ def _staged(out: Path) -> Iterator[Path]:
         if out.is_file():  # a Lance table is a folder its own layout (LANCE_TABLE) identifies
             record_owned(out)
     finally:
-        _remove(staging)
+        if staging.exists() or staging.is_symlink():
+            _remove_staging(staging)
+        with contextlib.suppress(OSError):  # not empty: left for remove_stale_temporaries, the error above stands
+            private.rmdir()
+
+
+def _remove_staging(staging: Path) -> None:
+    """Remove what a failed collection left in its private folder (a partial HDF5 file or Lance table)."""
+    if staging.is_dir() and not staging.is_symlink():
+        check_owned_dir(staging, LANCE_TABLE)
+        remove_owned_dir(staging, LANCE_TABLE)
+    else:
+        staging.unlink()
 
 
 LANCE_TABLE = OwnedDir(files=(), dirs=(
