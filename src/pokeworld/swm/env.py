@@ -21,9 +21,6 @@ own; :func:`run` (``pokeworld swm-collect``) drives ``swm.World`` with an swm po
 
 from __future__ import annotations
 
-import contextlib
-import os
-from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import ClassVar
@@ -32,7 +29,7 @@ import gymnasium as gym
 import numpy as np
 
 from ..errors import ConfigError
-from ..io import OwnedDir, check_owned_dir, record_owned, remove_own_file, remove_owned_dir, temporary_folder
+from ..io import OwnedDir, atomic_path
 from ..plan import GOAL_BOX, PlanConfig
 from ..sim.core import PARAM_NAMES, ParamRanges, PhysicsConfig, PokeWorldSim
 from .require import stable_worldmodel
@@ -245,53 +242,11 @@ class CollectConfig:
             raise ConfigError(f"a lance output must end in .lance, got {self.out!r}")
 
 
-@contextlib.contextmanager
-def _staged(out: Path) -> Iterator[Path]:
-    """A path with ``out``'s name (swm's writers pick the layout from its suffix) inside a new private folder beside
-    it (:func:`pokeworld.io.temporary_folder`: an unpredictable name, mode 0700, so nobody can plant a link where the
-    writer writes), renamed to ``out`` only when the block succeeds, so an interrupted collection leaves no
-    half-written dataset under the final name; the folder goes either way (one a crash leaves is one
-    :func:`pokeworld.io.remove_stale_temporaries` recognises)."""
-    private = temporary_folder(out)
-    staging = private / out.name
-    try:
-        yield staging
-        _remove(out)
-        os.replace(staging, out)
-        if out.is_file():  # a Lance table is a folder its own layout (LANCE_TABLE) identifies
-            record_owned(out)
-    finally:
-        if staging.exists() or staging.is_symlink():
-            _remove_staging(staging)
-        with contextlib.suppress(OSError):  # not empty: left for remove_stale_temporaries, the error above stands
-            private.rmdir()
-
-
-def _remove_staging(staging: Path) -> None:
-    """Remove what a failed collection left in its private folder (a partial HDF5 file or Lance table)."""
-    if staging.is_dir() and not staging.is_symlink():
-        check_owned_dir(staging, LANCE_TABLE)
-        remove_owned_dir(staging, LANCE_TABLE)
-    else:
-        staging.unlink()
-
-
 LANCE_TABLE = OwnedDir(files=(), dirs=(
     ("data", OwnedDir(files=(r".+\.lance",))), ("_versions", OwnedDir(files=(r".+\.manifest",))),
     ("_transactions", OwnedDir(files=(r".+\.txn",))), ("_deletions", OwnedDir(files=(r".+",))),
     ("_indices", OwnedDir(files=(r".+",), dirs=((r".+", OwnedDir(files=(r".+",))),)))))
-"""What a Lance table folder holds: the only kind of folder :func:`_remove` replaces."""
-
-
-def _remove(path: Path) -> None:
-    """Remove a dataset swm-collect is about to replace (--overwrite) or its own staging copy: an HDF5 file (a
-    regular file only) or a Lance table (only the files a Lance table holds; anything else refuses); never a
-    link or its target."""
-    if path.is_symlink() or not path.is_dir():
-        remove_own_file(path)
-        return
-    check_owned_dir(path, LANCE_TABLE)
-    remove_owned_dir(path, LANCE_TABLE)
+"""What a Lance table folder holds: the only kind of folder swm-collect replaces (``--overwrite``)."""
 
 
 def make_world(num_envs: int, steps: int, image_size: int, **env_kwargs):
@@ -311,7 +266,9 @@ def run(cfg: CollectConfig) -> Path:
     world = make_world(cfg.num_envs, cfg.steps, cfg.image_size)
     try:
         world.set_policy(swm.policy.RandomPolicy(seed=cfg.seed))
-        with _staged(out) as staging:
+        # io's output contract: swm's writer writes inside a private folder (no predictable name for a planted
+        # link), renamed to out only when it succeeds; an existing Lance table is replaced only if it is one
+        with atomic_path(out, replace=LANCE_TABLE) as staging:
             writer = swm.data.get_format(cfg.format).open_writer(staging, mode="overwrite")
             world.collect(writer=writer, episodes=cfg.episodes, seed=cfg.seed, progress=False)
     finally:
