@@ -125,6 +125,8 @@ PRESET_COSTS: dict[str, str] = {
               "stacked, 0.027 s per model-step for six eager models in one process"),
     "demo": ("train only: the cpu model with 64-wide proprio/touch encoders at batch 8, 2,200 steps, "
              "≈ 2.7 min per model with two side by side (what `pokeworld demo` trains)"),
+    "cpu_first": "train only: the cpu model with the first objective (reproduces cpu records made before it changed)",
+    "demo_first": "train only: the demo model with the first objective (reproduces earlier demo records)",
 }
 
 

@@ -167,7 +167,7 @@ class MeasureConfig:
 PRESETS = {"tiny": {"max_windows": 400, "mlp": False}, "cpu": {}, "paper": {"max_windows": 100000}}
 #: The training preset each measurement preset measures (``pokeworld probe`` without --preset measures a run with its
 #: own: a tiny model measured at cpu sizes takes minutes for no better number); the demo's model is the cpu model.
-MEASURE_PRESET_OF = {"tiny": "tiny", "cpu": "cpu", "demo": "cpu", "paper": "paper"}
+MEASURE_PRESET_OF = {"tiny": "tiny", "cpu": "cpu", "demo": "cpu", "cpu_first": "cpu", "demo_first": "cpu", "paper": "paper"}
 #: The fields a run's config.json records that tell the training presets apart (the model's sizes).
 PRESET_FIELDS = ("image_size", "channels", "latent_dim", "width", "depth", "heads", "vec_dim")
 MAX_MEASUREMENT_BYTES = 64 << 20
