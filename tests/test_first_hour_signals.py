@@ -184,6 +184,9 @@ def test_a_runs_training_preset_is_read_from_its_config():
 
     for preset in ("tiny", "cpu", "paper", "demo"):
         assert training_preset(to_dict(make_config(preset))) == preset
+    # the *_first presets share their sizes with cpu / demo: they are measured alike
+    for preset, sizes in (("cpu_first", "cpu"), ("demo_first", "demo")):
+        assert training_preset(to_dict(make_config(preset))) == sizes
     odd = to_dict(make_config("cpu", image_size=16, channels=(2, 2, 2, 2), latent_dim=3, width=5, vec_dim=7))
     assert training_preset(odd) is None
     assert run_preset(measure_config("tiny", run_dir="/nonexistent/run")) == "cpu"  # probe then says what is wrong

@@ -9,7 +9,7 @@ import torch
 from pokeworld.data import save
 from pokeworld.errors import ConfigError
 from pokeworld.train import PRESETS, TrainConfig, WindowSampler, load_model, make_config, run, synthetic_dataset
-from pokeworld.train.config import FIRST_PAPER_MODEL, REFERENCE_MODEL
+from pokeworld.train.config import FIRST_PAPER_MODEL, REFERENCE_MODEL, REFERENCE_OBJECTIVE
 
 
 @pytest.fixture(scope="module")
@@ -20,12 +20,23 @@ def data_dir(tmp_path_factory):
 
 
 def test_presets_and_validation():
-    assert set(PRESETS) == {"tiny", "cpu", "paper", "demo"}
+    assert set(PRESETS) == {"tiny", "cpu", "paper", "demo", "cpu_first", "demo_first"}
     # the demo's model is the cpu model at another budget: batch, steps, checkpointing and the paper's vector-
     # encoder width differ; the objective (targets, weights, λ, horizons, window, schedule shape) does not
-    cpu, demo = make_config("cpu"), make_config("demo")
-    differ = {f for f in TrainConfig.__dataclass_fields__ if getattr(cpu, f) != getattr(demo, f)}
-    assert differ == {"batch_size", "steps", "vec_dim", "ckpt_every", "log_every"}
+    objective = set(REFERENCE_OBJECTIVE)
+    for cpu, demo in ((make_config("cpu"), make_config("demo")), (make_config("cpu_first"), make_config("demo_first"))):
+        differ = {f for f in TrainConfig.__dataclass_fields__ if getattr(cpu, f) != getattr(demo, f)}
+        assert differ == {"batch_size", "steps", "vec_dim", "ckpt_every", "log_every"}
+    # cpu / demo take the reference's loss weighting and nothing else of its model; the *_first presets are the
+    # same sizes with the first objective (the field defaults), which reproduce the records made before
+    for new, first in (("cpu", "cpu_first"), ("demo", "demo_first")):
+        a, b = make_config(new), make_config(first)
+        differ = {f for f in TrainConfig.__dataclass_fields__ if getattr(a, f) != getattr(b, f)}
+        assert differ == objective
+        assert {k: getattr(a, k) for k in objective} == REFERENCE_OBJECTIVE
+        assert all(getattr(b, k) == TrainConfig.__dataclass_fields__[k].default for k in objective)
+        assert (a.encoder, a.head_form, a.sigreg_pool, a.grad_clip) == ("groupnorm", "mlp", "step", 1.0)
+    demo = make_config("demo")
     # the first paper model's 64-wide encoders (the reference's, the paper preset's now, output 96)
     assert demo.vec_dim == make_config("paper", **FIRST_PAPER_MODEL).vec_dim == 64
     paper = make_config("paper")

@@ -117,8 +117,8 @@ COMMANDS: dict[str, Command] = {
 #: docs/model.md "Benchmark"; the same numbers as the comment on ``pokeworld.train.PRESETS``).
 PRESET_COSTS: dict[str, str] = {
     "tiny": "seconds; smoke runs and the unit tests (too small for meaningful numbers)",
-    "cpu": ("2 CPU cores; ≈ 0.26 s/step on one core, ≈ 20 min per 4,000-step model with two side by side "
-            "(the default)"),
+    "cpu": ("2 CPU cores; 32-px sizes with the released reference's loss weighting; ≈ 0.26 s/step on one core, "
+            "≈ 20 min per 4,000-step model with two side by side (the default)"),
     "paper": ("GPU; the paper's sizes with the released reference's objective and model; timed with the first "
               "model: on one H100 0.041 s/step eager (fast path) ≈ 14 min per 20k-step model, "
               "0.030 compiled in the default mode; on an H200 0.0104 with CUDA graphs (the default on CUDA); "

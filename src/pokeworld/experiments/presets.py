@@ -19,11 +19,12 @@ PRESETS: dict[str, dict] = {
     "paper": {"preset": "paper"},
 }
 
-DEMO = {  # the newcomer's first run: four variants, one seed; 8 min 55 s measured on 2 idle cores (README)
+DEMO = {  # the newcomer's first run: four variants, one seed; 7 min 02 s measured on 2 idle cores (docs/results/demo.md)
     "experiments": ("factorial",), "variants": ("V", "VF", "VX_t", "VFX"), "seeds": (0,),
     # the cpu map's corpus: a 1,200-episode one halves the probe-fit split, and a ridge readout fit on 240 episodes
     # under-reads a weak signal (VFX log k 0.06 vs 0.10 for one checkpoint, docs/model.md "Learning speed")
-    # the model: train's "demo" preset (cpu sizes, 64-wide vector encoders, batch 8, 2,200 steps); probes read
+    # the model: train's "demo" preset (cpu sizes, 64-wide vector encoders, batch 8, 2,200 steps, the reference's
+    # loss weighting: VFX − VF +0.32 against +0.22 with the first objective, docs/results/demo_levers_cpu.md); probes read
     # contact windows only, the ones the demo's tables show
     "train_preset": "demo", "measure_kinds": ("contact",),
     # a ridge readout of a 128-d state at R² ≈ 0.25 is fit-set limited (the same checkpoint reads 0.27 from 5.4k
@@ -42,13 +43,13 @@ DEMO = {  # the newcomer's first run: four variants, one seed; 8 min 55 s measur
     "whole_job_estimate": True,
 }
 
-#: What the demo's stages cost on the reference machine (2 idle cores; `python benchmarks/train_cpu.py` 7.85–8.03
+#: What the demo's stages cost on the reference machine (2 idle cores; `python benchmarks/train_cpu.py` 8.03–8.35
 #: model-steps/s for two `cpu` models side by side), in seconds: the priors of the demo's whole-job estimate
 #: (:func:`.stages.whole_job_costs`), scaled by a training step timed on this machine at the start, then corrected
-#: by the pace of the stages as they finish. They add up, with the timed training (4 runs x 2,200 steps, two at a
-#: time, ~5 min), to the measured idle demo (8 min 10 s, docs/results/demo.md); the two GRU certificates split
-#: their share as on a recorded run (8.6 and 10 min of 43; the linear and drag fits about a second each).
-DEMO_STAGE_SECONDS = {"corpus": 10.0, "certificate gru": 60.0, "certificate gru_geom": 70.0, "certificate": 1.0,
+#: by the pace of the stages as they finish. With the timed training (4 runs x 2,200 steps, two at a time, ~5 min)
+#: they add up to the measured idle demo on the reference environment (7 min 02 s, docs/results/demo.md): its two
+#: GRU certificates took 20 and 18 s on a machine whose training step was 1.2x the reference's.
+DEMO_STAGE_SECONDS = {"corpus": 10.0, "certificate gru": 17.0, "certificate gru_geom": 15.0, "certificate": 1.0,
                       "measure per run": 12.0, "report": 5.0}
 #: One demo model's step on one thread of the reference machine (benchmarks/results/train_cpu_demo.json, "one
 #: model, 1 thread"): a step timed now over this is how much slower this machine is now (its load included).
