@@ -7,16 +7,20 @@ Our parameter counts come from building each variant of the ``paper`` preset (an
 ``FIRST_PAPER_MODEL``) with the corpus's stream widths (proprio 4, touch 7, action 2); the reference's numbers are
 data in :mod:`pokeworld.reference_values` (each with its source file); the paper's in
 :mod:`pokeworld.experiments.factorial` and :mod:`pokeworld.paper_values`. The "ours at paper (GPU)" column stays
-empty until a GPU allocation trains the aligned configuration.
+empty until a GPU allocation trains the aligned configuration. ``--cpu-map RESULTS`` adds an "ours at cpu" column from
+a `cpu` map's ``results.json`` on the reference environment (mean over the seeds it holds, the seeds named):
+
+    python scripts/reference_model_table.py --out docs/results/reference_fidelity_model --cpu-map docs/results/map_cpu_reference.json
 """
 
 import argparse
+from collections import defaultdict
 from pathlib import Path
 
 from pokeworld import paper_values as P
 from pokeworld import reference_values as R
 from pokeworld.experiments.factorial import FACTORIAL_MLP
-from pokeworld.io import save_text, write_json
+from pokeworld.io import read_json, save_text, write_json
 from pokeworld.models import VARIANTS, XJEPA
 from pokeworld.train.config import FIRST_PAPER_MODEL, REFERENCE_MODEL, make_config
 from pokeworld.train.step import model_kwargs
@@ -91,7 +95,32 @@ def parameters() -> list[dict]:
     return rows
 
 
-def variant_rows() -> list[dict]:
+def cpu_map_cells(results: dict) -> dict[str, dict]:
+    """Per variant of a `cpu` map's results (reference environment only): the mean over its seeds of the contact
+    ridge log k / log m / γ, MLP log k and direct- / static-16, with the seeds."""
+    env = results.get("map_config", {}).get("environment", "calibrated")
+    if env != "reference":
+        raise SystemExit(f"--cpu-map: that map ran on the {env!r} environment; give a map of the reference "
+                         "environment (the default of `pokeworld map --preset cpu`)")
+    per = defaultdict(list)
+    for run in results["runs"].values():
+        ridge = run.get("probes", {}).get("ridge", {}).get("contact")
+        if ridge and run.get("experiment") == "factorial":
+            mlp = run["probes"].get("mlp", {}).get("contact", {})
+            per[run["train"]["variant"]].append({"seed": run["train"]["seed"], "log_k": ridge["log_k"],
+                                                 "log_m": ridge["log_m"], "gamma": ridge["gamma"],
+                                                 "mlp_log_k": mlp.get("log_k"), "direct16": run["prediction"]["direct16"],
+                                                 "static16": run["prediction"]["static16"]})
+    out = {}
+    for v, runs in per.items():
+        mean = {k: sum(r[k] for r in runs) / len(runs) for k in ("log_k", "log_m", "gamma", "direct16", "static16")}
+        mlps = [r["mlp_log_k"] for r in runs if r["mlp_log_k"] is not None]
+        out[v] = {**mean, "mlp_log_k": sum(mlps) / len(mlps) if mlps else None,
+                  "seeds": sorted(r["seed"] for r in runs)}
+    return out
+
+
+def variant_rows(cpu: dict[str, dict] | None = None) -> list[dict]:
     rows = []
     for v in VARIANTS:
         ref = R.RUNS[v]
@@ -101,12 +130,13 @@ def variant_rows() -> list[dict]:
                  "rollout16": P.PREDICTION["rollout16"] if v == "VFX" else None, "static16": P.PREDICTION["static16"]}
         rows.append({"variant": v, "paper": paper, "reference": {k: ref[k] for k in
                                                                  ("ridge", "mlp", "direct16", "rollout16", "static16")},
-                     "reference_source": ref["source"], "ours_paper_gpu": None, "ours_note": NOT_TRAINED})
+                     "reference_source": ref["source"], "ours_paper_gpu": None, "ours_note": NOT_TRAINED,
+                     "ours_cpu": (cpu or {}).get(v)})
     return rows
 
 
-def record() -> dict:
-    return {"command": "python scripts/reference_model_table.py --out docs/results/reference_fidelity_model",
+def record(cpu: dict[str, dict] | None = None, command: str = "") -> dict:
+    return {"command": command or "python scripts/reference_model_table.py --out docs/results/reference_fidelity_model",
             "reference": {"repo": R.REFERENCE_REPO, "results_commit": R.RESULTS_COMMIT, "model_commit": R.MODEL_COMMIT,
                           "model_files": ["exp/e003_motion/model.py", "exp/e003_motion/train.py"]},
             "paper_preset_overrides": {k: list(v) if isinstance(v, tuple) else v for k, v in REFERENCE_MODEL.items()},
@@ -118,11 +148,19 @@ def record() -> dict:
                                      f"runs include it (e.g. {R.CORRECTED_ACTIONS_VFX['source']}: "
                                      f"{R.CORRECTED_ACTIONS_VFX['params']:,})",
             "objective_and_model": [dict(zip(("item", "reference", "first_model", "now"), r)) for r in OBJECTIVE_AND_MODEL],
-            "variants": variant_rows(), "corrected_actions_vfx": R.CORRECTED_ACTIONS_VFX}
+            "variants": variant_rows(cpu), "corrected_actions_vfx": R.CORRECTED_ACTIONS_VFX}
 
 
 def cell(x, digits: int = 2) -> str:
     return "—" if x is None else f"{x:.{digits}f}"
+
+
+def cpu_cell(c: dict | None) -> str:
+    if not c:
+        return "—"
+    seeds = ", ".join(str(x) for x in c["seeds"])
+    return (f"{c['log_k']:.2f} / {c['log_m']:.2f} / {c['gamma']:.2f}, MLP {cell(c['mlp_log_k'])}, "
+            f"{c['direct16']:.3f} / {c['static16']:.3f} (seed{'s' if len(c['seeds']) > 1 else ''} {seeds})")
 
 
 def markdown(rec: dict) -> str:
@@ -145,10 +183,13 @@ def markdown(rec: dict) -> str:
     lines += ["", "## Per variant: the paper, the reference runs, ours\n",
               "Contact windows. Paper: Table \"targets\" (ridge, seeds s0 / s1), Table \"mlp\", §4.2 (direct / rollout / "
               "static 16-step, arena units; reported for the full model). Reference: seed 0, λ 0.02, 20,000 steps "
-              "(source per row). Ours: the `paper` preset on a GPU.\n",
+              "(source per row). Ours at paper: the `paper` preset on a GPU. Ours at cpu: the `cpu` preset on the "
+              "reference environment (about 1/20 of the paper's budget), log k / log m / γ ridge, MLP log k, "
+              "direct-16 / static-16, mean over the seeds named.\n",
               "| variant | log k ridge: paper / ref. | log m ridge: paper / ref. | γ ridge: ref. | MLP log k / log m / γ: "
-              "paper / ref. | direct-16: paper / ref. | rollout-16: paper / ref. | static-16: paper / ref. | ours at paper (GPU) |",
-              "|---|---|---|---|---|---|---|---|---|"]
+              "paper / ref. | direct-16: paper / ref. | rollout-16: paper / ref. | static-16: paper / ref. | ours at paper (GPU) "
+              "| ours at cpu |",
+              "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rec["variants"]:
         p, q = r["paper"], r["reference"]
         mlp_p = "—" if p["mlp"] is None else " / ".join(cell(p["mlp"][k]) for k in ("log_k", "log_m", "gamma"))
@@ -157,7 +198,7 @@ def markdown(rec: dict) -> str:
                      f"{cell(q['ridge']['log_k'], 3)} | {cell(p['ridge_log_m_s0_s1'][0])}, {cell(p['ridge_log_m_s0_s1'][1])} / "
                      f"{cell(q['ridge']['log_m'], 3)} | {cell(q['ridge']['gamma'], 3)} | {mlp_p} ‖ {mlp_q} | "
                      f"{cell(p['direct16'])} / {cell(q['direct16'], 3)} | {cell(p['rollout16'])} / {cell(q['rollout16'], 3)} | "
-                     f"{cell(p['static16'])} / {cell(q['static16'], 3)} | {r['ours_note']} |")
+                     f"{cell(p['static16'])} / {cell(q['static16'], 3)} | {r['ours_note']} | {cpu_cell(r.get('ours_cpu'))} |")
     ac = rec["corrected_actions_vfx"]
     lines += ["", f"The authors' corrected-action rerun of VFX (`{ac['source']}`): ridge log k {ac['ridge']['log_k']:.3f}, "
               f"log m {ac['ridge']['log_m']:.3f}, γ {ac['ridge']['gamma']:.3f}; MLP log k {ac['mlp']['log_k']:.3f}; "
@@ -168,8 +209,13 @@ def markdown(rec: dict) -> str:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--out", default="docs/results/reference_fidelity_model", help="output path without extension")
-    out = Path(ap.parse_args().out)
-    rec = record()
+    ap.add_argument("--cpu-map", default="", help="a `cpu` map's results.json on the reference environment: adds "
+                                                    "the 'ours at cpu' column")
+    args = ap.parse_args()
+    out = Path(args.out)
+    cpu = cpu_map_cells(read_json(args.cpu_map, "a map's results.json", max_bytes=64 << 20)) if args.cpu_map else None
+    command = f"python scripts/reference_model_table.py --out {args.out}" + (f" --cpu-map {args.cpu_map}" if cpu else "")
+    rec = record(cpu, command)
     write_json(out.with_suffix(".json"), rec)
     save_text(out.with_suffix(".md"), markdown(rec))
     for r in rec["parameters"]:
