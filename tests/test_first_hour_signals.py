@@ -230,7 +230,7 @@ def test_train_help_lists_the_common_options_first_and_the_rest_as_advanced(caps
     with pytest.raises(SystemExit):
         cli_main(["train", "--help"])
     out = capsys.readouterr().out
-    assert out.startswith("usage: pokeworld train [--preset tiny|cpu|paper|demo]")
+    assert out.startswith("usage: pokeworld train [--preset tiny|cpu|paper|demo|cpu_first|demo_first]")
     common, advanced = out.split("advanced options")
     assert "--steps" in common and "--lr" in common and "--device" in common
     assert "--gnll-beta" in advanced and "--sigreg-knots" in advanced and "--gnll-beta" not in common
