@@ -272,11 +272,10 @@ class TrainConfig:
 #: ``paper`` = App. B with the released reference's objective and model (:data:`REFERENCE_MODEL`); needs a GPU
 #: (the timings are the first model's, :data:`FIRST_PAPER_MODEL`): on one H100 0.041 s/step on the fast path (≈ 14 min per 20k-step model), 0.030
 #: compiled, 0.027 s per model-step for six models stacked (docs/model.md "Fast path", "Several models").
-#: ``cpu``: 32×32 frames, narrower CNN/predictor, batch 32, 256 SIGReg directions, 4,000 steps (stiffness
+#: ``cpu``: 32×32 frames, narrower CNN/predictor, batch 32, 256 SIGReg directions, 4,000 steps, the reference's loss
+#: weighting (:data:`REFERENCE_OBJECTIVE`; ``cpu_first``: the same with the first objective) (stiffness
 #: enters the VFX latent only after ~2,000 steps at this size, docs/model.md); ≈ 0.26 s/step on one
 #: core, ≈ 20 min per model with two models side by side on 2 cores. ``tiny``: unit tests, seconds.
-#: The objective and model of the authors' released code (``exp/e003_motion``: model.py, train.py) that App. B
-#: leaves open; the ``paper`` preset's overrides (docs/model.md "Aligned with the released reference").
 #: The reference's loss weighting alone: proprio / touch heads at Δ 1 and 4 only, latent Δ1 : Δ>1 = 1 : 0.5, sensor
 #: 0.5 : 0.25, contact frames weighted 1 + 3c. The ``cpu`` and ``demo`` presets take it (at the demo's budget it
 #: lifts VFX log k 0.22 → 0.32 on the reference environment; the reference's pooled SIGReg and encoder lower it
@@ -284,6 +283,8 @@ class TrainConfig:
 REFERENCE_OBJECTIVE: dict[str, Any] = dict(
     sensor_horizons=(1, 4), latent_horizon_weights=(1.0, 0.5), sensor_horizon_weights=(0.5, 0.25),
     contact_weighting="frames")
+#: The objective and model of the authors' released code (``exp/e003_motion``: model.py, train.py) that App. B
+#: leaves open; the ``paper`` preset's overrides (docs/model.md "Aligned with the released reference").
 REFERENCE_MODEL: dict[str, Any] = dict(
     encoder="reference", fuse_dim=192, vec_dim=96, head_form="reference", **REFERENCE_OBJECTIVE,
     sigreg_pool="pooled", sigreg_knots=9, sigreg_t_max=5.0, grad_clip=5.0)
