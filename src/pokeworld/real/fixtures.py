@@ -131,7 +131,9 @@ def write_mp4(path: Path, frames: list[np.ndarray], fps: int = 10, options: dict
 def save_dict(path: Path, obj) -> None:
     """Write ``obj`` to the new file ``path`` as RH20T does: python dicts as 0-d object arrays (a write; pokeworld
     reads such files back only through its restricted loader)."""
-    with open(path, "xb") as fh:  # exclusive create: never an existing file, never through a link
+    # outside io: a test fixture in RH20T's own pickled-dict format (io writes no pickles); exclusive create, so never
+    # an existing file and never through a link
+    with open(path, "xb") as fh:
         np.save(fh, obj, allow_pickle=True)
 
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from .. import paper_values as P
-from ..io import atomic_path, remove_own_file
+from ..io import atomic_path, remove_own_file, save_text
 
 DASH = "—"
 
@@ -381,7 +381,7 @@ def scissors(results: dict, out: Path) -> Path | None:
                  + synthetic, fontsize=9)
     fig.tight_layout()
     path = out / "scissors.png"
-    with atomic_path(path) as tmp:
+    with atomic_path(path) as tmp:  # matplotlib writes into the output contract's private temporary
         fig.savefig(tmp, dpi=120, format="png")
     plt.close(fig)
     return path
@@ -390,8 +390,7 @@ def scissors(results: dict, out: Path) -> Path | None:
 def write_all(out: Path, results: dict) -> list[Path]:
     """Write results.md and, when the scaling experiment ran, scissors.png; returns the paths written.
     A scissors.png left by an earlier scaling run in ``out`` is removed rather than reported as current."""
-    with atomic_path(out / "results.md") as tmp:
-        Path(tmp).write_text(markdown(results))
+    save_text(out / "results.md", markdown(results))
     written = [out / "results.md"]
     fig = scissors(results, out)
     if fig is not None:
