@@ -11,22 +11,17 @@ readout on contact windows, so the table says exactly what each run varied.
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
-from pokeworld import train
-from pokeworld.config import to_dict
 from pokeworld.io import read_json, save_text, write_json
+from pokeworld.train.config import changes_from
 
-BOOKKEEPING = {"data", "out", "ckpt_every", "log_every", "tensorboard", "progress", "threads", "stop_at",
-               "deadline", "device", "fast", "compile", "seed", "variant"}
 BASE_PRESET = "demo_first"
 
 
 def changes(cfg: dict, preset: str = BASE_PRESET) -> dict:
-    """Fields of a run's config that differ from ``preset`` (bookkeeping fields left out); tuples compare as lists."""
-    base = json.loads(json.dumps(to_dict(train.make_config(preset))))
-    return {k: v for k, v in cfg.items() if k not in BOOKKEEPING and k in base and base[k] != v}
+    """Fields of a run's config that differ from ``preset`` (bookkeeping, seed and variant left out)."""
+    return changes_from(cfg, preset, ignore={"seed", "variant"})
 
 
 def rows_of(folder: Path) -> list[dict]:

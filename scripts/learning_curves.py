@@ -16,15 +16,12 @@ from pathlib import Path
 from pokeworld import train
 from pokeworld.config import to_dict
 from pokeworld.io import write_json
-
-BOOKKEEPING = {"data", "out", "ckpt_every", "log_every", "tensorboard", "progress", "threads", "stop_at",
-               "deadline", "device", "fast", "compile"}
+from pokeworld.train.config import changes_from
 
 
 def changes(cfg: dict, preset: str) -> dict:
     """Fields of a run's config that differ from ``preset`` (bookkeeping fields left out)."""
-    base = to_dict(train.make_config(preset))
-    return {k: v for k, v in cfg.items() if k not in BOOKKEEPING and k in base and base[k] != v}
+    return changes_from(cfg, preset)
 
 
 def gather(runs: list[Path], preset: str) -> list[dict]:

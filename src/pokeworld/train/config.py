@@ -317,6 +317,22 @@ PRESETS["demo"] = {**PRESETS["cpu"], **DEMO_OVER_CPU}
 PRESETS["cpu_first"] = dict(CPU_SIZES)
 PRESETS["demo_first"] = {**CPU_SIZES, **DEMO_OVER_CPU}
 
+#: Fields of a run's config.json that say where and how it ran, not what it trained: left out of :func:`changes_from`.
+BOOKKEEPING_FIELDS = frozenset({"data", "out", "ckpt_every", "keep_every", "log_every", "tensorboard", "progress",
+                                "threads", "stop_at", "deadline", "device", "fast", "compile", "compile_mode"})
+
+
+def changes_from(run_config: dict, preset: str, ignore: frozenset[str] | set[str] = frozenset()) -> dict:
+    """What a run's config.json (a JSON dict) changes against ``preset``: every field whose value differs, bookkeeping
+    fields and ``ignore`` left out; the preset's tuples compare as the JSON lists a config.json holds."""
+    def as_stored(v: Any) -> Any:  # config.json holds tuples as lists
+        return [as_stored(x) for x in v] if isinstance(v, (tuple, list)) else v
+
+    base = {k: as_stored(v) for k, v in to_dict(make_config(preset)).items()}
+    skip = BOOKKEEPING_FIELDS | set(ignore)
+    return {k: v for k, v in run_config.items() if k not in skip and k in base and base[k] != v}
+
+
 COMPILE_SETTINGS = ("auto", "on", "off")
 """Values of ``TrainConfig.compile``."""
 COMPILE_MODES = ("auto", "default", "reduce-overhead", "max-autotune-no-cudagraphs", "max-autotune")
@@ -487,6 +503,6 @@ def resolve_device(cfg: TrainConfig, local_rank: int = 0) -> torch.device:
     return pick_device(cfg.device, local_rank)
 
 
-__all__ = ["TrainConfig", "PRESETS", "REFERENCE_OBJECTIVE", "REFERENCE_MODEL", "FIRST_PAPER_MODEL", "check_model_form", "RESUMABLE_FIELDS", "RETIRED_FIELDS", "COMPILE_SETTINGS", "COMPILE_MODES",
+__all__ = ["TrainConfig", "PRESETS", "BOOKKEEPING_FIELDS", "changes_from", "REFERENCE_OBJECTIVE", "REFERENCE_MODEL", "FIRST_PAPER_MODEL", "check_model_form", "RESUMABLE_FIELDS", "RETIRED_FIELDS", "COMPILE_SETTINGS", "COMPILE_MODES",
            "field_defaults", "make_config", "validate", "use_fast_path", "compile_mode_for", "legacy_compile",
            "check_existing", "auto_threads", "resolve_device", "compile_status"]
