@@ -21,12 +21,15 @@ import sys
 from pathlib import Path
 
 from pokeworld import checkpoint, plan
+from pokeworld.data import read_manifest
 from pokeworld.errors import PokeworldError
 from pokeworld.evaluate import measure
 from pokeworld.experiments.factorial import FACTORIAL, FACTORIAL_MLP
 from pokeworld.io import atomic_path, check_outputs, read_json, save_figure, write_json
 from pokeworld.rundir import read_run_config, write_final
 from pokeworld.run_store import trained_store
+from pokeworld.sim.environments import LEGACY
+from pokeworld.train.config import REFERENCE_OBJECTIVE
 
 QUANTITIES = ("log_k", "log_m", "gamma")
 PAPER_STEPS = 20_000
@@ -74,6 +77,12 @@ def measure_point(snap: Path, data: str, preset: str, plan_episodes: int) -> dic
     return out
 
 
+def objective_of(cfg: dict) -> str:
+    """Which loss weighting a run's config.json trained with: the reference's (the ``cpu`` preset) or the first."""
+    stored = {k: list(v) if isinstance(v, tuple) else v for k, v in REFERENCE_OBJECTIVE.items()}
+    return "reference weighting" if all(cfg.get(k) == v for k, v in stored.items()) else "first objective"
+
+
 def curve(run: Path, work: Path, preset: str, plan_episodes: int) -> dict:
     cfg = read_run_config(run)
     data = trained_store(run, "budget-curve")
@@ -81,8 +90,11 @@ def curve(run: Path, work: Path, preset: str, plan_episodes: int) -> dict:
     for step, ckpt in kept_checkpoints(run).items():
         print(f"[budget-curve] {run.name} step {step}", flush=True)
         points[str(step)] = measure_point(snapshot(run, step, ckpt, work), data, preset, plan_episodes)
+    # a store written before environments were named is the calibrated one (its manifest has no environment key)
+    environment = read_manifest(data).get("environment", LEGACY)
     return {"run": str(run), "variant": cfg.get("variant"), "image_size": cfg.get("image_size"),
-            "steps": cfg.get("steps"), "points": points,
+            "steps": cfg.get("steps"), "environment": environment, "objective": objective_of(cfg),
+            "points": points,
             "paper": {"ridge": FACTORIAL.get(cfg.get("variant"), {}), "mlp": FACTORIAL_MLP.get(cfg.get("variant"), {}),
                       "steps": PAPER_STEPS}}
 
@@ -91,6 +103,9 @@ def markdown(record: dict) -> str:
     lines = ["# Probe R² and planning diagnostics against training steps", "",
              "Each kept checkpoint measured as a finished run (contact windows, held-out episodes); the paper's "
              "value is at its own budget (20,000 steps, 64 px). Commands: " + " ; ".join(record["commands"]), "",
+             "Environment and objective per run: " + "; ".join(
+                 f"{Path(r['run']).name}: {r.get('environment', LEGACY)}, {r.get('objective', 'first objective')}"
+                 for r in record["runs"]), "",
              "| run | step | log k ridge / MLP (paper) | log m ridge / MLP (paper) | γ ridge / MLP | phantom push "
              "(true end frames decoded) | top-8 overlap (chance) |", "|---|---|---|---|---|---|---|"]
 

@@ -43,6 +43,8 @@ def test_kept_checkpoints_measure_like_the_run(tmp_path):
         assert points["10"][f"ridge_{q}"] == own["ridge"]["contact"][q]
     assert points["5"]["ridge_log_k"] != points["10"]["ridge_log_k"]  # another checkpoint, another model
     assert rec["runs"][0]["paper"]["ridge"]["log_k"] == pytest.approx(0.495)
+    assert rec["runs"][0]["environment"] == "reference"  # the store's manifest names it; the table says so
+    assert f"{run.name}: reference, {rec['runs'][0]['objective']}" in out.with_suffix(".md").read_text()
     assert "| run | step |" in out.with_suffix(".md").read_text()
     assert out.with_suffix(".png").stat().st_size > 0
     # re-running measures nothing new and writes the same record
@@ -55,3 +57,15 @@ def test_a_run_without_kept_checkpoints_is_one_line(tmp_path, capsys):
     (tmp_path / "run").mkdir()
     assert _script().main([str(tmp_path / "run"), "--out", str(tmp_path / "r.json")]) == 2
     assert "no kept/ckpt-<step>.pt checkpoints" in capsys.readouterr().err
+
+
+def test_the_objective_is_read_from_the_runs_own_config():
+    from pokeworld.train.config import make_config, to_dict
+
+    def stored(preset):  # as config.json holds it: tuples as lists
+        return json.loads(json.dumps(to_dict(make_config(preset))))
+
+    bc = _script()
+    assert bc.objective_of(stored("cpu")) == "reference weighting"
+    assert bc.objective_of(stored("cpu_first")) == "first objective"
+    assert bc.objective_of({}) == "first objective"  # a config from before the weighting existed

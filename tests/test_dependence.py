@@ -182,3 +182,38 @@ def test_a_record_measured_with_other_settings_is_not_merged(tmp_path):
     assert merged_records(make_config("cpu", merge=(str(earlier),))) != []
     with pytest.raises(ConfigError, match="other settings"):
         merged_records(make_config("cpu", merge=(str(earlier),), eval_episodes=1200))
+
+
+@pytest.mark.slow
+def test_the_command_says_its_plan_first_and_writes_a_record_per_run(tmp_path, capsys):
+    """`pokeworld forecast-dependence` end to end on a tiny trained run: a plan line before the long first stage,
+    a line per run, and a record whose row names the run, its variant and the planted rows beside it."""
+    import json
+
+    from pokeworld.cli import main as cli
+
+    store, run, out = tmp_path / "store", tmp_path / "run", tmp_path / "fd"
+    assert cli(["generate", "--preset", "tiny", "--out", str(store)]) == 0
+    assert cli(["train", "--preset", "tiny", "--variant", "VFX", "--data", str(store), "--out", str(run)]) == 0
+    capsys.readouterr()
+    assert cli(["forecast-dependence", str(out), "--preset", "tiny", "--runs", str(run), "--eval-episodes", "60",
+                "--bootstrap", "20"]) == 0
+    lines = [ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("[forecast-dependence]")]
+    assert "plan: 1 store(s) x 60 fresh episodes" in lines[0] and "1 run(s)" in lines[0]
+    assert lines[1].endswith("planted rows done") and lines[2].startswith(f"[forecast-dependence] {run}:")
+    rec = json.loads((out / "forecast_dependence.json").read_text())
+    assert [r["variant"] for r in rec["runs"]] == ["VFX"] and list(rec["planted"]) == [str(store)]
+    assert (out / "forecast_dependence.md").is_file() and lines[-1].startswith("[forecast-dependence] wrote ")
+
+
+def test_the_figure_draws_an_s_outside_its_own_bootstrap_interval(tmp_path):
+    """A ratio's percentile interval need not contain its full-sample value (few windows, a slope near zero): the
+    figure draws it as it is instead of failing on negative error bars."""
+    from pokeworld.evaluate.dependence_runs import figure
+
+    row = {"variant": "VFX", "seed": 0, "steps": 10,
+           "dependence": {"gamma": {"S": 8.6, "S_interval": [-5.7, 0.7]}, "mass": {"S": 0.5, "S_interval": [0.2, 0.9]},
+                          "stiffness": {"note": "no touch forecast"}},
+           "readout": {p: {"contact": 0.1} for p in ("gamma", "mass", "stiffness")}}
+    path = figure({"environment": "planted", "runs": [row]}, tmp_path / "fd.png")
+    assert path.stat().st_size > 0

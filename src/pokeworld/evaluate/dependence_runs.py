@@ -138,6 +138,10 @@ def run(cfg: DependenceRunsConfig) -> Path:
     # every run checked first
     stores = {str(r): cfg.store or trained_store(r, "[forecast-dependence]") for r in cfg.runs}
     dep = DependenceConfig(bootstrap=cfg.bootstrap, max_windows=cfg.max_windows, seed=cfg.seed)
+    # the first result line comes only after a store's fresh episodes and planted rows: say what is coming
+    print(f"[forecast-dependence] plan: {len(set(stores.values()))} store(s) x {cfg.eval_episodes} fresh episodes "
+          f"and the planted rows, then {len(cfg.runs)} run(s) ({cfg.bootstrap} bootstrap resamples each); a line "
+          "as each finishes", flush=True)
     loaded, rows, refs = {}, [], {}
     for r in cfg.runs:
         path = stores[str(r)]
@@ -230,9 +234,11 @@ def figure(result: dict, path: Path) -> Path:
         for i, r in enumerate(result["runs"]):
             v = r["dependence"][p]
             if "S" in v:
+                # the interval drawn as it is, not as error bars around S: a ratio's percentile bootstrap need not
+                # contain its full-sample value (few windows, a slope near zero), and error bars cannot be negative
                 lo, hi = v["S_interval"]
-                ax.errorbar(i - 0.12, v["S"], yerr=[[v["S"] - lo], [hi - v["S"]]], fmt="o", color="C0",
-                            capsize=3, label="S (95 % episode bootstrap)" if i == 0 else None)
+                ax.vlines(i - 0.12, lo, hi, color="C0", lw=1.5)
+                ax.plot(i - 0.12, v["S"], "o", color="C0", label="S [95 % episode bootstrap]" if i == 0 else None)
             reported = REVISION.get(r["variant"], {}).get(p, {}).get("S")
             if reported is not None:
                 ax.plot(i - 0.12, reported, "*", color="grey", ms=10,
