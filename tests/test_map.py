@@ -76,6 +76,7 @@ def test_tiny_map_writes_every_artifact_and_skips_on_rerun(tmp_path, capsys):
             assert (run / f).exists(), (run, f)
     md = (out / "results.md").read_text()
     assert "| V |" in md and "paper" in md
+    assert "(preset `tiny`, environment `reference`," in md  # the record names the environment it ran
     experiment.run(c)  # second run: everything is skipped
     log = capsys.readouterr().out
     assert "already holds this corpus" in log and "up to date" in log
@@ -254,3 +255,15 @@ def test_map_wide_sigreg_reference_rows_rename_global_latent_runs_only():
             assert "sigreg_reference_rows" not in s.train
     plain = ex.make_config("cpu", experiments=("lambda",), seeds=(0,))
     assert not any("sigreg_reference_rows" in s.name for s in ex.all_specs(plain))
+
+
+def test_a_record_from_before_environments_reads_as_the_calibrated_one():
+    from pokeworld.config import to_dict
+    from pokeworld.experiments.report import markdown
+
+    prov = {"command": "pokeworld map", "preset": "tiny", "pokeworld": "0.1.0", "git": "abc1234"}
+    now = to_dict(experiment.make_config("tiny"))
+    before = {k: v for k, v in now.items() if k != "environment"}
+    record = {"provenance": prov, "runs": {}, "certificates": {}, "experiments": {}}
+    assert "environment `calibrated`" in markdown({**record, "map_config": before})
+    assert "environment `reference`" in markdown({**record, "map_config": now})

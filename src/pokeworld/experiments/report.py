@@ -27,6 +27,7 @@ from ..evaluate.tables import (
     variant_runs,
 )
 from ..io import read_json_if_present, save_figure, save_text
+from .config import recorded_map_config
 from .registry import REPORT_ORDER
 from .runs import spec_measure_path
 from .stages import spec_experiments
@@ -105,8 +106,10 @@ def readout_table(results: dict) -> list[str]:
 def markdown(results: dict) -> str:
     """results.md."""
     prov = results["provenance"]
+    environment = recorded_map_config(results.get("map_config", {}))["environment"]
     out = ["# Identifiability map: results", "",
-           f"Produced by `{prov['command']}` (preset `{prov['preset']}`, pokeworld {prov['pokeworld']}, git {prov['git']}). "
+           f"Produced by `{prov['command']}` (preset `{prov['preset']}`, environment `{environment}`, pokeworld "
+           f"{prov['pokeworld']}, git {prov['git']}). "
            "Paper values are the paper's own numbers, shown beside ours for comparison; they are never used as ours.", ""]
     out += merged_lines(prov)
     out += certificate_table(results)
