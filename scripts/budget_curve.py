@@ -162,8 +162,10 @@ def figure(record: dict, out: Path) -> None:
     axes[3].set_xlabel("training steps")
     axes[3].set_ylabel("arena units / overlap fraction")
     axes[3].legend(fontsize=6)
+    settings = sorted({f"{r.get('environment', LEGACY)} environment, {r.get('objective', 'first objective')}"
+                       for r in record["runs"]})
     fig.suptitle("Budget curve: each kept checkpoint measured as a finished run (★ and dotted: the paper's value at "
-                 "its budget)")
+                 f"its budget); {'; '.join(settings)}")
     fig.tight_layout()
     save_figure(fig, out.parent, out.stem)
 
