@@ -76,6 +76,7 @@ def convert_scene_cached(ref: SceneRef, cfg: ConvertConfig, cdir: Path) -> tuple
     except Exception as e:  # never stop a long run for one scene; not cached so a fixed bug re-runs it
         return None, {"scene": ref.name, "path": str(ref.path), "reason": "unexpected_error",
                       "message": f"{type(e).__name__}: {e}"}
+    # numpy writes into atomic_path's private temporary (the output contract): renamed into place only when complete
     with atomic_path(ok) as tmp, open(tmp, "wb") as fh:
         np.savez(fh, **arrays)
     return arrays, None
