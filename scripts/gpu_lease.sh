@@ -90,8 +90,17 @@ if [ "$MODE" = start ]; then
     say "the allocation of this lease has ended; collecting what it returned (a new lease starts on a fresh machine)"
   else
     rm -rf "$LEASE/repo" && mkdir -p "$LEASE/repo" || exit 2
-    # a copy of the repository: the device replaces the command's folder with a fresh copy at each command
-    tar --exclude=./.git --exclude=./.whl -cf - . | tar -xf - -C "$LEASE/repo" || exit 2
+    # a copy of the repository: the device replaces the command's folder with a fresh copy at each command. Only
+    # the repository's own files: git's list where there is one (tracked and untracked-not-ignored), else the tree
+    # without what .gitignore names, so a virtual environment or output folder beside it is never copied (a CPU
+    # dry-run's .venv is gigabytes; the device installs its packages elsewhere)
+    if git rev-parse --is-inside-work-tree >/dev/null 2>&1; then
+      git ls-files -z --cached --others --exclude-standard | tar --null --ignore-failed-read -T - -cf - 2>/dev/null
+    else
+      tar --exclude=./.git --exclude=./.whl --exclude=./.venv --exclude=./.venv-swm --exclude=./out \
+        --exclude=./runs --exclude=./data --exclude=./models --exclude=./.gl --exclude=./.pytest_cache \
+        --exclude=./.hypothesis -cf - .
+    fi | tar -xf - -C "$LEASE/repo" || exit 2
     date -u +%FT%TZ >"$LEASE/started"
     export PYTHONPATH="$LEASE/repo/src${PYTHONPATH:+:$PYTHONPATH}" ALLOC_BUDGET_MIN=${ALLOC_BUDGET_MIN:-12} \
       ALLOC_WORK=${ALLOC_WORK:-$LEASE/work}

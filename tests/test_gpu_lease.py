@@ -83,6 +83,9 @@ def test_a_lease_survives_a_kill_of_each_command_and_its_last_folder_holds_every
         # the first run is back once both are: killed between the two, the run would be weights without a record
         _kill_when(start, lambda: (V, "final") in _returned(out1) and _finished(out1) == [V], "the first run back")
         assert _alive(lease), "the detached allocation died with the command that started it"
+        # the lease runs a copy of the repository's own files, never a virtual environment or output beside them
+        assert (lease / "repo" / "scripts" / "gpu_allocation.sh").is_file()
+        assert not any((lease / "repo" / d).exists() for d in (".venv", ".venv-swm", ".git", "out"))
         a = allocations.open_allocation(out1, tmp_path / "s1")
         assert a.progress["finished"] == [V] and a.weights == {V: "returned"}
         assert ap.check_return_folder(out1) == []
