@@ -91,16 +91,14 @@ if [ "$MODE" = start ]; then
   else
     rm -rf "$LEASE/repo" && mkdir -p "$LEASE/repo" || exit 2
     # a copy of the repository: the device replaces the command's folder with a fresh copy at each command. Only
-    # the repository's own files: git's list where there is one (tracked and untracked-not-ignored), else the tree
-    # without what .gitignore names, so a virtual environment or output folder beside it is never copied (a CPU
-    # dry-run's .venv is gigabytes; the device installs its packages elsewhere)
-    if git rev-parse --is-inside-work-tree >/dev/null 2>&1; then
-      git ls-files -z --cached --others --exclude-standard | tar --null --ignore-failed-read -T - -cf - 2>/dev/null
-    else
-      tar --exclude=./.git --exclude=./.whl --exclude=./.venv --exclude=./.venv-swm --exclude=./out \
-        --exclude=./runs --exclude=./data --exclude=./models --exclude=./.gl --exclude=./.pytest_cache \
-        --exclude=./.hypothesis -cf - .
-    fi | tar -xf - -C "$LEASE/repo" || exit 2
+    # the repository's own files: not .git nor what .gitignore names (a CPU dry-run's .venv is gigabytes; the device
+    # installs its packages elsewhere), each .gitignore line a tar exclude (/x anchored at the root, x anywhere)
+    EXCLUDES=(--exclude=./.git)
+    while IFS= read -r pat; do
+      pat=${pat%/}
+      case "$pat" in ''|'#'*) ;; /*) EXCLUDES+=("--exclude=.$pat") ;; *) EXCLUDES+=("--exclude=$pat") ;; esac
+    done < <(cat .gitignore 2>/dev/null)
+    tar "${EXCLUDES[@]}" -cf - . | tar -xf - -C "$LEASE/repo" || exit 2
     date -u +%FT%TZ >"$LEASE/started"
     export PYTHONPATH="$LEASE/repo/src${PYTHONPATH:+:$PYTHONPATH}" ALLOC_BUDGET_MIN=${ALLOC_BUDGET_MIN:-12} \
       ALLOC_WORK=${ALLOC_WORK:-$LEASE/work}

@@ -22,6 +22,6 @@ def test_the_link_pattern_finds_relative_links_and_leaves_urls():
 
 def test_every_relative_link_in_the_docs_resolves():
     pages = [ROOT / "README.md", ROOT / "benchmarks" / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
-    broken = [f"{page.relative_to(ROOT)} -> {target}" for page in pages for target in relative_links(page.read_text(encoding="utf-8"))
-              if not (page.parent / target).exists()]
+    broken = [f"{page.relative_to(ROOT)} -> {target}" for page in pages
+              for target in relative_links(page.read_text(encoding="utf-8")) if not (page.parent / target).exists()]
     assert not broken, "broken links: " + "; ".join(broken)

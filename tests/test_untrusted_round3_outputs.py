@@ -113,6 +113,35 @@ def test_write_json_refuses_a_users_file_and_replaces_its_own(tmp_path):
         io.append_jsonl(user, {"b": 1})
 
 
+def test_npz_and_figure_writers_keep_the_exact_name_and_refuse_a_users_file_or_a_link(tmp_path):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    arrays = {"a": np.arange(5.0), "b": np.eye(2)}
+    for compressed in (False, True):
+        io.save_npz(tmp_path / f"x{int(compressed)}.npz", arrays, compressed=compressed)
+        with np.load(tmp_path / f"x{int(compressed)}.npz") as z:
+            assert set(z.files) == {"a", "b"} and np.array_equal(z["b"], np.eye(2))
+    io.save_npz(tmp_path / "cache.ok", arrays)  # numpy appends .npz to a bare name; through an open file it cannot
+    assert (tmp_path / "cache.ok").is_file() and not (tmp_path / "cache.ok.npz").exists()
+    paths = io.save_figure_as(plt.figure(), [tmp_path / "f.png", tmp_path / "f"])
+    assert [p.read_bytes()[:4] for p in paths] == [b"\x89PNG"] * 2 and plt.get_fignums() == []
+    victim = tmp_path / "victim"
+    victim.write_text("keep")
+    for suffix, write in ((".npz", lambda p: io.save_npz(p, arrays)), (".png", lambda p: io.save_figure_as(
+            plt.figure(), [p]))):
+        user, link = tmp_path / f"user{suffix}", tmp_path / f"link{suffix}"
+        user.write_text("mine")
+        os.symlink(victim, link)
+        for final in (user, link):
+            with pytest.raises(ConfigError):
+                write(final)
+        assert victim.read_text() == "keep" and user.read_text() == "mine" and link.is_symlink()
+    plt.close("all")
+
+
 def test_owned_folder_with_record_is_still_verified_as_ours(tmp_path):
     spec = io.OwnedDir(files=(r"data\.h5", r"manifest\.json"))
     with io.atomic_path(tmp_path / "store") as tmp:

@@ -581,6 +581,13 @@ def save_text(path: str | os.PathLike, text: str) -> None:
         tmp.write_text(text, encoding="utf-8")
 
 
+def save_npz(path: str | os.PathLike, arrays: dict[str, np.ndarray], compressed: bool = False) -> None:
+    """Atomically write ``arrays`` as an ``.npz`` to ``path`` under the output contract (:func:`atomic_path`); numpy
+    writes through an open file so it never appends its own ``.npz`` to the temporary's name."""
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        (np.savez_compressed if compressed else np.savez)(fh, **arrays)
+
+
 def write_json(path: str | os.PathLike, obj: Any) -> None:
     """Atomically write ``obj`` as indented JSON."""
     with atomic_path(path) as tmp:
@@ -756,13 +763,17 @@ def run_lock(run_dir: str | os.PathLike, enabled: bool = True) -> Iterator[None]
 
 def save_figure(fig, out: Path, stem: str, dpi: int = 150) -> list[Path]:
     """Write ``fig`` as ``out/stem.png`` and ``.pdf``, each atomically (temporary name, then rename); closes it."""
+    return save_figure_as(fig, [Path(out) / f"{stem}.png", Path(out) / f"{stem}.pdf"], dpi)
+
+
+def save_figure_as(fig, paths: list[Path], dpi: int = 150) -> list[Path]:
+    """Write ``fig`` to each of ``paths`` (the format from its suffix, png without one), each atomically; closes it."""
     import matplotlib.pyplot as plt
 
-    paths = [Path(out) / f"{stem}.png", Path(out) / f"{stem}.pdf"]
     try:
         for p in paths:
             with atomic_path(p) as tmp:
-                fig.savefig(tmp, dpi=dpi, format=p.suffix[1:])
+                fig.savefig(tmp, dpi=dpi, format=Path(p).suffix[1:] or "png")
     finally:
         plt.close(fig)
-    return paths
+    return [Path(p) for p in paths]

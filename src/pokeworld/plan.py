@@ -34,7 +34,7 @@ from .evaluate.counterfactual import counterfactual_fit
 from .evaluate.measure import EpisodeLatents, full_precision, position_decoder
 from .evaluate.ranking import agreement
 from .evaluate.state import encode_observations, model_device
-from .io import atomic_path, check_outputs, save_figure, save_text, write_json
+from .io import check_outputs, save_figure, save_npz, save_text, write_json
 from .paper_values import PLANNING
 from .preflight import require_finished_runs
 from .run_store import trained_store
@@ -669,9 +669,7 @@ def figure(planned: dict, out: Path, goal_radius: float, left: str | None = None
 
 def write_outputs(planned: dict, out: Path, goal_radius: float) -> list[Path]:
     """``distances.npz`` (object-goal distance over time per controller, atomically) and the episode figure."""
-    with atomic_path(Path(out) / "distances.npz") as tmp:  # numpy writes into the output contract's private temporary
-        with open(tmp, "wb") as f:
-            np.savez_compressed(f, **{k: v["distance"] for k, v in planned["episodes"].items()})
+    save_npz(Path(out) / "distances.npz", {k: v["distance"] for k, v in planned["episodes"].items()}, compressed=True)
     return figure(planned, Path(out), goal_radius)
 
 

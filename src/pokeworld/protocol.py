@@ -64,7 +64,7 @@ from .evaluate.measure import (
     padded_actions,
     probe_windows,
 )
-from .io import atomic_path, hash_arrays, read_json, read_json_if_present, save_text, write_json
+from .io import hash_arrays, read_json, read_json_if_present, save_figure_as, save_text, write_json
 from .rundir import load_model
 
 CERTIFICATES = "a certificate record (certificates.json)"
@@ -604,12 +604,7 @@ def figure(result: dict, path: Path) -> Path:
                  + (f"; ↓: bar cut at {FIGURE_R2_FLOOR}, its R² printed" if clipped else "") + ")", fontsize=9)
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
     fig.tight_layout()
-    try:
-        with atomic_path(path) as tmp:  # a private temporary: no fixed name for a planted link to redirect
-            fig.savefig(tmp, dpi=150, format=path.suffix[1:] or "png")
-    finally:
-        plt.close(fig)
-    return path
+    return save_figure_as(fig, [path])[0]
 
 
 __all__ = ["MAX_STATE", "ProtocolConfig", "PRESETS", "StateReader", "certify_model", "claims", "make_config",

@@ -9,7 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from .. import paper_values as P
-from ..io import atomic_path, remove_own_file, save_text
+from ..io import remove_own_file, save_figure_as, save_text
 
 DASH = "—"
 
@@ -380,11 +380,7 @@ def scissors(results: dict, out: Path) -> Path | None:
     fig.suptitle("Four-arm factorial across scale (cfg1). Filled: ours; hollow squares: paper; ×: compute control"
                  + synthetic, fontsize=9)
     fig.tight_layout()
-    path = out / "scissors.png"
-    with atomic_path(path) as tmp:  # matplotlib writes into the output contract's private temporary
-        fig.savefig(tmp, dpi=120, format="png")
-    plt.close(fig)
-    return path
+    return save_figure_as(fig, [out / "scissors.png"], dpi=120)[0]
 
 
 def write_all(out: Path, results: dict) -> list[Path]:

@@ -47,10 +47,19 @@ from .. import __version__
 from ..config import from_preset, to_dict
 from ..data import load
 from ..errors import ConfigError, DataError
-from ..io import OwnedDir, atomic_path, check_owned_dir, read_json, read_json_if_present, remove_owned_dir, write_json
+from ..io import (
+    OwnedDir,
+    atomic_path,
+    check_owned_dir,
+    read_json,
+    read_json_if_present,
+    remove_owned_dir,
+    save_npz,
+    write_json,
+)
+from ..sim import environments
 from ..sim.core import PARAM_NAMES, ParamRanges, PokeWorldSim
 from ..sim.physics import render_kernel
-from ..sim import environments
 from ..sim.policy import make_policy
 from .evaluate import r2
 from .fixtures import save_dict, write_mp4
@@ -633,8 +642,7 @@ def write_scene(cfg_dir: Path, truth_dir: Path, plan: ScenePlan, cfg: SynthConfi
         _write_streams(d, plan, files)
         meta = _write_metadata(d, sc, plan)
     truth = _scene_truth(sc, cfg, samples)
-    with atomic_path(truth_dir / f"{sc.name}.npz") as tmp, open(tmp, "wb") as fh:
-        np.savez(fh, **truth)
+    save_npz(truth_dir / f"{sc.name}.npz", truth)
     far_cam = "far" if "far" in sc.cams else None
     expected = DEFECTS[plan.defect] if plan.defect else None
     return {"name": sc.name, "task": plan.task, "task_name": TASKS[plan.task]["name"], "user": plan.user,

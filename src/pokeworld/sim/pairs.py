@@ -9,7 +9,7 @@ import numpy as np
 
 from ..config import SEED, Limit, check_fields, from_preset
 from ..errors import ConfigError
-from ..io import atomic_path, check_outputs, save_figure
+from ..io import check_outputs, save_figure, save_npz
 from .core import PhysicsConfig, PokeWorldSim
 
 PAIRS = {  # parameter -> (low value, high value, base params, finger start, object start, action program)
@@ -121,7 +121,7 @@ def run(cfg: PairsConfig) -> Path:
                  f"({cfg.contact_damping} contact damping)")
     fig.tight_layout()
     save_figure(fig, out, "pairs", dpi=130)
-    with atomic_path(out / "pairs.npz") as tmp, open(tmp, "wb") as fh:
-        np.savez_compressed(fh, **{f"{p['param']}_{k}": p[k] for p in pairs for k in ("object", "finger", "touch")})
+    save_npz(out / "pairs.npz", {f"{p['param']}_{k}": p[k] for p in pairs for k in ("object", "finger", "touch")},
+             compressed=True)
     print(f"[pairs] wrote {out / 'pairs.png'}, pairs.pdf and pairs.npz")
     return out

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from ...errors import DataError
-from ...io import OwnedDir, atomic_path, read_json, remove_own_file, write_json
+from ...io import OwnedDir, read_json, remove_own_file, save_npz, write_json
 from .config import ConvertConfig, out_dir
 from .folders import SceneRef, check_scene_name
 from .scene import process_scene
@@ -76,7 +76,5 @@ def convert_scene_cached(ref: SceneRef, cfg: ConvertConfig, cdir: Path) -> tuple
     except Exception as e:  # never stop a long run for one scene; not cached so a fixed bug re-runs it
         return None, {"scene": ref.name, "path": str(ref.path), "reason": "unexpected_error",
                       "message": f"{type(e).__name__}: {e}"}
-    # numpy writes into atomic_path's private temporary (the output contract): renamed into place only when complete
-    with atomic_path(ok) as tmp, open(tmp, "wb") as fh:
-        np.savez(fh, **arrays)
+    save_npz(ok, arrays)
     return arrays, None
