@@ -38,8 +38,8 @@
 #                        smoke, 120 for full; tests/test_cuda.py runs the map's path first)
 #   ALLOC_SNAPSHOT_S     seconds between checkpoint snapshots into OUT while a run trains (default 30)
 #   ALLOC_S_PER_STEP     s/step predicted before this allocation has timed a run (default: the preset's prior,
-#                        0.0104 at paper, the H200's with CUDA graphs)
-#   ALLOC_OVERHEAD_S     seconds a run takes beside its steps, predicted likewise (default: paper 90)
+#                        0.0081 at paper, the aligned VFX on an H200 with CUDA graphs)
+#   ALLOC_OVERHEAD_S     seconds a run takes beside its steps, predicted likewise (default: paper 60)
 #   ALLOC_BENCH_PRESETS  bench mode: benchmark presets (default "cpu paper"; empty skips the benchmark)
 #   ALLOC_BENCH_CONFIGS  bench mode: configurations (default "fast fast+reduce-overhead": eager and CUDA graphs)
 #   ALLOC_BENCH_STEPS    bench mode: timed steps per configuration (default 30)

@@ -77,3 +77,16 @@ def test_every_folder_and_the_commit_are_checked_or_quoted(tmp_path):
     spaced = allocations.plan([_allocation(tmp_path, "a b", runs, "k", checkpoints={"V-s0": 10})], configuration="k")
     env = shlex.split(ap.plan_lines(spaced, "abc1234")[-5].split(" && ")[-1])[1]
     assert split_folder_list(env.split("=", 1)[1]) == spaced["resume_from"]  # a folder with a space stays one
+
+
+def test_a_folder_outside_the_checkout_is_copied_into_it_for_the_device(tmp_path):
+    # the device receives the checkout and the paths a call carries, nothing beside it: a returned folder that lies
+    # elsewhere must be copied in first, and ALLOC_RESUME must name it as the device's copy sees it
+    root = tmp_path / "repo"
+    (root / "returned").mkdir(parents=True)
+    outside = [tmp_path / "x" / "h200-1", tmp_path / "y" / "h200-1", tmp_path / "$(id) a"]
+    paths, copies = ap.device_folders(["returned", *map(str, outside)], root=root)
+    assert paths == ["returned", ".resume/h200-1", ".resume/h200-1-2", ".resume/$(id) a"]
+    assert copies[0].startswith("mkdir -p .resume") and "/.resume/" in copies[0]
+    assert [shlex.split(c)[-2:] for c in copies[1:]] == [[str(o), p] for o, p in zip(outside, paths[1:])]
+    assert ap.device_folders(["returned"], root=root) == (["returned"], [])

@@ -130,3 +130,16 @@ def test_reference_heads_and_encoder_have_the_released_form():
     zero = head4(torch.zeros_like(h), a)
     assert torch.allclose(head4(3 * h, a) - zero, 3 * (head4(h, a) - zero), atol=1e-5)
     assert not math.isclose(float((head4(h, a) - head4(h, -a)).detach().abs().sum()), 0.0)
+
+
+def test_every_variants_released_seed_0_run_is_beside_ours():
+    # the paper-budget record shows the authors' run of the same variant and seed beside each of ours: every variant
+    # of Table "targets" has its seed-0 run, read at the same commit as the transcribed reference runs
+    from pokeworld import reference_values as R
+    from pokeworld.released_values import SOURCE_COMMIT, released
+
+    assert SOURCE_COMMIT == R.RESULTS_COMMIT
+    for variant, run in R.RUNS.items():
+        assert released(variant, 0)["ridge"] == run["ridge"] and released(variant, 0)["source"] == run["source"]
+    assert released("V", 0)["ridge"]["log_k"] == -0.0191 and released("VX", 1) == {}
+    assert released("VFX", 1)["source"].endswith("VFX_s1_l0.02.json")

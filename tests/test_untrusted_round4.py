@@ -67,8 +67,15 @@ def test_plan_refuses_a_variant_that_is_a_command_and_quotes_every_folder(tmp_pa
     start = next(x for x in lines if "gpu_lease.sh start" in x)
     printed = as_bash(start.split(" && ", 1)[1], tmp_path).splitlines()  # after the wheels' install
     assert not marker.exists() and not (tmp_path / "pwned").exists()
-    assert split_folder_list(printed[0]) == [str(folder)]  # ALLOC_RESUME: one folder, spaces and all
+    # ALLOC_RESUME: one folder, spaces and all, as the device's copy of the checkout holds it
+    assert split_folder_list(printed[0]) == [f".resume/{folder.name}"]
     assert printed[1:5] == ["scripts/gpu_lease.sh", "start", "", "VF@0"]
+    # the line that copies it in (the folder lies outside the checkout), run in a real bash: the folder, nothing run
+    copy = next(x for x in lines if x.startswith("cp -r -- "))
+    cwd = tmp_path / "checkout"
+    (cwd / ".resume").mkdir(parents=True)
+    subprocess.run(["/bin/bash", "-c", copy], cwd=cwd, check=True, timeout=30)
+    assert (cwd / ".resume" / folder.name / "records.tar.gz").is_file() and not (cwd / "pwned").exists()
 
 
 # ---------------------------------------------------------------------- 2. archive and checkpoint bombs

@@ -21,6 +21,7 @@ import json
 import re
 import shlex
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from ..errors import ConfigError
 from ..io import parse_json
@@ -33,8 +34,11 @@ from .stages import corpus_config
 Key = tuple[str, int]
 COMMIT = re.compile(r"[0-9a-f]{4,40}")
 #: What a device command runs first (docs/model.md "GPU allocations": the wheels carried in .whl).
+#: The device's set-up (../shared/device/README.md). ALLOC_TESTS=0: no smoke check in a lease. The map's path it
+#: checks (the reference form under CUDA graphs, trained, resumed and measured) ran on the H200 lease of 2026-11-28,
+#: and every run records `compiled` and `cudagraph_skips` itself; its minute is a fourth run's margin in 15 minutes.
 SETUP = ("python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site "
-         ".whl/*.whl && export PYTHONPATH=/tmp/site:$PWD/src PYTHONUNBUFFERED=1")
+         ".whl/*.whl && export PYTHONPATH=/tmp/site:$PWD/src PYTHONUNBUFFERED=1 ALLOC_TESTS=0")
 
 
 def configuration_key(config: dict) -> str:
@@ -102,12 +106,43 @@ def resume_value(folders: list[str]) -> str:
     return shlex.quote(folder_list(folders))
 
 
+#: where a folder to resume from that lies outside this checkout is copied before the lease: the device receives
+#: this checkout (tracked and not-ignored files, and the ignored paths a call carries), nothing beside it
+RESUME_DIR = ".resume"
+
+
+def device_folders(folders: list[str], root: Path | None = None) -> tuple[list[str], list[str]]:
+    """Each folder to resume from as the device's copy of the checkout at ``root`` (default: the working directory,
+    the repository root) sees it, and the shell lines that copy the folders lying outside it into
+    :data:`RESUME_DIR` (ignored through .git/info/exclude, carried by the lease's commands). A folder inside the
+    checkout keeps its relative path; one outside becomes ``.resume/NAME`` (``NAME-2``… when two share a name)."""
+    root = (root or Path.cwd()).resolve()
+    paths, copies, taken = [], [], set()
+    for f in folders:
+        full = (root / f).resolve()
+        if full.is_relative_to(root):
+            paths.append(str(full.relative_to(root)))
+            continue
+        name, n = full.name or "allocation", 1
+        while name in taken:
+            n += 1
+            name = f"{full.name}-{n}"
+        taken.add(name)
+        paths.append(f"{RESUME_DIR}/{name}")
+        copies.append(f"cp -r -- {shlex.quote(str(full))} {shlex.quote(paths[-1])}")
+    if copies:
+        copies.insert(0, f"mkdir -p {RESUME_DIR} && (grep -qx '/{RESUME_DIR}/' .git/info/exclude 2>/dev/null "
+                         f"|| echo '/{RESUME_DIR}/' >> .git/info/exclude)")
+    return paths, copies
+
+
 def lease_commands(p: dict, commit: str) -> list[str]:
     """The three device commands of the next lease (docs/model.md "GPU allocations: a lease"), each a line."""
     if not COMMIT.fullmatch(commit):
         raise ConfigError(f"the commit must be hexadecimal (4 to 40 digits), got {commit!r}; pass --commit SHA")
     runs = [token(parse_token(t)) for t in p["queue"]]  # re-made from a known variant and an integer seed
-    env = f"ALLOC_COMMIT={commit}" + (f" ALLOC_RESUME={resume_value(p['resume_from'])}" if p["resume_from"] else "")
+    folders = device_folders(p["resume_from"])[0]
+    env = f"ALLOC_COMMIT={commit}" + (f" ALLOC_RESUME={resume_value(folders)}" if folders else "")
     return [f'{SETUP} && {env} bash scripts/gpu_lease.sh start "$OUT" {" ".join(runs)}',
             'bash scripts/gpu_lease.sh collect "$OUT"',
             'bash scripts/gpu_lease.sh final "$OUT"']
@@ -127,12 +162,17 @@ def plan_lines(p: dict, commit: str) -> list[str]:
     if not p["queue"]:
         return lines
     cmds = lease_commands(p, commit)
-    carry = ".whl" + "".join(f" {shlex.quote(f)}" for f in p["resume_from"])
+    folders, copies = device_folders(p["resume_from"])
+    carry = ".whl" + "".join(f" {shlex.quote(f)}" for f in folders)
+    if copies:  # the device receives this checkout only: a folder beside it must be copied in first
+        lines += ["[plan] first, here, in the repository root (the folders to resume from lie outside the checkout, "
+                  "which is all the device receives; the carried paths count towards its 64 MiB):", *copies]
     return lines + [f"[plan] the lease: three device commands, each issued as soon as the previous returns "
                     f"(carry: {carry}; $OUT: the command's output folder)",
                     "# 1. start and collect (returns after 9 minutes):", cmds[0],
                     "# 2. collect, issued at once:", cmds[1], "# 3. final collect:", cmds[2]]
 
 
-__all__ = ["configuration_key", "checkout_configuration_of", "checkout_configuration", "Returned", "queue_of", "plan",
+__all__ = ["RESUME_DIR", "device_folders",
+           "configuration_key", "checkout_configuration_of", "checkout_configuration", "Returned", "queue_of", "plan",
            "resume_value", "lease_commands", "plan_lines", "SETUP"]

@@ -38,10 +38,11 @@ from .map import RunHooks, run as run_map
 from .presets import make_config
 from .runs import RunSpec, run_dir
 
-#: preset -> (s/step, overhead s) a run is predicted with until this allocation has timed one. paper: the H200's
-#: 0.0104 s/step with CUDA graphs (docs/model.md "Fast path"); its 90 s of overhead are ≈ 30 s of compilation plus a
-#: guess for the measurement on the 8,000-episode corpus, not yet timed. tiny and cpu: this repository's CPUs.
-PRIORS = {"paper": (0.0104, 90.0), "cpu": (0.3, 60.0), "tiny": (0.05, 10.0)}
+#: preset -> (s/step, overhead s) a run is predicted with until this allocation has timed one. paper: the aligned
+#: configuration's VFX (the queue's first run, and its slowest variant) as the H200 lease of 2026-11-28 timed it,
+#: 0.0081 s/step with CUDA graphs and 56 s of compilation and measurement (V 0.0062 / 40 s, VF 0.0066 / 45 s;
+#: docs/model.md "GPU allocations"), rounded up. tiny and cpu: this repository's CPUs.
+PRIORS = {"paper": (0.0081, 60.0), "cpu": (0.3, 60.0), "tiny": (0.05, 10.0)}
 
 
 def spec_key(s: RunSpec) -> tuple[str, int]:
