@@ -6,7 +6,7 @@ released code, and the per-variant table of the paper's numbers beside the refer
 Our parameter counts come from building each variant of the ``paper`` preset (and of the first paper model,
 ``FIRST_PAPER_MODEL``) with the corpus's stream widths (proprio 4, touch 7, action 2); the reference's numbers are
 data in :mod:`pokeworld.reference_values` (each with its source file); the paper's in
-:mod:`pokeworld.experiments.factorial` and :mod:`pokeworld.paper_values`. The "ours at paper (GPU)" column stays
+:mod:`pokeworld.experiments.factorial` and :mod:`pokeworld.paper_values`. The "ours at paper (GPU)" column is
 filled from ``--gpu-map RECORD``, the merged record of GPU allocations of the aligned configuration
 (``scripts/merge_allocations.py --out``), each variant's cell checked against issue 59's target (ridge log k and log m,
 and MLP log k where measured, within 0.1 of the paper's mean of two seeds); a variant not in it says it is not yet

@@ -256,7 +256,7 @@ def test_the_plan_resumes_checkpoints_first_then_follows_the_priority(tmp_path):
     assert p["finished"] == ["V@0", "VF@0", "VFX@0"] and p["resume_from"] == ["B"]
     assert p["resume"]["VX_p@0"] == {"step": 100, "from": "B"} and p["commits"] == ["abc1234", "def5678"]
     assert allocations.plan_lines(p, "c0ffee")[-5].endswith(
-        "ALLOC_COMMIT=c0ffee ALLOC_RESUME=B bash scripts/gpu_lease.sh start \"$OUT\" VX_p@0 VX@1 VX_t@0 VX@0 VFX@1 "
+        "ALLOC_COMMIT=c0ffee ALLOC_RESUME=.resume/B bash scripts/gpu_lease.sh start \"$OUT\" VX_p@0 VX@1 VX_t@0 VX@0 VFX@1 "
         "VF@1 V@1 VX_t@1 VX_p@1")
     assert order_queue([parse_token(t) for t in ("V", "VF@1", "VX")], {("VX", 0)}, {("VF", 1)}) == [
         ("VF", 1), ("V", 0)]

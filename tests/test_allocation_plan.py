@@ -51,7 +51,7 @@ def test_only_this_configurations_runs_count_and_others_are_named(tmp_path):
     assert any("configuration aaaaaaaaaaaa (another environment" in x for x in lines)
     start, collect, final = lines[-5], lines[-3], lines[-1]
     words = shlex.split(start.split(" && ")[-1])
-    assert words[:5] == ["ALLOC_COMMIT=c0ffee1", "ALLOC_RESUME=new", "bash", "scripts/gpu_lease.sh", "start"]
+    assert words[:5] == ["ALLOC_COMMIT=c0ffee1", "ALLOC_RESUME=.resume/new", "bash", "scripts/gpu_lease.sh", "start"]
     assert words[6:] == p["queue"]
     assert start.startswith(ap.SETUP)
     assert (collect, final) == ('bash scripts/gpu_lease.sh collect "$OUT"', 'bash scripts/gpu_lease.sh final "$OUT"')
@@ -71,22 +71,23 @@ def test_every_folder_and_the_commit_are_checked_or_quoted(tmp_path):
     p = allocations.plan([hostile], configuration="k")
     start = ap.plan_lines(p, "abc1234")[-5]
     env = shlex.split(start.split(" && ")[-1])[1]  # the shell's reading: one word, nothing run
-    assert env.startswith("ALLOC_RESUME=") and split_folder_list(env.split("=", 1)[1]) == p["resume_from"]
+    assert env.startswith("ALLOC_RESUME=") and split_folder_list(env.split("=", 1)[1]) == [".resume/$(id)>x"]
     with pytest.raises(ConfigError, match="hexadecimal"):
         ap.lease_commands(p, "abc1234; touch pwned")
     spaced = allocations.plan([_allocation(tmp_path, "a b", runs, "k", checkpoints={"V-s0": 10})], configuration="k")
     env = shlex.split(ap.plan_lines(spaced, "abc1234")[-5].split(" && ")[-1])[1]
-    assert split_folder_list(env.split("=", 1)[1]) == spaced["resume_from"]  # a folder with a space stays one
+    assert split_folder_list(env.split("=", 1)[1]) == [".resume/a b"]  # a folder with a space stays one
 
 
-def test_a_folder_outside_the_checkout_is_copied_into_it_for_the_device(tmp_path):
-    # the device receives the checkout and the paths a call carries, nothing beside it: a returned folder that lies
-    # elsewhere must be copied in first, and ALLOC_RESUME must name it as the device's copy sees it
+def test_every_folder_to_resume_from_is_copied_into_the_checkouts_resume_folder(tmp_path):
+    # the device receives the checkout and the paths a call carries, nothing beside it, and the lease copies the
+    # checkout without what .gitignore names (out/...): a returned folder is copied into .resume/ (ignored through
+    # .git/info/exclude only) first, and ALLOC_RESUME names it as the device's copy sees it
     root = tmp_path / "repo"
-    (root / "returned").mkdir(parents=True)
-    outside = [tmp_path / "x" / "h200-1", tmp_path / "y" / "h200-1", tmp_path / "$(id) a"]
-    paths, copies = ap.device_folders(["returned", *map(str, outside)], root=root)
-    assert paths == ["returned", ".resume/h200-1", ".resume/h200-1-2", ".resume/$(id) a"]
+    (root / ".resume" / "h200-1").mkdir(parents=True)
+    elsewhere = [tmp_path / "x" / "h200-1", root / "out" / "h200-1", tmp_path / "$(id) a"]
+    paths, copies = ap.device_folders([".resume/h200-1", *map(str, elsewhere)], root=root)
+    assert paths == [".resume/h200-1", ".resume/h200-1-2", ".resume/h200-1-3", ".resume/$(id) a"]
     assert copies[0].startswith("mkdir -p .resume") and "/.resume/" in copies[0]
-    assert [shlex.split(c)[-2:] for c in copies[1:]] == [[str(o), p] for o, p in zip(outside, paths[1:])]
-    assert ap.device_folders(["returned"], root=root) == (["returned"], [])
+    assert [shlex.split(c)[-2:] for c in copies[1:]] == [[str(o), p] for o, p in zip(elsewhere, paths[1:])]
+    assert ap.device_folders([".resume/h200-1"], root=root) == ([".resume/h200-1"], [])

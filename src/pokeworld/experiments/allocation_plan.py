@@ -33,10 +33,10 @@ from .stages import corpus_config
 
 Key = tuple[str, int]
 COMMIT = re.compile(r"[0-9a-f]{4,40}")
-#: What a device command runs first (docs/model.md "GPU allocations": the wheels carried in .whl).
-#: The device's set-up (../shared/device/README.md). ALLOC_TESTS=0: no smoke check in a lease. The map's path it
-#: checks (the reference form under CUDA graphs, trained, resumed and measured) ran on the H200 lease of 2026-11-28,
-#: and every run records `compiled` and `cudagraph_skips` itself; its minute is a fourth run's margin in 15 minutes.
+#: What a device command runs first (docs/model.md "GPU allocations": the wheels carried in .whl,
+#: ../shared/device/README.md). ALLOC_TESTS=0: no smoke check in a lease. The map's path it checks (the reference
+#: form under CUDA graphs, trained, resumed and measured) ran on the H200 lease of 2026-11-28, and every run records
+#: `compiled` and `cudagraph_skips` itself; its minute is a fourth run's margin in 15 minutes.
 SETUP = ("python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site "
          ".whl/*.whl && export PYTHONPATH=/tmp/site:$PWD/src PYTHONUNBUFFERED=1 ALLOC_TESTS=0")
 
@@ -106,22 +106,26 @@ def resume_value(folders: list[str]) -> str:
     return shlex.quote(folder_list(folders))
 
 
-#: where a folder to resume from that lies outside this checkout is copied before the lease: the device receives
-#: this checkout (tracked and not-ignored files, and the ignored paths a call carries), nothing beside it
+#: where each folder to resume from is copied before the lease: the device receives this checkout (tracked and
+#: not-ignored files, and the ignored paths a call carries), nothing beside it, and gpu_lease.sh copies the checkout
+#: without what .gitignore names (a folder under out/ would be carried and then left behind); this one is ignored
+#: through .git/info/exclude only, so it travels both steps
 RESUME_DIR = ".resume"
 
 
 def device_folders(folders: list[str], root: Path | None = None) -> tuple[list[str], list[str]]:
     """Each folder to resume from as the device's copy of the checkout at ``root`` (default: the working directory,
-    the repository root) sees it, and the shell lines that copy the folders lying outside it into
-    :data:`RESUME_DIR` (ignored through .git/info/exclude, carried by the lease's commands). A folder inside the
-    checkout keeps its relative path; one outside becomes ``.resume/NAME`` (``NAME-2``… when two share a name)."""
+    the repository root) sees it, and the shell lines that copy it into :data:`RESUME_DIR` first (ignored through
+    .git/info/exclude, carried by the lease's commands). A folder already under ``.resume/`` stays where it is; any
+    other becomes ``.resume/NAME`` (``NAME-2``… when two share a name)."""
     root = (root or Path.cwd()).resolve()
+    home = root / RESUME_DIR
     paths, copies, taken = [], [], set()
     for f in folders:
         full = (root / f).resolve()
-        if full.is_relative_to(root):
+        if full.is_relative_to(home) and full != home:
             paths.append(str(full.relative_to(root)))
+            taken.add(full.relative_to(home).parts[0])
             continue
         name, n = full.name or "allocation", 1
         while name in taken:
@@ -164,9 +168,9 @@ def plan_lines(p: dict, commit: str) -> list[str]:
     cmds = lease_commands(p, commit)
     folders, copies = device_folders(p["resume_from"])
     carry = ".whl" + "".join(f" {shlex.quote(f)}" for f in folders)
-    if copies:  # the device receives this checkout only: a folder beside it must be copied in first
-        lines += ["[plan] first, here, in the repository root (the folders to resume from lie outside the checkout, "
-                  "which is all the device receives; the carried paths count towards its 64 MiB):", *copies]
+    if copies:  # the device receives this checkout only, and the lease copies it without what .gitignore names
+        lines += ["[plan] first, here, in the repository root, copy the folders to resume from into the checkout "
+                  "(the device receives only the checkout; the carried paths count towards its 64 MiB):", *copies]
     return lines + [f"[plan] the lease: three device commands, each issued as soon as the previous returns "
                     f"(carry: {carry}; $OUT: the command's output folder)",
                     "# 1. start and collect (returns after 9 minutes):", cmds[0],
