@@ -110,6 +110,7 @@ WRITE_ALLOWED = {
     # writers handed a path inside a private temporary folder by their caller's atomic_path
     ("pokeworld.real.fixtures", "write_mp4"): "its callers write inside atomic_path's private folder",
     ("pokeworld.real.fixtures", "save_dict"): "its callers write inside atomic_path's private folder",
+    ("pokeworld.real.fixtures", "save_array"): "as save_dict: inside atomic_path's private folder, or a test folder",
     ("pokeworld.real.fixtures", "write_scene"): "test fixtures: a fresh pytest tmp_path folder",
     ("pokeworld.real.fixtures", "write_calib"): "test fixtures: a fresh pytest tmp_path folder",
     ("pokeworld.real.synthetic", "_write_cameras"): "called inside write_scene's atomic_path",

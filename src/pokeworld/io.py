@@ -159,6 +159,10 @@ def _unlink_regular(path: Path) -> bool:
     if not stat.S_ISREG(mode):
         raise ConfigError(f"{path} is a {_file_kind(mode)} where pokeworld expected a file it wrote; it deletes only "
                           "its own regular files: remove or move it yourself")
+    # ownership is proven by the two callers before this: remove_owned_dir (a file of the folder's own OwnedDir
+    # layout, in a folder check_owned_dir found holding nothing else) and remove_own_file (listed in the folder's
+    # ownership record, or one of our temporary / staging names); a link swapped in after the lstat is itself what
+    # unlink removes, never its target
     os.unlink(path)
     return True
 
@@ -328,6 +332,8 @@ def _discard(tmp: Path) -> bool:
     if not _TEMPORARY.fullmatch(tmp.name):
         raise ValueError(f"{tmp} is not a pokeworld temporary name; refusing to delete it")
     if tmp.is_symlink() or tmp.is_file():
+        # a name only atomic_path / temporary_folder make (checked above), passed by the code that made it; unlink of
+        # a link removes the link, never its target
         tmp.unlink()
         return True
     if tmp.is_dir():
@@ -350,6 +356,8 @@ def _remove_temporary_tree(folder: Path) -> None:
             if e.is_dir(follow_symlinks=False):
                 _remove_temporary_tree(Path(e.path))
             elif e.is_symlink() or e.is_file(follow_symlinks=False):
+                # inside a 0700 folder of this user that temporary_folder made (checked by _discard): nobody else
+                # could have put it there; a link is unlinked, its target untouched
                 os.unlink(e.path)
             else:
                 warnings.warn(f"left {e.path} in place: not a file, link or folder", stacklevel=2)

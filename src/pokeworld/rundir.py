@@ -43,6 +43,7 @@ from .io import (
     parse_json,
     read_json,
     read_regular_bytes,
+    save_text,
 )
 from .model_folder import WEIGHTS, exported_config, folder_config, read_weights
 from .models.xjepa import VALUES_BEFORE_THE_FIELD, XJEPA, check_model_kwargs
@@ -147,13 +148,6 @@ class MetricsLog:
             self.writer.close()
 
 
-def _write_text(path: Path, text: str) -> None:
-    """Write ``text`` under a temporary name, then rename: a link planted under ``path`` is refused, never
-    written through (:func:`pokeworld.io.atomic_path`)."""
-    with atomic_path(path) as tmp:
-        tmp.write_text(text)
-
-
 def keep_checkpoint(out: Path, step: int) -> Path:
     """Copy ``out/ckpt.pt`` (just written at ``step``) to ``out/kept/ckpt-<step>.pt``, a point of the run's learning
     curve (``TrainConfig.keep_every``; read by ``scripts/budget_curve.py``)."""
@@ -166,7 +160,7 @@ def keep_checkpoint(out: Path, step: int) -> Path:
 def write_final(out: Path, state: dict, model_kwargs: dict, cfg_dict: dict, step: int, note: str = "") -> None:
     """Write a finished run's ``final.pt`` (weights, model kwargs, config, step) and its ``DONE`` marker."""
     checkpoint.save({"model": state, "model_kwargs": model_kwargs, "config": cfg_dict, "step": step}, out / "final.pt")
-    _write_text(out / "DONE", f"finished {step} steps{note}\n")
+    save_text(out / "DONE", f"finished {step} steps{note}\n")
 
 
 def restart_metrics(out: Path, step: int, start_row: dict[str, Any] | None = None) -> None:
@@ -175,7 +169,7 @@ def restart_metrics(out: Path, step: int, start_row: dict[str, Any] | None = Non
     step-0 row."""
     path = Path(out) / "metrics.jsonl"
     rows = [start_row] if start_row is not None else [r for r in read_metrics(out) if r["step"] <= step]
-    _write_text(path, "".join(json.dumps(r, sort_keys=True) + "\n" for r in rows))
+    save_text(path, "".join(json.dumps(r, sort_keys=True) + "\n" for r in rows))
 
 
 def finished_run_config(run_dir: str | os.PathLike) -> dict[str, Any]:

@@ -137,6 +137,14 @@ def save_dict(path: Path, obj) -> None:
         np.save(fh, obj, allow_pickle=True)
 
 
+def save_array(path: Path, array) -> None:
+    """Write the plain array ``array`` (no pickle) to the new file ``path`` as RH20T's ``.npy`` files are."""
+    # outside io, as save_dict: a file of RH20T's own layout, written into a folder being built (a test fixture's, or
+    # the synthetic corpus's private temporary under io.atomic_path); exclusive create, never through a link
+    with open(path, "xb") as fh:
+        np.save(fh, np.asarray(array))
+
+
 def write_scene(cfg_dir: Path, name: str, k: int, *, cfg: int = 7, duration_s: float = 7.5, video: str = "mp4",
                 rating: int = 5, defect: str | None = None, seed: int = 0) -> dict:
     """Write one scene folder; returns {'t0_ms', 'params', 'cam_ts': {role: ms array}, 'serials': {role: serial}}."""
@@ -217,8 +225,7 @@ def write_calib(cfg_dir: Path, cfg: int) -> None:
     eye = {roles[r][0]: np.eye(4)[None] for r in ("far", "close")}
     save_dict(c / "extrinsics.npy", eye)
     save_dict(c / "intrinsics.npy", {s: np.eye(3, 4) for s in eye})
-    with open(c / "tcp.npy", "xb") as fh:  # exclusive create, as save_dict
-        np.save(fh, np.array([0.4, -0.1, 0.3, 1.0, 0.0, 0.0, 0.0]))
+    save_array(c / "tcp.npy", [0.4, -0.1, 0.3, 1.0, 0.0, 0.0, 0.0])
 
 
 def make_fixture_root(root: str | Path, cfg: int = 7, n_tasks: int = 3, scenes_per_task: int = 2,

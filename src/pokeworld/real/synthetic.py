@@ -62,7 +62,7 @@ from ..sim.core import PARAM_NAMES, ParamRanges, PokeWorldSim
 from ..sim.physics import render_kernel
 from ..sim.policy import make_policy
 from .evaluate import r2
-from .fixtures import save_dict, write_mp4
+from .fixtures import save_array, save_dict, write_mp4
 from .rh20t import (
     ALIGN_BASE_ROT,
     CAMERA_ROLES,
@@ -390,7 +390,7 @@ def write_calib(cfg_dir: Path, cal: dict) -> None:
         c.mkdir(parents=True)
         save_dict(c / "extrinsics.npy", cal["extrinsics"])
         save_dict(c / "intrinsics.npy", {s: np.eye(3, 4) for s in cal["extrinsics"]})
-        np.save(c / "tcp.npy", cal["tcp"])
+        save_array(c / "tcp.npy", cal["tcp"])
         e = calib / str(EMPTY_CALIB_MS)  # intrinsics only: the camera-frame F/T fallback cannot work
         e.mkdir()
         save_dict(e / "intrinsics.npy", {s: np.eye(3, 4) for s in cal["extrinsics"]})
@@ -582,6 +582,8 @@ def _write_metadata(d: Path, sc: _SceneDraw, plan: ScenePlan) -> dict:
     calib = EMPTY_CALIB_MS if plan.defect == "camera_frame_ft_no_calib" else CALIB_MS
     meta = {"calib": calib, "rating": 1 if plan.defect == "low_rating" else int(sc.rng.integers(3, 10)),
             "bad_calib_view": [], "start_time": int(sc.start_ms), "finish_time": int(sc.finish_ms)}
+    # d is the scene folder being built inside io.atomic_path's private temporary (write_scene): the output contract
+    # covers the folder as a whole; RH20T's layout has no ownership record per file
     (d / "metadata.json").write_text(json.dumps(meta))
     return meta
 

@@ -48,6 +48,7 @@ from ..io import (
     hash_arrays,
     read_json_if_present,
     read_jsonl,
+    save_text,
     write_json,
 )
 from ..progress import heartbeat
@@ -347,8 +348,7 @@ def run(cfg: SwmCertifyConfig) -> dict:
     if xjepa:
         X.figure(xjepa["summary"], cfg.variants, f"{result['env'] or source}: X-JEPA variants (state absent / "
                  "input / target / both) vs the certificate", out / f"{RESULT}_variants.png")
-    with atomic_path(out / f"{RESULT}.md") as tmp:
-        Path(tmp).write_text(markdown(result, name))
+    save_text(out / f"{RESULT}.md", markdown(result, name))
     print("\n".join(table_markdown(rows, name)))
     print(f"[swm-certify] wrote {out / RESULT}.{{json,md,png}} ({cost['total_s']:.0f}s)")
     return result

@@ -27,7 +27,7 @@ import torch
 
 from ..config import from_preset, to_dict
 from ..errors import ConfigError
-from ..io import atomic_path, write_json
+from ..io import save_text, write_json
 from ..plan import (
     METRICS,
     PRESETS as PLAN_PRESETS,
@@ -266,8 +266,7 @@ def run(cfg: SwmPlanConfig) -> Path:
     compared = compare(cfg)
     lines = table_lines(compared["results"])
     write_json(out / "swm_plan.json", {"config": to_dict(cfg), **compared, "notes": solver_notes(cfg)})
-    with atomic_path(out / "swm_plan.md") as tmp:
-        tmp.write_text("\n".join(lines) + "\n")
+    save_text(out / "swm_plan.md", "\n".join(lines) + "\n")
     print("\n".join(lines))
     return out / "swm_plan.json"
 
