@@ -20,6 +20,7 @@
 #   ALLOC_LEASE_DIR    where the detached allocation lives on the machine (default /tmp/pokeworld-lease): a copy of
 #                      this repository (so a later command's fresh copy never changes the files it runs), its work
 #                      folder, its output folder, its pid
+#   ALLOC_TESTS        the allocation's smoke check (default here 0: none; see below)
 #   ALLOC_BUDGET_MIN   the allocation's budget, from its start to its last pack (default here 12: a 15-minute lease
 #                      less the machine's start-up and the last collect)
 #   ALLOC_COLLECT_S    seconds a start or collect command collects before it returns (default 540: under the
@@ -100,7 +101,11 @@ if [ "$MODE" = start ]; then
     done < <(cat .gitignore 2>/dev/null)
     tar "${EXCLUDES[@]}" -cf - . | tar -xf - -C "$LEASE/repo" || exit 2
     date -u +%FT%TZ >"$LEASE/started"
+    # ALLOC_TESTS 0 by default in a lease: the smoke check's path (the reference form under CUDA graphs, trained,
+    # resumed, measured) ran on the H200 lease of 2026-11-28 and every run records compiled and cudagraph_skips
+    # itself; its minute is a fourth run's margin in 15 minutes (a plain gpu_allocation.sh keeps its smoke default)
     export PYTHONPATH="$LEASE/repo/src${PYTHONPATH:+:$PYTHONPATH}" ALLOC_BUDGET_MIN=${ALLOC_BUDGET_MIN:-12} \
+      ALLOC_TESTS=${ALLOC_TESTS:-0} \
       ALLOC_WORK=${ALLOC_WORK:-$LEASE/work}
     # the pid is written by the child itself, before it becomes the allocation: a kill of this command right
     # after the start cannot leave a running allocation without one

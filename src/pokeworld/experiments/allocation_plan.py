@@ -33,12 +33,9 @@ from .stages import corpus_config
 
 Key = tuple[str, int]
 COMMIT = re.compile(r"[0-9a-f]{4,40}")
-#: What a device command runs first (docs/model.md "GPU allocations": the wheels carried in .whl,
-#: ../shared/device/README.md). ALLOC_TESTS=0: no smoke check in a lease. The map's path it checks (the reference
-#: form under CUDA graphs, trained, resumed and measured) ran on the H200 lease of 2026-11-28, and every run records
-#: `compiled` and `cudagraph_skips` itself; its minute is a fourth run's margin in 15 minutes.
+#: What a device command runs first (docs/model.md "GPU allocations": the wheels carried in .whl).
 SETUP = ("python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site "
-         ".whl/*.whl && export PYTHONPATH=/tmp/site:$PWD/src PYTHONUNBUFFERED=1 ALLOC_TESTS=0")
+         ".whl/*.whl && export PYTHONPATH=/tmp/site:$PWD/src PYTHONUNBUFFERED=1")
 
 
 def configuration_key(config: dict) -> str:
