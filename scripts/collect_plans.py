@@ -14,12 +14,15 @@ import math
 from pathlib import Path
 
 from pokeworld.io import atomic_path, write_json
+from pokeworld.paper_values import PLANNING
 
-KEEP = ("reach", "median_improvement", "mean_improvement", "object_moved", "spearman", "topk_overlap", "topk_chance",
+KEEP = ("reach", "median_closest_improvement", "median_improvement", "mean_improvement", "object_moved", "spearman",
+        "topk_overlap", "topk_chance",
         "goal_truth_spearman", "goal_truth_topk_overlap", "miss_displacement", "hit_displacement",
         "hit_true_displacement", "within_r2", "decoded_truth_within_r2", "seconds_per_decision")
 FLAGS = ("episodes", "steps", "replan", "population", "elites", "iterations", "context", "goal_radius",
-         "goal_distance", "rank_topk", "cost", "goal_finger", "heads", "seed")
+         "goal_distance", "goals", "settle", "approach_weight", "approach_offset", "rank_topk", "cost", "goal_finger",
+         "heads", "seed")
 
 
 def clean(v):
@@ -45,15 +48,19 @@ def cell(v, pct: bool = False) -> str:
 
 
 def table(record: dict) -> list[str]:
-    lines = ["| invocation | controller | reach | median improvement | object moved | rank ρ | "
-             "top-k overlap (chance) | goal control: top-k | s / decision |", "|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| invocation | controller | reach (paper) | median improvement, start − closest (paper) | "
+             "median improvement, start − final | object moved | rank ρ | top-k overlap (chance) | "
+             "goal control: top-k | s / decision |", "|---|---|---|---|---|---|---|---|---|---|"]
     for name, inv in record["invocations"].items():
         for ctl, r in inv["results"].items():
+            paper = PLANNING.get(ctl)
+            reach = cell(r.get("reach"), True) + (f" ({100 * paper[0]:.0f} %)" if paper else "")
+            closest = cell(r.get("median_closest_improvement")) + (f" ({paper[1]:+.2f})" if paper else "")
             chance = r.get("topk_chance")
             overlap = "—" if r.get("topk_overlap") is None else f"{r['topk_overlap']:.2f} ({chance:.2f})"
             goal = "—" if r.get("goal_truth_topk_overlap") is None else f"{r['goal_truth_topk_overlap']:.2f}"
             spd = "—" if r.get("seconds_per_decision") is None else f"{r['seconds_per_decision']:.1f}"
-            lines.append(f"| {name} | {ctl} | {cell(r.get('reach'), True)} | {cell(r.get('median_improvement'))} | "
+            lines.append(f"| {name} | {ctl} | {reach} | {closest} | {cell(r.get('median_improvement'))} | "
                          f"{cell(r.get('object_moved'), True)} | {cell(r.get('spearman'))} | {overlap} | {goal} | "
                          f"{spd} |")
     return lines

@@ -251,7 +251,16 @@ def test_the_cpu_side_completes_the_returned_runs_and_the_merge_shows_it(allocat
         assert isinstance(cpu["largest_ridge_difference"], float)
     assert merged["certificates"]["standard"]["settings"]["epochs"] == 2
     assert merged["planning"]["config"]["episodes"] == 2 and merged["planning"]["paper_budget"] is False
-    assert "NOT the paper's 100" in md and "Every number of each run" in md
+    assert "NOT the released planner's settings" in md and "Every number of each run" in md
+    # a folder without its weight parts has no run to plan with: one line, not a random-only planning record
+    bare = tmp_path / "bare"
+    shutil.copytree(out, bare, ignore=shutil.ignore_patterns("pack.tar.part*"))
+    proc = subprocess.run([sys.executable, "scripts/complete_allocations.py", str(bare), "--work", str(tmp_path / "w2"),
+                           "--preset", "cpu", "--stages", "planning", "--plan-episodes", "2"], cwd=ROOT,
+                          capture_output=True, text=True, timeout=600,
+                          env={**os.environ, "PYTHONPATH": str(ROOT / "src")})
+    assert proc.returncode != 0 and "no finished run with returned weights" in proc.stderr
+    assert not (tmp_path / "w2" / "planning").exists()
     # the CPU side of another corpus is refused
     machine = work / "cpu_side" / "machine.json"
     m = json.loads(machine.read_text())

@@ -255,3 +255,83 @@ def test_planning_table_rows_follow_the_papers_order_whatever_the_summary_order(
     summary = {k: dict(row) for k in sorted(["VFX", "VX_p", "VX_t", "V", "random", "simulator"])}
     labels = [line.split(" | ")[0].lstrip("| ") for line in plan.table_lines(summary)[2:]]
     assert labels == ["random", "V", "VX_t", "VX_p", "VFX", "simulator"]
+
+
+@pytest.mark.parametrize("context", [1, 5])
+def test_cached_direct_latents_equal_the_whole_trunk_per_candidate(context, monkeypatch):
+    """The planner's direct-head predictions (context keys/values computed once per episode) equal running the
+    trunk over every candidate's whole context, and do not depend on how candidates are batched."""
+    import torch
+
+    import pokeworld.plan as plan
+    from pokeworld.models.xjepa import XJEPA
+
+    torch.manual_seed(0)
+    m = XJEPA("VFX", image_size=16, channels=(4, 8, 8, 8), latent_dim=8, width=16, depth=2, heads=2).eval()
+    rng = np.random.default_rng(0)
+    E, P = 3, 5
+    z = torch.randn(E, context, 8)
+    past = rng.uniform(-1, 1, (E, context - 1, 2)).astype(np.float32)
+    cand = programs(rng.normal(0, 0.8, (E, P, 4)))
+    with torch.no_grad():
+        zc = z[:, None].expand(E, P, context, 8).reshape(E * P, context, 8)
+        acts = np.concatenate([np.repeat(past[:, None], P, 1).reshape(E * P, context - 1, 2),
+                               cand[:, :, 0].reshape(E * P, 1, 2)], 1).astype(np.float32)
+        h = m.trunk(zc, acts)[:, -1:]
+        whole = {d: m.predict(h, cand.reshape(E * P, 16, 2).astype(np.float32), d)[:, 0] for d in (4, 16)}
+    cached = plan.direct_latents(m, z, past, cand)
+    monkeypatch.setattr(plan, "CANDIDATE_BATCH", 2 * P)  # two episodes per batch
+    batched = plan.direct_latents(m, z, past, cand)
+    for d in (4, 16):
+        torch.testing.assert_close(cached[d], whole[d], rtol=1e-5, atol=1e-5)
+        torch.testing.assert_close(batched[d], whole[d], rtol=1e-5, atol=1e-5)
+    assert not torch.allclose(cached[16][:P], cached[16][P:2 * P])  # episodes differ: a real comparison
+
+
+def test_approach_term_ranks_the_push_side_when_nothing_moves():
+    """With the object still (every candidate ties on the object term), the approach term prefers the finger on
+    the far side of the object from the goal; without it the costs tie. A finger at the push point costs nothing
+    beyond the object's distance."""
+    from pokeworld.plan import decoded_cost
+
+    goal = np.array([[0.8, 0.5]])
+    obj = np.full((1, 3, 2), [0.5, 0.5])
+    fingers = np.array([[[0.32, 0.5], [0.68, 0.5], [0.5, 0.8]]])  # behind, in front, beside
+    objects = {4: obj, 16: obj}
+    plain = decoded_cost(objects, goal)
+    np.testing.assert_allclose(plain, 1.5 * 0.3)
+    shaped = decoded_cost(objects, goal, {4: fingers, 16: fingers}, weight=0.4, offset=0.18)
+    assert np.argmin(shaped[0]) == 0 and shaped[0, 1] > shaped[0, 2] > shaped[0, 0]
+    np.testing.assert_allclose(shaped[0, 0], 1.5 * 0.3, atol=1e-6)
+    import torch
+
+    as_t = lambda d: {k: torch.as_tensor(v) for k, v in d.items()}  # noqa: E731
+    np.testing.assert_allclose(decoded_cost(as_t(objects), torch.as_tensor(goal), as_t({4: fingers, 16: fingers}),
+                                            0.4, 0.18).numpy(), shaped)
+
+
+def test_uniform_goals_keep_their_distance_and_box():
+    cfg = make_config("tiny", episodes=200, goals="uniform", goal_distance=0.25)
+    s = episode_setup(cfg)
+    d = np.linalg.norm(s["goal"] - s["object_pos"], axis=1)
+    assert d.min() >= 0.25 and np.all((s["goal"] >= 0.2) & (s["goal"] <= 0.8))
+    assert np.linalg.norm(s["object_pos"] - s["finger_pos"], axis=1).min() >= 0.25
+    assert 0.3 < np.median(d) < 0.45  # the released planner's draws: a median start distance near 0.36
+    with pytest.raises(ConfigError, match="goals must be one of"):
+        make_config("tiny", goals="ring")
+    with pytest.raises(ConfigError, match="approach_weight applies to the decoder cost"):
+        make_config("tiny", cost="goal_l2", approach_weight=0.4)
+
+
+def test_settle_steps_fill_the_context_before_control():
+    cfg = make_config("tiny", episodes=2, steps=4, settle=3, population=4, elites=2)
+    seen = []
+
+    class Recorder:
+        def score(self, hist, cand, goal):
+            seen.append(hist["frames"].shape[1])
+            return -cand[..., 0].mean(-1)
+
+    res = control(cfg, episode_setup(cfg), Recorder())
+    assert seen[0] == 4  # the start and three settle frames
+    assert res["distance"].shape == (2, 5)  # the metrics count control steps only

@@ -193,8 +193,7 @@ def plan_with_runs(a: argparse.Namespace, names: list[str], merged: dict, corpus
         planned = plan.plan_runs(cfg, by_variant, data=str(decoder_data))
         plan.write_outputs(planned, Path(cfg.out), cfg.goal_radius)
         write_json(path, {"key": key, "config": to_dict(cfg), "summary": planned["summary"], "runs": by_variant,
-                          "paper_budget": cfg.episodes == paper.episodes and cfg.population == paper.population
-                          and cfg.iterations == paper.iterations})
+                          "paper_budget": all(getattr(cfg, k) == getattr(paper, k) for k in plan.RELEASED_PLANNER)})
 
     timed(work, "planning", {"episodes": cfg.episodes, "paper_episodes": paper.episodes,
                                "population": cfg.population, "iterations": cfg.iterations, "steps": cfg.steps,
@@ -209,6 +208,13 @@ def complete(a: argparse.Namespace) -> Path:
     with tempfile.TemporaryDirectory(prefix="pokeworld-cpu-side-") as scratch:
         allocs = [allocations.open_allocation(p, Path(scratch)) for p in a.allocations]
         merged = allocations.merge_allocations(allocs)
+        returned = {n for al in allocs for n, w in al.weights.items()
+                    if w == "returned" and (not a.runs or n in a.runs)}
+        if not returned and {"measure", "planning"} & set(a.stages):
+            # planning with no run would record the random controller alone as if it were the stage's result
+            raise ConfigError(f"{', '.join(map(str, a.allocations))}: no finished run with returned weights to "
+                              "measure or plan with (a folder without its pack.tar.part files, or an unpacked map "
+                              "folder?); give the folders as the device returned them")
         t0 = time.monotonic()
         corpus = given_corpus(allocs, a.corpus) if a.corpus else ensure_same_corpus(allocs, work)
         seconds = round(time.monotonic() - t0, 1)

@@ -71,17 +71,26 @@ def planning_table(results: dict) -> list[str]:
     corpus = results.get("map_config", {}).get("planning_corpus", "standard")
     trained = ("the factorial's runs" if corpus == "standard" else
                f"runs trained on the `{corpus}` corpus (docs/design.md, \"Planning: open-loop behaviour data\")")
+    # records from before the released planner's fields hold none of them: the object-only cost, fixed goals
+    approach = cfg.get("approach_weight", 0.0)
+    cost = (f"the decoded object's distance to the goal plus {approach:g} × the decoded finger's distance to a push "
+            f"point {cfg.get('approach_offset', 0.18):g} behind the object (the released planner's cost)" if approach
+            else "the decoded object's distance to the goal")
+    goals = ("goals uniform, at least {:g} from the object".format(cfg["goal_distance"])
+             if cfg.get("goals") == "uniform" else "goals {:g} from the object".format(cfg["goal_distance"]))
+    settle = f" after {cfg['settle']} zero-action steps" if cfg.get("settle") else ""
+    figure = ", ".join(f"`{f}`" for f in pl.get("figure", [])[:1])
     return ["## Closed-loop planning (push-to-goal; same planner, budget, starts and goals for every controller)", "",
-            f"CEM over two-knot action programs scored by the direct Δ=4/16 heads, {cfg['episodes']} held-out "
-            f"episodes of {cfg['steps']} steps, replanning every {cfg['replan']} steps, population {cfg['population']}"
-            f" × {cfg['iterations']} iterations; reach = the object's centre enters the goal radius "
-            f"{cfg['goal_radius']:g}; improvement = initial minus final object-goal distance (median over episodes). "
+            f"CEM over two-knot action programs scored by the direct Δ=4/16 heads ({cost}), {cfg['episodes']} "
+            f"held-out episodes of {cfg['steps']} steps{settle}, {goals}, replanning every {cfg['replan']} steps, "
+            f"population {cfg['population']} × {cfg['iterations']} iterations; reach = the object's centre enters the "
+            f"goal radius {cfg['goal_radius']:g}; improvement = the start object-goal distance minus the closest one "
+            "(the paper's) and minus the final one (medians over episodes). "
             f"Representations are {trained} (mean over seeds; per seed in results.json); rank ρ and top-k overlap: "
             "how each model orders the CEM's candidate programs against the true simulator; Δ=16 spread ratio and "
             "within-start R²: how much its predicted end positions vary across those programs against the true "
             "spread, and how much of the programs' true counterfactual outcomes they explain "
-            "(`pokeworld.evaluate.counterfactual`). Figure: "
-            + ", ".join(f"`{f}`" for f in pl.get("figure", [])[:1]) + ".", "",
+            "(`pokeworld.evaluate.counterfactual`)." + (f" Figure: {figure}." if figure else ""), "",
             *table_lines(pl["summary"]), ""]
 
 

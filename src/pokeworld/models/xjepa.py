@@ -531,7 +531,9 @@ class XJEPA(nn.Module):
         return a.unfold(1, delta, 1)[:, :L].transpose(-1, -2).reshape(b, L, delta * da)
 
     def _head_out(self, h, actions, delta: int, head: nn.Module) -> torch.Tensor:
-        aw = self.action_window(actions, delta)
+        # states may cover fewer steps than the actions (a planner's one state and a whole program): step t's
+        # window is actions[t:t+Δ] either way
+        aw = self.action_window(actions, delta)[:, :h.shape[1]]
         if h.dim() == 4:  # token states: same action window for every token of the step
             aw = aw[:, :, None, :].expand(*h.shape[:3], aw.shape[-1])
         return head(h, aw)
@@ -546,7 +548,8 @@ class XJEPA(nn.Module):
         Args:
             h: (B, L, width) trunk states (token mode: (B, L, S, width) from :meth:`trunk_tokens`).
             actions: (B, L, Da) raw actions aligned as in :meth:`trunk`; the head at t sees actions[t:t+Δ]
-                flattened (zero-padded past the window end).
+                flattened (zero-padded past the window end). ``h`` may cover fewer steps than the actions
+                (e.g. one state and the Δ actions that follow it: (B, 1, width) and (B, ≥Δ, Da)).
             delta: one of ``self.horizons``.
         Returns:
             z_hat: (B, L, latent_dim) (token mode (B, L, S, latent_dim)): prediction of z at t+Δ for every t

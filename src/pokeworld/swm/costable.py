@@ -34,10 +34,12 @@ from ..plan import (
     LatentScorer,
     PlanConfig,
     SimulatorScorer,
+    approach_of,
     control,
     episode_metrics,
     episode_setup,
     rank_test,
+    settled_history,
     start_sim,
 )
 from ..sim import PokeWorldSim
@@ -183,7 +185,7 @@ def solver_control(cfg: SwmPlanConfig, setup: dict, solver_name: str,
     cost = PlanningCost(scorer_for(sim), cfg.search)
     solver = make_solver(solver_name, cost, cfg)
     goal = setup["goal"]
-    hist = {"frames": [vision_frames(obs["vision"])], "proprio": [obs["proprio"]], "touch": [obs["touch"]], "actions": []}
+    hist = settled_history(cfg.plan, sim, obs)
     dist, obj_path = [np.linalg.norm(sim.state[:, 4:6] - goal, axis=1)], [sim.state[:, 4:6].copy()]
     plan = np.zeros((cfg.plan.episodes, PROGRAM, 2))
     for t in range(cfg.plan.steps):
@@ -233,9 +235,12 @@ def compare(cfg: SwmPlanConfig) -> dict:
     if cfg.random_floor:
         record("random", lambda: control(pc, setup, None))
     if cfg.simulator_ceiling:
-        record("simulator/swm-cem", lambda: solver_control(cfg, setup, "cem", SimulatorScorer))
+        record("simulator/swm-cem", lambda: solver_control(cfg, setup, "cem",
+                                                           lambda sim: SimulatorScorer(sim, approach_of(pc))))
     for r in cfg.plan.runs:
-        label, scorer = run_label(r), LatentScorer(r, cfg.plan.data, device=cfg.plan.device)
+        label = run_label(r)
+        scorer = LatentScorer(r, pc.data, pc.heads, pc.cost, pc.goal_finger, device=pc.device,
+                              approach=approach_of(pc))
         ranks[label] = rank_test(pc, setup, scorer)
         if cfg.ours:
             record(f"{label}/ours", lambda s=scorer: control(pc, setup, s))
