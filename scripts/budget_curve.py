@@ -68,7 +68,9 @@ def measure_point(snap: Path, data: str, preset: str, plan_episodes: int) -> dic
     plan_dir = snap / "plan"
     if not (plan_dir / "plan.json").exists():
         plan.run(plan.make_config(preset, runs=(str(snap),), out=str(plan_dir), data=data, episodes=plan_episodes))
-    summary = read_json(plan_dir / "plan.json", "a plan record")["results"][snap.name]
+    results = read_json(plan_dir / "plan.json", "a plan record")["results"]
+    # `pokeworld plan` keys a lone run by its variant (records written before that: by the run folder's name)
+    summary = results.get(snap.name) or next(v for k, v in results.items() if k != "random")
     # the phantom push against its control: the same decoder on the true end frames of the missing programs
     out.update(phantom_push=summary.get("miss_displacement"),
                decoded_true_miss_push=summary.get("decoded_truth_miss_displacement"),

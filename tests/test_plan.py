@@ -335,3 +335,22 @@ def test_settle_steps_fill_the_context_before_control():
     res = control(cfg, episode_setup(cfg), Recorder())
     assert seen[0] == 4  # the start and three settle frames
     assert res["distance"].shape == (2, 5)  # the metrics count control steps only
+
+
+def test_runs_are_labelled_by_variant_unless_two_share_one(tmp_path):
+    """A lone run of each variant stands under its variant (the paper's row beside it); two runs of one variant
+    keep their folder names, so neither hides the other."""
+    import json
+
+    from pokeworld.plan import controller_labels
+
+    def run(name, variant):
+        d = tmp_path / name
+        d.mkdir()
+        (d / "config.json").write_text(json.dumps({"variant": variant, "data": "store"}))
+        (d / "DONE").write_text("finished\n")
+        return str(d)
+
+    v, vfx, vfx2 = run("a", "V"), run("b", "VFX"), run("c", "VFX")
+    assert controller_labels([v, vfx]) == {"V": [v], "VFX": [vfx]}
+    assert controller_labels([v, vfx, vfx2]) == {"a": [v], "b": [vfx], "c": [vfx2]}
