@@ -22,15 +22,22 @@ KEEP = ("reach", "median_closest_improvement", "median_improvement", "mean_impro
         "hit_true_displacement", "within_r2", "decoded_truth_within_r2", "seconds_per_decision")
 FLAGS = ("episodes", "steps", "replan", "population", "elites", "iterations", "context", "goal_radius",
          "goal_distance", "goals", "settle", "approach_weight", "approach_offset", "rank_topk", "cost", "goal_finger",
-         "heads", "seed")
+         "heads", "seed", "simulator_controller")
 
 
 def clean(v):
     return None if isinstance(v, float) and not math.isfinite(v) else v
 
 
+def flag(key: str, value) -> str:
+    name = key.replace("_", "-")
+    if isinstance(value, bool):  # tyro's boolean flags: --name / --no-name
+        return f"--{name}" if value else f"--no-{name}"
+    return f"--{name} {value}"
+
+
 def command(cfg: dict) -> str:
-    flags = " ".join(f"--{k.replace('_', '-')} {cfg[k]}" for k in FLAGS if k in cfg)
+    flags = " ".join(flag(k, cfg[k]) for k in FLAGS if k in cfg)
     data = f" --data {cfg['data']}" if cfg.get("data") else ""
     return f"pokeworld plan {flags} --runs {' '.join(cfg['runs'])}{data} --out {cfg['out']}"
 
