@@ -64,5 +64,12 @@ def _rollout_scorer_composes_the_one_step_head(run):
         z = m.encode(hist["frames"], hist["proprio"], hist["touch"])  # every start, each with its first candidate
         zr = m.rollout(z, cand[:, 0].astype(np.float32), 16, actions_context=hist["actions"])
     np.testing.assert_allclose(roll.decoder.predict(zr[:, 15].numpy()), pr[16][:, 0], rtol=1e-4, atol=1e-4)
+    # the approach term's device path (decoders folded into affine maps, costs beside the latents) equals the
+    # host's numpy path, and the term changes the costs
+    shaped = plan.LatentScorer(str(run), "", approach=(0.4, 0.18))
+    goal = plan.episode_setup(cfg)["goal"]
+    host = shaped.score(hist, cand, goal)
+    np.testing.assert_allclose(shaped.device_score(hist, cand, goal), host, rtol=1e-4, atol=1e-4)
+    assert not np.allclose(host, direct.score(hist, cand, goal))
     with pytest.raises(Exception, match="heads must be one of"):
         plan.make_config("tiny", heads="lookahead")
