@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io import atomic_path
+from ..io import save_figure_as
 from .factor_gate import KIND
 
 
@@ -88,9 +88,7 @@ def figure(rows: dict[str, dict], model: str, path: Path) -> Path:
     ax.set_title(f"{model}: physical factors vs their certificates (dashed: gate threshold)", fontsize=9)
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
     fig.tight_layout()
-    with atomic_path(path) as tmp:  # never a half-written figure under the final name
-        fig.savefig(tmp, dpi=150, format=path.suffix[1:] or "png")
-    plt.close(fig)
+    save_figure_as(fig, [path])  # atomically, then closed
     return path
 
 

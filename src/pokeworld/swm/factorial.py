@@ -159,7 +159,7 @@ def figure(summary_rows: dict[str, dict], variants: tuple[str, ...], title: str,
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ..io import atomic_path
+    from ..io import save_figure_as
 
     colors = {"V": "tab:gray", "VF": "tab:green", "VX": "tab:orange", "VFX": "tab:blue"}
     qs = list(summary_rows)
@@ -194,9 +194,7 @@ def figure(summary_rows: dict[str, dict], variants: tuple[str, ...], title: str,
     ax.set_title(title, fontsize=9)
     ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.0, 1.0))
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=150, format=path.suffix[1:] or "png")
-    plt.close(fig)
+    save_figure_as(fig, [path])  # atomically, then closed
     return path
 
 

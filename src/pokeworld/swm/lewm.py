@@ -51,7 +51,7 @@ from ..config import to_dict
 from ..data import Dataset, load
 from ..errors import ConfigError, DataError
 from ..evaluate.measure import padded_actions
-from ..io import append_jsonl, atomic_path, read_json_if_present, read_jsonl, write_json
+from ..io import append_jsonl, read_json_if_present, read_jsonl, save_text, write_json
 from ..windows import make_windows
 from .compare import certify_run, comparison_markdown, summarize
 from .lewm_config import INPUTS, NOT_TRAINING, PRESETS, READOUTS, LeWMConfig, make_config
@@ -236,8 +236,7 @@ def _resume(out: Path, model: nn.Module, opt: torch.optim.Optimizer, sampler: to
     step = int(ck["step"])
     # rows logged after the checkpoint are replayed by the resumed run, so they are dropped
     rows = [r for r in read_jsonl(out / "metrics.jsonl") if r["step"] <= step]
-    with atomic_path(out / "metrics.jsonl") as tmp:
-        tmp.write_text("".join(json.dumps(r, sort_keys=True) + "\n" for r in rows))
+    save_text(out / "metrics.jsonl", "".join(json.dumps(r, sort_keys=True) + "\n" for r in rows))
     print(f"[lewm] resuming {out} at step {step}")
     return step
 
@@ -355,8 +354,7 @@ def write_comparison(cfg: LeWMConfig, out: Path, lewm_summary: dict) -> Path:
              f"`{cfg.protocol_preset}`); cells are held-out R² ridge / MLP / untrained-bound ridge.", ""]
     for kind in ("contact", "all"):
         lines += [*comparison_markdown(summaries, kind), ""]
-    with atomic_path(out / "comparison.md") as tmp:
-        Path(tmp).write_text("\n".join(lines))
+    save_text(out / "comparison.md", "\n".join(lines))
     print("\n".join(lines))
     return out / "comparison.md"
 
