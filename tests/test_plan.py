@@ -354,3 +354,21 @@ def test_runs_are_labelled_by_variant_unless_two_share_one(tmp_path):
     v, vfx, vfx2 = run("a", "V"), run("b", "VFX"), run("c", "VFX")
     assert controller_labels([v, vfx]) == {"V": [v], "VFX": [vfx]}
     assert controller_labels([v, vfx, vfx2]) == {"a": [v], "b": [vfx], "c": [vfx2]}
+
+
+def test_episode_metrics_on_planted_distances():
+    """Reach counts an episode whose object ever enters the radius; the closest-approach improvement (the paper's)
+    and the final one differ exactly when the object overshoots."""
+    from pokeworld.plan import episode_metrics
+
+    dist = np.array([[0.5, 0.3, 0.05, 0.4],    # passes through the goal, ends away: reach, closest 0.45, final 0.1
+                     [0.4, 0.4, 0.4, 0.4],     # never moves
+                     [0.3, 0.2, 0.15, 0.15]])  # approaches, never enters 0.1
+    path = np.zeros((3, 4, 2))
+    path[0, 1:, 0] = 0.2
+    path[2, 1:, 0] = 0.1
+    m = episode_metrics(dist, path, goal_radius=0.1)
+    assert m["reach"] == pytest.approx(1 / 3)
+    assert m["median_closest_improvement"] == pytest.approx(0.15)  # of 0.45, 0.0, 0.15
+    assert m["median_improvement"] == pytest.approx(0.1)  # of 0.1, 0.0, 0.15
+    assert m["object_moved"] == pytest.approx(2 / 3)

@@ -56,6 +56,8 @@ COST_TERMS = ((16, 1.0), (4, 0.5))
 FINGER_BOX, OBJECT_BOX, GOAL_BOX = (0.15, 0.85), (0.25, 0.75), (0.15, 0.85)
 """Where episodes start the finger and the object, and where goals may lie (goals clear of the walls by more than
 the object's radius, so every goal region can be reached)."""
+FINGER_CLEARANCE = 0.25
+"""Smallest start distance between finger and object centres (arena units)."""
 UNIFORM_GOAL_BOX = (0.2, 0.8)
 """Where ``goals='uniform'`` draws goals: the released planner's box (its goals are uniform there, at least
 ``goal_distance`` from the object)."""
@@ -245,29 +247,35 @@ class LatentScorer:
     def positions(self, hist: dict, cand: np.ndarray) -> dict[int, np.ndarray]:
         """hist: frames (E, C, H, W), proprio, touch (E, C, .), actions (E, C-1, 2); cand (E, P, 16, 2) ->
         {Δ: (E, P, 2) decoded object position Δ steps into each program} for the Δ of COST_TERMS."""
-        if self.on_device:
-            return {d: p.cpu().numpy() for d, p in self.device_positions(hist, cand).items()}
-        E, P = cand.shape[:2]
-        return {d: self.decoder.predict(z.float().numpy()).reshape(E, P, 2)
-                for d, z in self.latents(hist, cand).items()}
+        objects = self.decoded(hist, cand, self.on_device)[0]
+        return {d: p.cpu().numpy() if isinstance(p, torch.Tensor) else p for d, p in objects.items()}
 
-    @torch.no_grad()
     def device_positions(self, hist: dict, cand: np.ndarray) -> dict[int, torch.Tensor]:
         """:meth:`positions` as float64 tensors on the model's device: the latents never leave it."""
-        E, P = cand.shape[:2]
-        W, b = self.decoder_affine
-        return {d: (z.double() @ W + b).reshape(E, P, -1) for d, z in self.latents(hist, cand).items()}
+        return self.decoded(hist, cand, on_device=True)[0]
 
     @torch.no_grad()
+    def decoded(self, hist: dict, cand: np.ndarray, on_device: bool) -> tuple[dict, dict | None]:
+        """({Δ: (E, P, 2) decoded object positions}, the same for the finger or None without the approach term),
+        both from one prediction of the latents: float64 tensors where the model is (the decoders as affine maps)
+        with ``on_device``, else numpy through the decoders themselves."""
+        E, P = cand.shape[:2]
+        lat = self.latents(hist, cand)
+        if on_device:
+            read = lambda ab: {d: (z.double() @ ab[0] + ab[1]).reshape(E, P, -1) for d, z in lat.items()}  # noqa: E731
+            affines = (self.decoder_affine, self.finger_affine)
+        else:
+            lat = {d: z.float().cpu().numpy() for d, z in lat.items()}
+            read = lambda dec: {d: dec.predict(z).reshape(E, P, 2) for d, z in lat.items()}  # noqa: E731
+            affines = (self.decoder, self.finger_decoder)
+        return read(affines[0]), None if affines[1] is None else read(affines[1])
+
     def device_score(self, hist: dict, cand: np.ndarray, goal: np.ndarray) -> np.ndarray:
         """The decoder cost of :meth:`score`, computed on the model's device; the (E, P) costs are the one copy to
         the host."""
-        E, P = cand.shape[:2]
-        lat = self.latents(hist, cand)
-        affine = lambda ab: {d: (z.double() @ ab[0] + ab[1]).reshape(E, P, -1) for d, z in lat.items()}  # noqa: E731
+        objects, fingers = self.decoded(hist, cand, on_device=True)
         g = torch.as_tensor(goal, dtype=torch.float64, device=self.decoder_affine[0].device)
-        fingers = affine(self.finger_affine) if self.finger_affine is not None else None
-        return decoded_cost(affine(self.decoder_affine), g, fingers, *self.approach).cpu().numpy()
+        return decoded_cost(objects, g, fingers, *self.approach).cpu().numpy()
 
     @torch.no_grad()
     def latents(self, hist: dict, cand: np.ndarray) -> dict[int, torch.Tensor]:
@@ -323,11 +331,8 @@ class LatentScorer:
         if self.cost == "decoder" and self.on_device:
             return self.device_score(hist, cand, goal)
         if self.cost == "decoder":
-            E, P = cand.shape[:2]
-            lat = {d: z.float().numpy() for d, z in self.latents(hist, cand).items()}
-            read = lambda dec: {d: dec.predict(z).reshape(E, P, 2) for d, z in lat.items()}  # noqa: E731
-            fingers = read(self.finger_decoder) if self.finger_decoder is not None else None
-            return decoded_cost(read(self.decoder), goal, fingers, *self.approach)
+            objects, fingers = self.decoded(hist, cand, on_device=False)
+            return decoded_cost(objects, goal, fingers, *self.approach)
         return self.goal_cost(self.latents(hist, cand), self.goal_latents(hist, goal))
 
     @torch.no_grad()
@@ -433,21 +438,16 @@ class SimulatorScorer:
 
     def score(self, hist: dict, cand: np.ndarray, goal: np.ndarray) -> np.ndarray:
         """cand (E, P, 16, 2), goal (E, 2) -> (E, P) planning cost; ``hist`` is unused (the state is known)."""
-        if not self.approach[0]:
-            return cost(self.rollout(cand), goal)
-        return cost_with_finger(*self.rollout(cand, finger=True), goal, self.approach)
+        path, finger_path = self.rollout(cand, finger=True)
+        return cost(path, goal, finger_path, self.approach)
 
 
-def cost(path: np.ndarray, goal: np.ndarray) -> np.ndarray:
-    """Object positions (E, P, 17, 2) along candidate programs -> (E, P) planning cost (COST_TERMS)."""
-    return decoded_cost({d: path[:, :, d] for d, _ in COST_TERMS}, goal)
-
-
-def cost_with_finger(path: np.ndarray, finger_path: np.ndarray, goal: np.ndarray,
-                     approach: tuple[float, float]) -> np.ndarray:
-    """:func:`cost` with the approach term ((weight, offset)) of the finger positions ``finger_path``."""
-    return decoded_cost({d: path[:, :, d] for d, _ in COST_TERMS}, goal,
-                        {d: finger_path[:, :, d] for d, _ in COST_TERMS}, *approach)
+def cost(path: np.ndarray, goal: np.ndarray, finger_path: np.ndarray | None = None,
+         approach: tuple[float, float] = (0.0, 0.18)) -> np.ndarray:
+    """Object positions (E, P, 17, 2) along candidate programs -> (E, P) planning cost (:func:`decoded_cost`); with
+    an ``approach`` weight, the finger positions ``finger_path`` (same shape) enter through the approach term."""
+    at = lambda p: None if p is None else {d: p[:, :, d] for d, _ in COST_TERMS}  # noqa: E731
+    return decoded_cost(at(path), goal, at(finger_path), *approach)
 
 
 def decoded_cost(objects: dict, goal, fingers: dict | None = None, weight: float = 0.0, offset: float = 0.18):
@@ -481,7 +481,8 @@ def episode_setup(cfg: PlanConfig) -> dict:
         return uniform_goals(rng, fp, op, cfg.goal_distance)
     goal = np.full((n, 2), np.nan)
     for _ in range(1000):
-        bad = ~np.all((goal >= GOAL_BOX[0]) & (goal <= GOAL_BOX[1]), 1) | (np.linalg.norm(op - fp, axis=1) < 0.25)
+        outside = ~np.all((goal >= GOAL_BOX[0]) & (goal <= GOAL_BOX[1]), 1)
+        bad = outside | (np.linalg.norm(op - fp, axis=1) < FINGER_CLEARANCE)
         if not bad.any():
             break
         m = int(bad.sum())
@@ -499,7 +500,7 @@ def uniform_goals(rng: np.random.Generator, fp: np.ndarray, op: np.ndarray, min_
     n = len(fp)
     goal = rng.uniform(*UNIFORM_GOAL_BOX, (n, 2))
     for _ in range(1000):
-        near_finger = np.linalg.norm(op - fp, axis=1) < 0.25
+        near_finger = np.linalg.norm(op - fp, axis=1) < FINGER_CLEARANCE
         op[near_finger] = rng.uniform(*OBJECT_BOX, (int(near_finger.sum()), 2))
         near_goal = np.linalg.norm(goal - op, axis=1) < min_distance
         goal[near_goal] = rng.uniform(*UNIFORM_GOAL_BOX, (int(near_goal.sum()), 2))
@@ -541,7 +542,7 @@ def rank_test(cfg: PlanConfig, setup: dict, scorer) -> dict:
             "actions": np.zeros((cfg.episodes, 0, 2), np.float32)}
     cand, goal = rank_candidates(cfg), setup["goal"]
     path, finger_path = SimulatorScorer(sim).rollout(cand, finger=True)
-    truth = cost_with_finger(path, finger_path, goal, approach_of(cfg)) if cfg.approach_weight else cost(path, goal)
+    truth = cost(path, goal, finger_path, approach_of(cfg))
     model = np.asarray(scorer.score(hist, cand, goal), float)
     moved = (path != path[:, :, :1]).any(-1).any(-1)  # an untouched object at rest stays exactly where it was
     out = agreement(model, truth, cfg.rank_topk) | {"moved": float(moved.mean())}

@@ -76,8 +76,8 @@ def planning_table(results: dict) -> list[str]:
     cost = (f"the decoded object's distance to the goal plus {approach:g} × the decoded finger's distance to a push "
             f"point {cfg.get('approach_offset', 0.18):g} behind the object (the released planner's cost)" if approach
             else "the decoded object's distance to the goal")
-    goals = ("goals uniform, at least {:g} from the object".format(cfg["goal_distance"])
-             if cfg.get("goals") == "uniform" else "goals {:g} from the object".format(cfg["goal_distance"]))
+    goals = (f"goals uniform, at least {cfg['goal_distance']:g} from the object" if cfg.get("goals") == "uniform"
+             else f"goals {cfg['goal_distance']:g} from the object")
     settle = f" after {cfg['settle']} zero-action steps" if cfg.get("settle") else ""
     figure = ", ".join(f"`{f}`" for f in pl.get("figure", [])[:1])
     return ["## Closed-loop planning (push-to-goal; same planner, budget, starts and goals for every controller)", "",
