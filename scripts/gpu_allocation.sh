@@ -48,6 +48,11 @@
 #                        starts: auto (default: the GPU it trained on) or cpu (the machine's CPU cores); the MLP
 #                        probes, the untrained bound, certificates and planning are left to the CPU side
 #                        (scripts/complete_allocations.py; docs/model.md "Measurement on or off the training path")
+#   ALLOC_CONCURRENCY    most runs training at once on the GPU (default 1: one after another). More: each run in a
+#                        process of its own, a ramp from one run that doubles while the total steps/s grows by 8 %
+#                        (pokeworld.experiments.allocation_share; no accelerator setting is changed)
+#   ALLOC_RETURN_PARTS   parts of at most 15 MiB the weights may take in all (default 0: what one return folder
+#                        holds, 3); a lease sets more, since each of its commands returns the parts no earlier one did
 #   ALLOC_WORK           the map's working folder (corpus, checkpoints; default a new folder under /tmp, never in OUT)
 #   PYTHON               the interpreter (default python3)
 set -uo pipefail
@@ -116,19 +121,34 @@ else
   [ -n "${ALLOC_S_PER_STEP:-}" ] && args+=(--prior-s-per-step "$ALLOC_S_PER_STEP")
   [ -n "${ALLOC_OVERHEAD_S:-}" ] && args+=(--prior-overhead-s "$ALLOC_OVERHEAD_S")
   [ -n "${ALLOC_MEASURE_DEVICE:-}" ] && args+=(--measure-device "$ALLOC_MEASURE_DEVICE")
+  [ -n "${ALLOC_CONCURRENCY:-}" ] && args+=(--concurrency "$ALLOC_CONCURRENCY")
+  [ -n "${ALLOC_RETURN_PARTS:-}" ] && args+=(--return-parts "$ALLOC_RETURN_PARTS")
+  [ -n "${ALLOC_PART_BYTES:-}" ] && args+=(--part-bytes "$ALLOC_PART_BYTES")
   # ALLOC_RESUME is a shell-quoted list of folders (as merge_allocations.py --plan prints it): passed as one word
   # and split by Python's shlex, never by this shell's word splitting or expansion
   [ -n "${ALLOC_RESUME:-}" ] && args+=(--resume-list "$ALLOC_RESUME")
-  log "training: preset $PRESET, runs ${RUNS[*]:-(the default queue)}, budget $BUDGET_MIN min"
+  log "training: preset $PRESET, runs ${RUNS[*]:-(the default queue)}, budget $BUDGET_MIN min, at most ${ALLOC_CONCURRENCY:-1} at once"
+  # the GPU's utilisation and memory into the log every 15 s while the runs train (read only; nothing is set)
+  GPU_WATCH=""
+  if command -v nvidia-smi >/dev/null 2>&1; then
+    ( nvidia-smi --query-gpu=utilization.gpu,utilization.memory,memory.used --format=csv,noheader -l 15 2>/dev/null \
+      | sed -u 's/^/[gpu util, mem util, mem used] /' ) &
+    GPU_WATCH=$!
+  fi
   "$PY" -m pokeworld.experiments.allocation_run "${args[@]}"
   RC=$?
+  [ -n "$GPU_WATCH" ] && { pkill -P "$GPU_WATCH" 2>/dev/null; kill "$GPU_WATCH" 2>/dev/null; }
 fi
 
 # what the device machine returns: at most 8 files of at most 16 MiB each, 64 MiB together
 problems=$("$PY" -c 'import sys; from pathlib import Path
 from pokeworld.experiments.allocation_pack import check_return_folder
 print("; ".join(check_return_folder(Path(sys.argv[1]))))' "$OUT")
-[ -n "$problems" ] && problems="; NOT ALL OF IT COMES BACK: $problems"
+if [ -n "$problems" ] && [ "${ALLOC_RETURN_PARTS:-0}" -gt 0 ] 2>/dev/null; then
+  problems="; more than one return holds: a lease's commands return it in pieces ($problems)"
+elif [ -n "$problems" ]; then
+  problems="; NOT ALL OF IT COMES BACK: $problems"
+fi
 log "OUT holds $(find "$OUT" -type f | wc -l) files ($(du -sh "$OUT" | cut -f1))$problems"
 log "done (exit status $RC)"
 exit $RC

@@ -22,7 +22,9 @@ V, VFX = (f"{v}-h1-4-16-lam0.02-standard-s0" for v in ("V", "VFX"))
 def _env(lease: Path) -> dict:
     return {**os.environ, "PYTHON": sys.executable, "PYTHONPATH": str(ROOT / "src"), "ALLOC_PRESET": "tiny",
             "ALLOC_STEPS": "400", "ALLOC_TESTS": "0", "ALLOC_SNAPSHOT_S": "3", "ALLOC_BUDGET_MIN": "8",
-            "ALLOC_LEASE_DIR": str(lease), "ALLOC_POLL_S": "1", "ALLOC_COLLECT_S": "400"}
+            "ALLOC_LEASE_DIR": str(lease), "ALLOC_POLL_S": "1", "ALLOC_COLLECT_S": "400",
+            # two runs at once, and weights that take more than one return: parts of 64 KiB, two a command
+            "ALLOC_CONCURRENCY": "2", "ALLOC_PART_BYTES": "65536", "ALLOC_PARTS_PER_COMMAND": "2"}
 
 
 def _returned(out: Path) -> set[tuple[str, str]]:
@@ -73,7 +75,7 @@ def _alive(lease: Path) -> bool:
 @pytest.mark.slow
 def test_a_lease_survives_a_kill_of_each_command_and_its_last_folder_holds_every_run(tmp_path):
     lease, env = tmp_path / "lease", _env(tmp_path / "lease")
-    out1, out2, out3, out4 = (tmp_path / f"out{i}" for i in range(1, 5))
+    out1, out2, out3, out4, again_out = (tmp_path / f"out{i}" for i in range(1, 6))
     for i in range(1, 5):
         (tmp_path / f"s{i}").mkdir()  # scratch folders the returned packs are unpacked into
     try:
@@ -94,7 +96,7 @@ def test_a_lease_survives_a_kill_of_each_command_and_its_last_folder_holds_every
         _kill_when(collect, lambda: (out2 / "records.tar.gz").exists(), "a collected state")
         assert allocations.open_allocation(out2, tmp_path / "s2").progress["finished"][0] == V
         # a second start on the same machine does not start a second allocation
-        again = subprocess.run(["bash", "scripts/gpu_lease.sh", "start", str(out3)], cwd=ROOT, env={
+        again = subprocess.run(["bash", "scripts/gpu_lease.sh", "start", str(again_out)], cwd=ROOT, env={
             **env, "ALLOC_COLLECT_S": "0"}, capture_output=True, text=True, timeout=120)
         assert again.returncode == 0 and ("already runs" in again.stdout or "has ended" in again.stdout)
         # collect until the allocation ends, then 3. the final collect
@@ -107,11 +109,31 @@ def test_a_lease_survives_a_kill_of_each_command_and_its_last_folder_holds_every
     finally:
         if (lease / "pid").exists() and _alive(lease):
             os.killpg(int((lease / "pid").read_text()), signal.SIGKILL)
-    last = allocations.open_allocation(out4, tmp_path / "s4")
-    assert last.progress["finished"] == [V, VFX] and last.weights == {V: "returned", VFX: "returned"}
-    assert ap.check_return_folder(out4) == [] and not (out4 / ".incoming").exists()
+    # the weights came back over several returns (two parts a command): no one folder holds them all, every
+    # folder is one a device returns whole, and the lease's folders together are one allocation with both runs
+    outs = [out1, out2, again_out, out3, out4]
+    assert all(ap.check_return_folder(o) == [] and not (o / ".incoming").exists() for o in outs)
+    assert all(len(list(o.glob("pack.tar.part*"))) <= 2 for o in outs)
+    [last] = allocations.open_allocations(outs, tmp_path / "s4")
+    assert sorted(last.progress["finished"]) == sorted([V, VFX])
+    assert last.weights == {V: "returned", VFX: "returned"}
     merged = allocations.merge_allocations([last])
     assert set(merged["runs"]) == {V, VFX}
+
+
+def test_the_lease_runs_from_any_folder_and_a_failed_start_is_not_marked_started(tmp_path):
+    """The checkout is the script's own, whatever the current folder; a start whose allocation does not run
+    leaves the lease free for the next start."""
+    lease = tmp_path / "lease"
+    env = {**_env(lease), "PYTHON": str(tmp_path / "no-python"), "ALLOC_COLLECT_S": "0"}
+    other = tmp_path / "elsewhere"
+    other.mkdir()
+    (other / "big.bin").write_bytes(b"x" * 1000)
+    r = subprocess.run(["bash", str(ROOT / "scripts" / "gpu_lease.sh"), "start", str(tmp_path / "o")], cwd=other,
+                       env=env, capture_output=True, text=True, timeout=120)
+    assert (lease / "repo" / "scripts" / "gpu_allocation.sh").is_file()  # the checkout, not the current folder
+    assert not (lease / "repo" / "big.bin").exists()
+    assert r.returncode == 3 and "did not start" in r.stdout and not (lease / "started").exists()
 
 
 def test_the_lease_refuses_a_bad_mode_or_a_state_inside_out(tmp_path):

@@ -206,7 +206,7 @@ def complete(a: argparse.Namespace) -> Path:
     work = a.work.resolve()
     work.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="pokeworld-cpu-side-") as scratch:
-        allocs = [allocations.open_allocation(p, Path(scratch)) for p in a.allocations]
+        allocs = allocations.open_allocations(a.allocations, Path(scratch))
         merged = allocations.merge_allocations(allocs)
         returned = {n for al in allocs for n, w in al.weights.items()
                     if w == "returned" and (not a.runs or n in a.runs)}

@@ -79,12 +79,18 @@ class ReturnLimits:
     """allocation.log, device.json, .pokeworld-owned and records.tar.gz."""
     small_bytes: int = 2 << 20
     """Room kept for those four (the log and the records grow; a paper allocation's are a few hundred KiB)."""
+    parts: int = 0
+    """Parts the weights tar may have in all when several returns carry it (a lease: each of its commands returns
+    the parts no earlier command returned, ``scripts/gpu_lease.sh``; :func:`join_returns` puts them together);
+    0: what one return folder holds beside the small files."""
 
 
 def stream_budget(limits: ReturnLimits) -> tuple[int, int]:
-    """(most parts, most bytes) the weights tar may take: what is left beside the small files, keeping one file
-    and one part's bytes for the temporary an interrupted write leaves (a kill while a part is written leaves it
-    beside the old part)."""
+    """(most parts, most bytes) the weights tar may take: ``limits.parts`` parts when several returns carry it,
+    else what is left in one return beside the small files, keeping one file and one part's bytes for the temporary
+    an interrupted write leaves (a kill while a part is written leaves it beside the old part)."""
+    if limits.parts:
+        return limits.parts, limits.parts * limits.part_bytes
     parts = limits.files - limits.small_files - 1
     room = limits.total_bytes - limits.small_bytes - limits.part_bytes
     return parts, min(parts * limits.part_bytes, room)
@@ -204,10 +210,10 @@ def write_parts(folder: Path, data: bytes, part_bytes: int, written: dict[int, s
 def join_parts(folder: Path, limits: ReturnLimits = ReturnLimits()) -> bytes:
     """The parts in ``folder`` joined, from part00 up to the first missing one (regular files only, each at most
     ``limits.file_bytes``, at most ``limits.files`` of them)."""
-    chunks, i = [], 0
+    chunks, i, most = [], 0, max(limits.files, limits.parts)
     while part_path(folder, i).exists():
-        if i >= limits.files:
-            raise ConfigError(f"{folder} holds more than {limits.files} parts of {PARTS}; not an allocation's")
+        if i >= most:
+            raise ConfigError(f"{folder} holds more than {most} parts of {PARTS}; not an allocation's")
         try:
             chunks.append(read_regular_bytes(part_path(folder, i), "a part of an allocation's pack", limits.file_bytes))
         except PokeworldError as e:
@@ -306,11 +312,15 @@ class Packer:
     """run -> ((mtime, size) of its ckpt.pt, the compacted bytes): a snapshot re-reads only a changed checkpoint."""
     steps: dict[str, int] = field(default_factory=dict)
     """member name -> the step of the checkpoint it holds."""
+    share: dict = field(default_factory=dict)
+    """How the allocation shared its GPU among runs (:meth:`.allocation_share.SharedRuns.record`), if it did."""
     lock: threading.Lock = field(default_factory=threading.Lock)
 
-    def pack(self, running: str = "") -> dict:
+    def pack(self, running: str = "", training: frozenset[str] = frozenset()) -> dict:
         """Write progress.json, the parts (finished weights, then checkpoints, ``running``'s first, while room
-        is left) and the records into the output folder; returns the index (returned.json)."""
+        is left) and the records into the output folder; returns the index (returned.json). The checkpoints of
+        ``training`` (runs training now in other processes) are left out: they change while the others' parts
+        travel, and a run is admitted only when it is predicted to finish."""
         with self.lock:
             prog = stages.write_progress(self.c, self.specs, self.started)
             _, room = stream_budget(self.limits)
@@ -320,6 +330,8 @@ class Packer:
             self.cache = {n: v for n, v in self.cache.items() if n in prog["partial"]}
             members, skipped = list(self.committed.values()), {}
             for name in sorted(prog["partial"], key=lambda n: n != running):  # the run training first
+                if name in training:
+                    continue
                 why = self.add_checkpoint(name, members, room)
                 if why:
                     skipped[name] = why
@@ -376,9 +388,11 @@ class Packer:
             rows.append({"member": name, "run": run, "kind": kind, "step": step,
                          "sha256": hashlib.sha256(data).hexdigest(), "bytes": len(data)})
         return {"format": 1, "parts": parts, "part_bytes": self.limits.part_bytes,
+                "part_sha256": [self.written.get(i, "") for i in range(parts)],
                 "compacted": f"float32 tensors of at least {COMPACT_MIN_ELEMENTS} elements as bfloat16 "
                              "(the device measured the float32 weights)",
-                "members": rows, "left_out": dict(self.left_out), "runs": dict(self.facts)}
+                "members": rows, "left_out": dict(self.left_out), "runs": dict(self.facts),
+                **({"share": dict(self.share)} if self.share else {})}
 
 
 class Snapshots:

@@ -32,6 +32,8 @@ from ..io import read_regular_bytes, save_bytes, write_json
 from ..rundir import last_logged_step, load_resume_checkpoint, read_metrics
 from . import allocations, stages
 from .allocation_pack import Packer, ReturnLimits, Snapshots
+from .allocation_share import SharedRuns, ShareConfig
+from .launch import cores
 from .allocation_queue import PRIORITY, order_queue, parse_token, split_folder_list, token
 from .config import MapConfig
 from .map import RunHooks, run as run_map
@@ -82,10 +84,33 @@ def checkpoint_step(run: Path) -> int:
 
 class AllocationHooks(RunHooks):
     """The map's runs in queue order, each admitted when it fits the time left, snapshotted while it trains and
-    packed once measured."""
+    packed once measured; with ``share.most`` > 1 several at once (:mod:`.allocation_share`)."""
 
-    def __init__(self, queue: list[str], packer: Packer, deadline: float, pace: Pace, snapshot_s: float):
+    def __init__(self, queue: list[str], packer: Packer, deadline: float, pace: Pace, snapshot_s: float,
+                 share: ShareConfig = ShareConfig(most=1)):
         self.queue, self.packer, self.deadline, self.pace, self.snapshot_s = queue, packer, deadline, pace, snapshot_s
+        self.share = share
+
+    def run_all(self, c: MapConfig, jobs: list[dict], specs: list, started: float) -> None:
+        if self.share.most <= 1:
+            return super().run_all(c, jobs, specs, started)
+        def finished(job: dict, result: dict, training: frozenset[str]) -> None:
+            facts = {"wall_s": result.get("wall_s"), "status": result.get("status")}
+            if result.get("error"):
+                facts["error"] = result["error"]
+            self.packer.facts[job["name"]] = facts
+            self.packer.share = shared.record()
+            self.packer.pack(training=training)
+
+        # each run in a process of its own, the machine's cores shared among the most that may run at once (more
+        # threads than cores stall every run: on 2 cores two tiny runs of 2 threads each ran 30x slower in all)
+        threads = max(1, cores() // self.share.most)
+        ordered = [{**j, "threads": threads, "train": {**j["train"], "threads": threads}} for j in self.order(jobs)]
+        shared = SharedRuns(self.share, self.deadline, self.pace.overhead_s, self.pace.s_per_step,
+                            lambda j: checkpoint_step(Path(j["train"]["out"])), finished)
+        shared.run(ordered)
+        self.packer.share = shared.record()
+        print(f"[allocation] shared the GPU: {shared.record()}", flush=True)
 
     def order(self, jobs: list[dict]) -> list[dict]:
         by_name = {j["name"]: j for j in jobs}
@@ -129,8 +154,8 @@ def restore(c: MapConfig, specs: dict[tuple[str, int], RunSpec], folders: list[P
     finished: set[tuple[str, int]] = set()
     best: dict[str, tuple[int, allocations.Allocation]] = {}
     by_name = {s.name: s for s in specs.values()}
-    for folder in folders:
-        a = allocations.open_allocation(folder, scratch)
+    for a in allocations.open_allocations(folders, scratch):
+        folder = a.source
         mine = to_dict(c)  # tuples as the JSON lists map_config.json holds
         differ = [k for k in allocations.AGREE if a.map_config.get(k) != mine.get(k)]
         if differ:
@@ -197,7 +222,8 @@ def allocate(a: argparse.Namespace) -> int:
     if queue:  # the map's progress then names the queue's variants × seeds
         c = dataclasses.replace(c, variants=tuple(dict.fromkeys(v for v, _ in queue)),
                                 seeds=tuple(sorted({s for _, s in queue})))
-    packer = Packer(c, stages.all_specs(c), a.out, clock.wall_clock(), ReturnLimits())
+    limits = ReturnLimits(parts=a.return_parts, **({"part_bytes": a.part_bytes} if a.part_bytes else {}))
+    packer = Packer(c, stages.all_specs(c), a.out, clock.wall_clock(), limits)
     packer.pack()  # the device record and any restored checkpoint come back even if nothing else does
     if not queue or left_min <= 0.25:
         print(f"[allocation] {'nothing to train' if not queue else f'only {left_min:.2f} min left'}; no map started")
@@ -205,7 +231,7 @@ def allocate(a: argparse.Namespace) -> int:
     prior = PRIORS.get(a.preset, PRIORS["paper"])
     pace = Pace(a.prior_s_per_step or prior[0], a.prior_overhead_s if a.prior_overhead_s >= 0 else prior[1])
     names = [specs[k].name for k in queue]
-    hooks = AllocationHooks(names, packer, deadline, pace, a.snapshot_s)
+    hooks = AllocationHooks(names, packer, deadline, pace, a.snapshot_s, ShareConfig(most=a.concurrency))
     run_map(dataclasses.replace(c, time_budget_min=left_min + a.reserve_min, time_reserve_min=a.reserve_min), hooks)
     packer.pack()
     return 0
@@ -229,7 +255,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--prior-overhead-s", type=float, default=-1.0, help="seconds per run beside its steps")
     ap.add_argument("--measure-device", choices=("auto", "cpu"), default="auto",
                     help="measure each finished run on its device (auto: the GPU) or on the machine's CPU cores")
+    ap.add_argument("--concurrency", type=int, default=1,
+                    help="most runs training at once on the GPU (1: one after another; more: a ramp from one "
+                         "that goes on while the total steps/s grows, pokeworld.experiments.allocation_share)")
+    ap.add_argument("--return-parts", type=int, default=0,
+                    help="parts the weights may take in all when several returns carry them (a lease's commands; "
+                         "0: what one return folder holds)")
+    ap.add_argument("--part-bytes", type=int, default=0, help=argparse.SUPPRESS)  # tests: small parts
     a = ap.parse_args(argv)
+    if not 1 <= a.concurrency <= 64 or not 0 <= a.return_parts <= 64 or a.part_bytes < 0:
+        ap.error("--concurrency must be in [1, 64], --return-parts in [0, 64], --part-bytes ≥ 0")
     try:
         a.resume = [*a.resume, *map(Path, split_folder_list(a.resume_list))]
         return allocate(a)

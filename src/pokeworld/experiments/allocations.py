@@ -28,6 +28,7 @@ progress.json and device.json again) and the finished runs' weights and the unfi
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import math
 import os
@@ -62,7 +63,7 @@ from ..rundir import model_from_checkpoint
 from ..train.optimizer_state import check_optimizer_fits
 from . import merge, report, stages
 from .allocation_cpu import attach_cpu_side, record_lines
-from .allocation_pack import COMPACT_MIN_ELEMENTS, INDEX, RECORDS, load_member, read_stream
+from .allocation_pack import COMPACT_MIN_ELEMENTS, INDEX, RECORDS, ReturnLimits, load_member, part_path, read_stream
 from . import allocation_plan
 from .allocation_plan import Returned, configuration_key, plan_lines
 from .allocation_queue import checked_key
@@ -171,10 +172,11 @@ def unpack(pack: Path, scratch: Path) -> Path:
     return dest
 
 
-def open_allocation(path: str | os.PathLike, scratch: Path) -> Allocation:
+def open_allocation(path: str | os.PathLike, scratch: Path, weights: Path | None = None) -> Allocation:
     """The allocation at ``path``: a folder as a device machine returns it (device.json beside the records pack and
     the parts of the weights, or beside one map pack), a pack (.tar.gz), or a map folder; packs are unpacked under
-    ``scratch``, and returned weights and checkpoints restored there (:func:`restore_returned`)."""
+    ``scratch``, and returned weights and checkpoints restored there (:func:`restore_returned`) from ``weights``
+    when given (the parts of a lease joined from its returns, :func:`open_lease`), else from ``path``."""
     path = Path(path)
     outer_device, returned = None, None
     if path.is_dir() and not (path / "map_config.json").exists():
@@ -205,8 +207,83 @@ def open_allocation(path: str | os.PathLike, scratch: Path) -> Allocation:
                    configuration=configuration_key(manifest.get("config") if isinstance(manifest.get("config"), dict)
                                                    else {}))
     if returned is not None:
-        restore_returned(a, returned, scratch)
+        restore_returned(a, weights or returned, scratch)
     return a
+
+
+MAX_LEASE_PARTS = 64
+"""Most parts of a lease's weights tar an index may name (a 15-minute lease returns at most a dozen)."""
+SHA256 = re.compile(r"[0-9a-f]{64}")
+
+
+def lease_groups(paths: list[Path]) -> list[list[Path]]:
+    """``paths`` grouped by allocation: return folders of one allocation (several commands of one lease) hold the
+    same device.json, written once when the allocation started; each group in the order the allocation wrote them
+    (its allocation.log only grows), every other path a group of its own, in the order given."""
+    groups: dict[object, list[Path]] = {}
+    for p in paths:
+        key: object = p
+        if p.is_dir() and (p / RECORDS).is_file() and (p / DEVICE_FILE).is_file():
+            try:
+                key = ("device", read_regular_bytes(p / DEVICE_FILE, "an allocation's device.json", 1 << 20))
+            except PokeworldError as e:
+                raise ConfigError(str(e)) from None
+        groups.setdefault(key, []).append(p)
+
+    def log_size(p: Path) -> int:
+        log = p / "allocation.log"
+        return log.stat().st_size if log.is_file() and not log.is_symlink() else 0
+
+    return [sorted(g, key=log_size) for g in groups.values()]
+
+
+def join_lease_parts(folders: list[Path], index: dict, dest: Path) -> int:
+    """Into the new folder ``dest``, the parts of the weights tar the latest index names (``part_sha256``), each
+    taken from whichever of ``folders`` holds it with those bytes (a lease's commands each return the parts no
+    earlier one returned); returns how many were found, in order (the tar is read up to the first missing one)."""
+    shas = index.get("part_sha256", [])
+    if not isinstance(shas, list) or len(shas) > MAX_LEASE_PARTS or not all(
+            isinstance(x, str) and SHA256.fullmatch(x) for x in shas):
+        raise ConfigError(f"{folders[-1]}: its index's part_sha256 is not a list of at most {MAX_LEASE_PARTS} "
+                          "sha256 digests; the record is damaged or was edited")
+    dest.mkdir()
+    for i, sha in enumerate(shas):
+        for folder in reversed(folders):
+            part = part_path(folder, i)
+            if not part.is_file() or part.is_symlink():
+                continue
+            try:
+                data = read_regular_bytes(part, "a part of an allocation's pack", ReturnLimits().file_bytes)
+            except PokeworldError as e:
+                raise ConfigError(str(e)) from None
+            if hashlib.sha256(data).hexdigest() == sha:
+                save_bytes(part_path(dest, i), data)
+                break
+        else:
+            return i
+    return len(shas)
+
+
+def open_lease(folders: list[Path], scratch: Path) -> Allocation:
+    """One allocation from the folders its lease's commands returned (:func:`lease_groups` order): the records of
+    the latest, the weights of all (:func:`join_lease_parts`)."""
+    if len(folders) == 1:
+        return open_allocation(folders[0], scratch)
+    latest = open_allocation(folders[-1], scratch, weights=Path(tempfile.mkdtemp(prefix="none-", dir=scratch)))
+    index = read_json(latest.root / INDEX, "an allocation's index of returned weights")
+    joined = Path(tempfile.mkdtemp(prefix="lease-", dir=scratch)) / "parts"
+    found = join_lease_parts(folders, index, joined)
+    a = open_allocation(folders[-1], scratch, weights=joined)
+    a.source = " + ".join(str(f) for f in folders)
+    if found < len(index.get("part_sha256", [])):
+        print(f"[allocations] {a.source}: {found} of {len(index['part_sha256'])} parts of the weights came back; "
+              "the runs in the rest are named 'not returned'")
+    return a
+
+
+def open_allocations(paths: list[Path], scratch: Path) -> list[Allocation]:
+    """Every allocation among ``paths``: a lease's return folders joined into one (:func:`open_lease`)."""
+    return [open_lease(g, scratch) for g in lease_groups(list(paths))]
 
 
 def check_progress(prog: dict, path: Path) -> dict:
@@ -688,7 +765,7 @@ def main(argv: list[str] | None = None) -> int:
         if not a.plan:  # before anything is read: no output may be, or lie inside, an input
             check_apart([*a.allocations, a.certificates, a.cpu_side], output_paths(a))
         with tempfile.TemporaryDirectory(prefix="pokeworld-allocations-") as scratch:
-            allocs = [open_allocation(p, Path(scratch)) for p in a.allocations]
+            allocs = open_allocations(a.allocations, Path(scratch))
             if a.plan:
                 print("\n".join(plan_lines(plan(allocs), a.commit or commit())))
                 return 0
@@ -703,7 +780,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 __all__ = ["DEVICE_FILE", "AGREE", "Allocation", "device_record", "commit", "gpu_name", "write_device", "read_json",
-           "unpack", "open_allocation", "check_progress", "check_step", "restore_returned", "training_facts",
+           "unpack", "open_allocation", "lease_groups", "join_lease_parts", "open_lease", "open_allocations", "check_progress", "check_step", "restore_returned", "training_facts",
            "run_key", "returned_of", "plan", "plan_lines", "corpus_lines", "carry_other_corpora",
            "export_plan", "export_targets", "export_runs", "output_paths", "write_merged",
            "allocation_record", "check_agreement", "read_certificates",

@@ -97,6 +97,11 @@ class RunHooks:
     def measured(self, job: dict, result: dict, prog: dict) -> None:
         """After each job, with the progress.json just written (the job's run finished, partial or pending)."""
 
+    def run_all(self, c: MapConfig, jobs: list[dict], specs: list, started: float) -> None:
+        """Run the jobs: by default one at a time (:func:`run_one_by_one`); a GPU allocation may run several at
+        once (:mod:`.allocation_share`)."""
+        run_one_by_one(c, jobs, specs, started, self)
+
 
 def run_one_by_one(c: MapConfig, jobs: list[dict], specs: list, started: float, hooks: RunHooks) -> None:
     """The jobs in ``hooks``' order, one at a time, progress.json written after each so that a hook can pack it."""
@@ -175,7 +180,7 @@ def _run_locked(c: MapConfig, hooks: RunHooks | None = None) -> Path:
                 print(estimate, flush=True)
             with progress.stage(stages.TRAINING_STAGE, "map"):
                 if hooks is not None:
-                    run_one_by_one(c, jobs, specs, started, hooks)
+                    hooks.run_all(c, jobs, specs, started)
                 else:
                     if c.stack:
                         stages.train_stacked_jobs(c, jobs)
