@@ -47,6 +47,9 @@ class ShareConfig:
     """Seconds of metrics rows a rate is taken over."""
     samples: int = 3
     """Clean samples (every run steady) a level's total needs before the ramp decides."""
+    warm_rows: int = 5
+    """Metrics rows after its first that a run logs before its rate counts: CUDA-graph warm-up records graphs in
+    the first steps after compilation (on an H200 the first run read 97 steps/s over its early rows, 134 later)."""
     poll_s: float = 2.0
     """Seconds between looks at the runs."""
     margin: float = 1.05
@@ -67,6 +70,8 @@ class RunWatch:
     seen: int = 0
     """Rows of metrics.jsonl read so far."""
     first_step: int | None = None
+    warm: int = 0
+    """Rows still to skip before the rate counts (:attr:`ShareConfig.warm_rows`)."""
 
     def read(self, now: float) -> None:
         try:
@@ -77,6 +82,9 @@ class RunWatch:
         for r in new:
             if self.first_step is None:
                 self.first_step = r["step"]  # the row that holds the compilation (or the resume)
+                continue
+            if self.warm > 0:
+                self.warm -= 1
                 continue
             sps = r.get("steps_per_s")
             if isinstance(sps, (int, float)) and sps > 0:
@@ -253,7 +261,8 @@ class SharedRuns:
         receive, send = ctx.Pipe(duplex=False)
         process = ctx.Process(target=work, args=(job, send), name=f"run-{job['name']}", daemon=False)
         step = self.start_step(job)
-        watch = RunWatch(job["name"], Path(job["train"]["out"]), stages.job_train_config(job).steps, now)
+        watch = RunWatch(job["name"], Path(job["train"]["out"]), stages.job_train_config(job).steps, now,
+                         warm=self.cfg.warm_rows)
         watch.seen = len(read_metrics(watch.folder)) if (watch.folder / "metrics.jsonl").exists() else 0
         process.start()
         send.close()

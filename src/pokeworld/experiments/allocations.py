@@ -543,6 +543,10 @@ def allocation_lines(merged: dict) -> list[str]:
     for a in merged["provenance"]["allocations"]:
         for name, why in a.get("weights_missing", {}).items():
             lines.append(f"\nThe final weights of `{name}` did not come back from {a['source']}: {why}.")
+    carried = merged["provenance"].get("carried")
+    if isinstance(carried, dict) and carried.get("runs"):
+        lines.append(f"\nCarried from the earlier record of this corpus (their allocations' folders were not given to "
+                     f"this merge; each record as it was): {', '.join(carried['runs'])}.")
     for d in merged["provenance"].get("duplicates", []):
         diff = d["largest_ridge_difference"]
         lines.append(f"\n`{d['run']}` was trained in two allocations: the later ({d['kept']}) is kept; the largest "
@@ -621,6 +625,50 @@ def carry_other_corpora(merged: dict, previous: dict | None) -> dict:
     if others:
         merged["other_corpora"] = others
     return merged
+
+
+def carry_earlier_runs(merged: dict, previous: dict | None) -> dict:
+    """``merged`` with the runs of the same corpus that ``previous`` (the file at --out) holds and this merge does
+    not: an earlier lease's runs, whose folders are not given again, keep their records (each unchanged, its
+    ``allocation`` naming where it was trained), as do their allocations in the provenance, the certificates when
+    this merge has none, and the planning rows of variants this merge did not plan. ``provenance.carried`` names
+    what was carried, so a record never presents a carried run as measured by this merge."""
+    if not isinstance(previous, dict) or not isinstance(previous.get("provenance"), dict) \
+            or previous["provenance"].get("corpus_sha256") != merged["provenance"]["corpus_sha256"]:
+        return merged
+    runs = {n: r for n, r in (previous.get("runs") or {}).items() if n not in merged["runs"] and isinstance(r, dict)}
+    if not runs:
+        return merged
+    out = {**merged, "runs": {**merged["runs"], **runs},
+           "experiments": {k: list(v) for k, v in merged["experiments"].items()}}
+    for exp, names in (previous.get("experiments") or {}).items():
+        if isinstance(names, list):
+            out["experiments"].setdefault(exp, []).extend(n for n in names if n in runs)
+    if not out.get("certificates") and previous.get("certificates"):
+        out["certificates"] = previous["certificates"]
+    planned = previous.get("planning")
+    if isinstance(planned, dict) and isinstance(planned.get("summary"), dict):
+        if not isinstance(out.get("planning"), dict):
+            out["planning"] = planned
+        else:
+            summary = dict(out["planning"].get("summary", {}))
+            extra = {v: row for v, row in planned["summary"].items() if v not in summary}
+            out["planning"] = {**out["planning"], "summary": {**summary, **extra},
+                               "carried_variants": sorted(extra)}
+    names = {r["train"]["variant"] for r in out["runs"].values()}
+    out["map_config"] = {**out["map_config"],
+                         "variants": [v for v in VARIANT_ORDER if v in names] + sorted(names - set(VARIANT_ORDER)),
+                         "seeds": sorted({r["train"]["seed"] for r in out["runs"].values()})}
+    prev = previous["provenance"]
+    # an earlier allocation named by a path of the machine that merged it: its folder name alone (records name no
+    # machine's paths), marked as not given to this merge
+    earlier = [{**a, "source": f"{Path(str(a.get('source', '?'))).name} (not given to this merge)"}
+               for a in prev.get("allocations", []) if isinstance(a, dict)]
+    out["provenance"] = {**merged["provenance"],
+                         "allocations": earlier + list(merged["provenance"].get("allocations", [])),
+                         "carried": {"runs": sorted(runs), "command": prev.get("command", "?"),
+                                     "git": prev.get("git", "?")}}
+    return out
 
 
 # ---------------------------------------------------------------------- the next allocation
@@ -719,7 +767,7 @@ def write_merged(a: argparse.Namespace, allocs: list[Allocation], words: list[st
     if a.cpu_side:
         attach_cpu_side(merged, a.cpu_side)
     previous = read_json(a.out, "an earlier merged record") if a.out.exists() else None
-    merged = carry_other_corpora(merged, previous)
+    merged = carry_other_corpora(carry_earlier_runs(merged, previous), previous)
     files = [p for p in output_paths(a) if p != a.runs_out]
     if a.runs_out:
         files += export_targets(export_plan(allocs, merged, a.runs_out), a.runs_out)
@@ -781,7 +829,7 @@ def main(argv: list[str] | None = None) -> int:
 
 __all__ = ["DEVICE_FILE", "AGREE", "Allocation", "device_record", "commit", "gpu_name", "write_device", "read_json",
            "unpack", "open_allocation", "lease_groups", "join_lease_parts", "open_lease", "open_allocations", "check_progress", "check_step", "restore_returned", "training_facts",
-           "run_key", "returned_of", "plan", "plan_lines", "corpus_lines", "carry_other_corpora",
+           "run_key", "returned_of", "plan", "plan_lines", "corpus_lines", "carry_other_corpora", "carry_earlier_runs",
            "export_plan", "export_targets", "export_runs", "output_paths", "write_merged",
            "allocation_record", "check_agreement", "read_certificates",
            "ridge_difference", "merge_allocations", "allocation_summary", "allocation_lines", "run_lines", "markdown",
