@@ -3,6 +3,7 @@ this checkout's configuration only, and commands whose every word is checked or 
 
 import json
 import shlex
+from pathlib import Path
 
 import pytest
 from allocation_planting import current_model
@@ -11,6 +12,8 @@ from pokeworld.errors import ConfigError
 from pokeworld.experiments import allocation_plan as ap, allocations, stages
 from pokeworld.experiments.allocation_queue import split_folder_list
 from pokeworld.experiments.presets import make_config
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def _allocation(tmp_path, name, runs, configuration, finished=(), checkpoints=None, git="abc1234"):
@@ -41,9 +44,11 @@ def test_only_this_configurations_runs_count_and_others_are_named(tmp_path):
     new = _allocation(tmp_path, "new", {"VFX-s0": ("VFX", 0), "V-s0": ("V", 0)}, "bbbbbbbbbbbb",
                       finished=["VFX-s0"], checkpoints={"V-s0": 700}, git="c0ffee1")
     p = allocations.plan([old, new], configuration="bbbbbbbbbbbb")
-    # the old environment's VF does not count for the new one; the seed-0 factorial comes before seed 1
-    assert p["queue"] == ["V@0", "VF@0", "VX_t@0", "VX_p@0", "VX@0", "VFX@1", "VF@1", "V@1", "VX_t@1", "VX_p@1",
-                          "VX@1"]
+    # the old environment's VF does not count for the new one; the seed-0 factorial comes before seed 1, then seed
+    # 2, then the other experiments' runs, by their run names (finding 2's single-horizon factorial first)
+    assert p["queue"][:17] == ["V@0", "VF@0", "VX_t@0", "VX_p@0", "VX@0", "VFX@1", "VF@1", "V@1", "VX_t@1",
+                               "VX_p@1", "VX@1", "VFX@2", "VF@2", "V@2", "VX_t@2", "VX_p@2", "VX@2"]
+    assert p["queue"][17] == "V-h1-lam0.02-standard-s0" and len(p["queue"]) == len(set(p["queue"])) > 50
     assert p["finished"] == ["VFX@0"] and p["resume"] == {"V@0": {"step": 700, "from": "new"}}
     assert p["other_configurations"] == {"aaaaaaaaaaaa": {"finished": ["VF@0", "VFX@0"], "corpora": ["abababababab"],
                                                           "commits": ["ad841ac"]}}
@@ -91,3 +96,55 @@ def test_every_folder_to_resume_from_is_copied_into_the_checkouts_resume_folder(
     assert copies[0].startswith("mkdir -p .resume") and "/.resume/" in copies[0]
     assert [shlex.split(c)[-2:] for c in copies[1:]] == [[str(o), p] for o, p in zip(elsewhere, paths[1:])]
     assert ap.device_folders([".resume/h200-1"], root=root) == ([".resume/h200-1"], [])
+
+
+def test_the_paper_queue_holds_every_experiment_of_the_map_in_the_papers_order():
+    from pokeworld.experiments.allocation_queue import PAPER_QUEUE, catalog, paper_queue
+    from pokeworld.experiments.registry import EXPERIMENTS
+
+    queue, specs = paper_queue(), catalog("paper")
+    with_runs = {s.experiment for s in specs.values()}
+    # every experiment with runs of its own is queued, the factorial's two seeds first, each run once
+    assert with_runs - {e for e, _, _ in PAPER_QUEUE} == set() and "planning" in EXPERIMENTS
+    assert queue[:12] == ["VFX@0", "VF@0", "V@0", "VX_t@0", "VX_p@0", "VX@0",
+                          "VFX@1", "VF@1", "V@1", "VX_t@1", "VX_p@1", "VX@1"]
+    assert len(queue) == len(set(queue)) and all(t in specs for t in queue)
+    firsts = {}
+    for t in queue:
+        firsts.setdefault(specs[t].experiment, queue.index(t))
+    assert [e for e, _ in sorted(firsts.items(), key=lambda x: x[1])] == list(
+        dict.fromkeys(e for e, _, _ in PAPER_QUEUE if e in firsts))
+    with pytest.raises(ConfigError, match="not a run"):
+        ap.lease_commands({"queue": ["VFX@0", "rm -rf /"], "resume_from": []}, "c0ffee")
+
+
+@pytest.mark.slow
+def test_one_allocation_trains_and_measures_a_run_of_every_experiment(tmp_path):
+    """The queue at the tiny preset: the first run of every experiment in one allocation, each finished; the
+    factorial's measured as the device measures it (ridge), every other experiment's completely (MLP probes and the
+    untrained bound too), and the merge reports every experiment's section."""
+    import os
+    import subprocess
+    import sys
+
+    from pokeworld.experiments.allocation_queue import catalog, paper_queue
+
+    specs, firsts = catalog("tiny"), {}
+    for t in paper_queue("tiny"):
+        firsts.setdefault(specs[t].experiment, t)
+    out, work = tmp_path / "out", tmp_path / "work"
+    env = {**os.environ, "PYTHON": sys.executable, "ALLOC_PRESET": "tiny", "ALLOC_STEPS": "10", "ALLOC_TESTS": "0",
+           "ALLOC_BUDGET_MIN": "30", "ALLOC_WORK": str(work), "PYTHONPATH": str(ROOT / "src")}
+    proc = subprocess.run(["bash", "scripts/gpu_allocation.sh", str(out), *firsts.values()], cwd=ROOT, env=env,
+                          capture_output=True, text=True, timeout=1200)
+    assert proc.returncode == 0, proc.stdout[-3000:]
+    (tmp_path / "scratch").mkdir()
+    [a] = allocations.open_allocations([out], tmp_path / "scratch")
+    assert sorted(a.progress["finished"]) == sorted(specs[t].name for t in firsts.values())
+    for exp, t in firsts.items():
+        [path] = (work / "map" / "runs" / specs[t].name).glob("measure*.json")  # measure-<corpus>.json elsewhere
+        measured = json.loads(path.read_text())
+        assert ("mlp" in measured["probes"]) == (exp != "factorial"), exp
+        assert (measured.get("untrained") is not None) == (exp != "factorial"), exp
+    merged = allocations.merge_allocations([a])
+    assert set(merged["experiments"]) >= set(firsts)

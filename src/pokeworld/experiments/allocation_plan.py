@@ -5,12 +5,13 @@ A record is one environment's: allocations are grouped by their **configuration 
 the sha256 of the corpus generator's content config (the manifest's ``config``: physics, policy, ranges, seed,
 episodes, splits), which decides the corpus bytes. The next lease trains this checkout's configuration (the key of
 the ``paper`` map's corpus as this checkout would generate it): its runs that any allocation of the same key
-finished are skipped, those with a returned checkpoint come first, then :data:`.allocation_queue.PRIORITY` (the
-seed-0 factorial, VFX and VF first, before seed 1). Runs of other configurations (an earlier environment) are named
+finished are skipped, those with a returned checkpoint come first, then :func:`.allocation_queue.paper_queue` (the
+factorial at seeds 0 and 1, VFX and VF first, then seed 2, then every other experiment of the paper, finding by
+finding). Runs of other configurations (an earlier environment) are named
 and never queued: they cannot be trained from this checkout.
 
 Every word printed for a shell comes from a closed set or is checked: run tokens are re-made from a known variant
-and an integer seed (:func:`.allocation_queue.parse_token`), the commit must be hexadecimal, and each folder to
+and an integer seed, or are run names of the map (:func:`.allocation_queue.parse_token`), the commit must be hexadecimal, and each folder to
 resume from is quoted into ALLOC_RESUME's list and the list quoted for the shell (a folder with spaces stays one).
 """
 
@@ -26,12 +27,13 @@ from pathlib import Path
 from ..errors import ConfigError
 from ..io import parse_json
 from ..sim.generate_config import content_config
-from .allocation_queue import PRIORITY, folder_list, order_queue, parse_token, token
+from .allocation_queue import folder_list, order_queue, paper_queue, parse_token
 from .config import MapConfig
 from .presets import make_config
 from .stages import corpus_config
 
-Key = tuple[str, int]
+Key = str
+"""A run's queue token: ``VARIANT@SEED`` for the factorial's, the run name for any other experiment's."""
 COMMIT = re.compile(r"[0-9a-f]{4,40}")
 #: What a device command runs first (docs/model.md "GPU allocations": the wheels carried in .whl).
 SETUP = ("python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site "
@@ -67,8 +69,8 @@ class Returned:
     checkpoints: dict[Key, int] = field(default_factory=dict)
 
 
-def queue_of(group: list[Returned]) -> dict:
-    """The queue of one configuration (finished runs skipped, checkpoints first, then the priority)."""
+def queue_of(group: list[Returned], preset: str = "paper") -> dict:
+    """The queue of one configuration (finished runs skipped, checkpoints first, then the paper's queue)."""
     finished: set[Key] = set().union(*(r.finished for r in group)) if group else set()
     ckpts: dict[Key, tuple[int, str]] = {}
     for r in group:
@@ -76,11 +78,11 @@ def queue_of(group: list[Returned]) -> dict:
             if step > ckpts.get(key, (-1, ""))[0]:
                 ckpts[key] = (step, r.source)
     resumable = {k: v for k, v in ckpts.items() if k not in finished}
-    requested = [parse_token(t) for t in PRIORITY]
+    requested = paper_queue(preset)
     requested += [k for k in resumable if k not in requested]  # a checkpoint outside the priority list resumes too
     queue = order_queue(requested, finished, set(resumable))
-    return {"queue": [token(k) for k in queue], "finished": sorted(token(k) for k in finished),
-            "resume": {token(k): {"step": step, "from": src} for k, (step, src) in resumable.items()},
+    return {"queue": list(queue), "finished": sorted(finished),
+            "resume": {k: {"step": step, "from": src} for k, (step, src) in resumable.items()},
             "resume_from": sorted({src for _, src in resumable.values()}),
             "commits": sorted({r.git for r in group}), "corpora": sorted({r.corpus_sha256[:12] for r in group})}
 
@@ -141,7 +143,7 @@ def lease_commands(p: dict, commit: str) -> list[str]:
     """The three device commands of the next lease (docs/model.md "GPU allocations: a lease"), each a line."""
     if not COMMIT.fullmatch(commit):
         raise ConfigError(f"the commit must be hexadecimal (4 to 40 digits), got {commit!r}; pass --commit SHA")
-    runs = [token(parse_token(t)) for t in p["queue"]]  # re-made from a known variant and an integer seed
+    runs = [shlex.quote(parse_token(t)) for t in p["queue"]]  # a known variant at an integer seed, or a run name
     folders = device_folders(p["resume_from"])[0]
     env = f"ALLOC_COMMIT={commit}" + (f" ALLOC_RESUME={resume_value(folders)}" if folders else "")
     return [f'{SETUP} && {env} bash scripts/gpu_lease.sh start "$OUT" {" ".join(runs)}',

@@ -3,8 +3,10 @@ queue one at a time in one ``pokeworld map`` (:class:`.map.RunHooks`), each star
 what is left, each packed for the trip back as soon as it is measured and while it trains
 (:mod:`.allocation_pack`), checkpoints that earlier allocations returned resumed first.
 
-* The queue: run tokens ``VARIANT`` or ``VARIANT@SEED`` (``VFX``, ``VF@1``), in priority order (default
-  :data:`PRIORITY`). Runs an earlier allocation given with ``--resume`` finished are dropped, runs with a checkpoint
+* The queue: run tokens ``VARIANT`` or ``VARIANT@SEED`` (``VFX``, ``VF@1``) for the factorial, the map's run name
+  for any other experiment's run (:func:`.allocation_queue.paper_queue`), in priority order (default
+  :data:`PRIORITY`). A run of another experiment is measured completely where it trains (MLP probes and the
+  untrained bound too), so its record needs no weights afterwards. Runs an earlier allocation given with ``--resume`` finished are dropped, runs with a checkpoint
   (returned by an earlier allocation, or left in the work folder) move to the front (:func:`order_queue`);
   ``python scripts/merge_allocations.py --plan`` prints the same order from what earlier allocations returned.
 * The time: a run starts (or resumes) only when ``overhead + steps left × s/step`` fits the time left before the
@@ -27,17 +29,19 @@ from pathlib import Path
 
 from .. import clock
 from ..config import to_dict
-from ..errors import PokeworldError
+from ..errors import ConfigError, PokeworldError
 from ..io import read_regular_bytes, save_bytes, write_json
 from ..rundir import last_logged_step, load_resume_checkpoint, read_metrics
 from . import allocations, stages
 from .allocation_pack import Packer, ReturnLimits, Snapshots
 from .allocation_share import SharedRuns, ShareConfig
 from .launch import cores
-from .allocation_queue import PRIORITY, order_queue, parse_token, split_folder_list, token
-from .config import MapConfig
+from .allocation_queue import PRIORITY, catalog, factorial_key, order_queue, parse_token, split_folder_list, token_of
+from ..models.xjepa import VARIANTS
+from .config import VARIANT_ORDER, MapConfig
 from .map import RunHooks, run as run_map
 from .presets import make_config
+from .registry import EXPERIMENTS
 from .runs import RunSpec, run_dir
 
 #: preset -> (s/step, overhead s) a run is predicted with until this allocation has timed one. paper: the aligned
@@ -45,10 +49,6 @@ from .runs import RunSpec, run_dir
 #: 0.0081 s/step with CUDA graphs and 56 s of compilation and measurement (V 0.0062 / 40 s, VF 0.0066 / 45 s;
 #: docs/model.md "GPU allocations"), rounded up. tiny and cpu: this repository's CPUs.
 PRIORS = {"paper": (0.0081, 60.0), "cpu": (0.3, 60.0), "tiny": (0.05, 10.0)}
-
-
-def spec_key(s: RunSpec) -> tuple[str, int]:
-    return s.train["variant"], s.seed
 
 
 @dataclass
@@ -87,9 +87,15 @@ class AllocationHooks(RunHooks):
     packed once measured; with ``share.most`` > 1 several at once (:mod:`.allocation_share`)."""
 
     def __init__(self, queue: list[str], packer: Packer, deadline: float, pace: Pace, snapshot_s: float,
-                 share: ShareConfig = ShareConfig(most=1)):
+                 share: ShareConfig = ShareConfig(most=1), complete: set[str] | frozenset[str] = frozenset()):
         self.queue, self.packer, self.deadline, self.pace, self.snapshot_s = queue, packer, deadline, pace, snapshot_s
-        self.share = share
+        self.share, self.complete = share, complete
+
+    def order(self, jobs: list[dict]) -> list[dict]:
+        """The queue's jobs in its order; those in ``complete`` measured with MLP probes and the untrained bound."""
+        by_name = {j["name"]: j for j in jobs}
+        return [{**by_name[n], "mlp": True, "untrained": True} if n in self.complete else by_name[n]
+                for n in self.queue if n in by_name]
 
     def run_all(self, c: MapConfig, jobs: list[dict], specs: list, started: float) -> None:
         if self.share.most <= 1:
@@ -111,10 +117,6 @@ class AllocationHooks(RunHooks):
         shared.run(ordered)
         self.packer.share = shared.record()
         print(f"[allocation] shared the GPU: {shared.record()}", flush=True)
-
-    def order(self, jobs: list[dict]) -> list[dict]:
-        by_name = {j["name"]: j for j in jobs}
-        return [by_name[n] for n in self.queue if n in by_name]
 
     def execute(self, job: dict) -> dict:
         name, run = job["name"], Path(job["train"]["out"])
@@ -147,11 +149,10 @@ class AllocationHooks(RunHooks):
 # ---------------------------------------------------------------------- resuming earlier allocations
 
 
-def restore(c: MapConfig, specs: dict[tuple[str, int], RunSpec], folders: list[Path],
-            scratch: Path) -> set[tuple[str, int]]:
+def restore(c: MapConfig, specs: dict[str, RunSpec], folders: list[Path], scratch: Path) -> set[str]:
     """Read the allocations returned in ``folders``: restore each checkpoint they hold (the furthest one of a run)
     into the run's folder under ``c.out`` unless that run already has one; returns the runs they finished."""
-    finished: set[tuple[str, int]] = set()
+    finished: set[str] = set()
     best: dict[str, tuple[int, allocations.Allocation]] = {}
     by_name = {s.name: s for s in specs.values()}
     for a in allocations.open_allocations(folders, scratch):
@@ -161,12 +162,12 @@ def restore(c: MapConfig, specs: dict[tuple[str, int], RunSpec], folders: list[P
         if differ:
             print(f"[allocation] {folder}: not resumed from, it ran the map with other settings ({differ})")
             continue
-        finished |= {spec_key(by_name[n]) for n in a.progress.get("finished", []) if n in by_name}
+        finished |= {token_of(by_name[n]) for n in a.progress.get("finished", []) if n in by_name}
         for name, step in a.checkpoints.items():
             if name in by_name and step > best.get(name, (-1, None))[0]:
                 best[name] = (step, a)
     for name, (step, a) in best.items():
-        if spec_key(by_name[name]) not in finished:
+        if token_of(by_name[name]) not in finished:
             restore_run(c, by_name[name], a, step)
     return finished
 
@@ -201,27 +202,51 @@ def restore_run(c: MapConfig, spec: RunSpec, a: allocations.Allocation, step: in
 # ---------------------------------------------------------------------- the allocation
 
 
+def allocation_config(a: argparse.Namespace, requested: list[str]) -> MapConfig:
+    """The map that trains ``requested`` (queue tokens): the experiments and seeds they belong to (a run of the
+    factorial alone keeps the map to its variants, so its progress names only the queue's runs); ConfigError for a
+    token that is none of the map's runs at this preset."""
+    seeds = {0, 1, 2} | {k[1] for t in requested if (k := factorial_key(t))}
+    known = catalog(a.preset, tuple(seeds))
+    unknown = [t for t in requested if t not in known]
+    if unknown:
+        raise ConfigError(f"{unknown[:3]} are not runs of the map at preset {a.preset!r} (VARIANT@SEED, or a run "
+                          "name that merge_allocations.py --plan prints)")
+    exps = [e for e in EXPERIMENTS if any(known[t].experiment == e for t in requested)]
+    only_factorial = exps == ["factorial"]
+    base = dict(out=str(a.work / "map"), experiments=tuple(exps), certify=False, mlp_probes=False,
+                untrained=False, workers=1, train_steps=a.steps, measure_device=a.measure_device,
+                seeds=tuple(sorted({known[t].seed for t in requested})))
+    # the factorial alone: its queued variants; with other experiments, every variant (their runs are the map's
+    # for the whole factorial, as the catalog's are)
+    base["variants"] = (tuple(dict.fromkeys(known[t].train["variant"] for t in requested)) if only_factorial
+                        else tuple(v for v in VARIANT_ORDER if v in VARIANTS))
+    c = make_config(a.preset, **base)
+    missing = sorted(set(requested) - {token_of(s) for s in stages.all_specs(c)})
+    if missing:
+        raise ConfigError(f"{missing[:3]} are not among the runs of the map this allocation builds; name them "
+                          "as merge_allocations.py --plan prints them")
+    return c
+
+
 def allocate(a: argparse.Namespace) -> int:
     """Restore, plan, train and pack one allocation (see the module docstring); returns the exit status."""
     started = a.started or clock.wall_clock()
     deadline = started + 60 * a.budget_min - 60 * a.reserve_min
-    requested = [parse_token(t) for t in a.runs]
-    base = dict(out=str(a.work / "map"), experiments=("factorial",), certify=False, mlp_probes=False,
-                untrained=False, workers=1, train_steps=a.steps, measure_device=a.measure_device)
-    c = make_config(a.preset, **base, variants=tuple(dict.fromkeys(v for v, _ in requested)),
-                    seeds=tuple(sorted({s for _, s in requested})))
-    specs = {spec_key(s): s for s in stages.all_specs(c)}
+    requested = list(dict.fromkeys(parse_token(t) for t in a.runs))
+    c = allocation_config(a, requested)
+    specs = {token_of(s): s for s in stages.all_specs(c)}
     with tempfile.TemporaryDirectory(prefix="pokeworld-resume-") as scratch:
         finished = restore(c, specs, a.resume, Path(scratch))
     resumable = {k for k, s in specs.items() if (run_dir(c, s.name) / "ckpt.pt").exists()
                  and not (run_dir(c, s.name) / "DONE").exists()}
     queue = order_queue(requested, finished, resumable)
-    print(f"[allocation] queue: {' '.join(map(token, queue)) or 'nothing'}"
-          + (f" (finished earlier: {' '.join(map(token, sorted(finished)))})" if finished else ""), flush=True)
+    print(f"[allocation] queue: {' '.join(queue) or 'nothing'}"
+          + (f" (finished earlier: {' '.join(sorted(finished))})" if finished else ""), flush=True)
     left_min = (deadline - clock.wall_clock()) / 60
-    if queue:  # the map's progress then names the queue's variants × seeds
-        c = dataclasses.replace(c, variants=tuple(dict.fromkeys(v for v, _ in queue)),
-                                seeds=tuple(sorted({s for _, s in queue})))
+    if queue and all(factorial_key(t) for t in queue):  # the map's progress then names the queue's runs
+        c = dataclasses.replace(c, variants=tuple(dict.fromkeys(specs[t].train["variant"] for t in queue)),
+                                seeds=tuple(sorted({specs[t].seed for t in queue})))
     limits = ReturnLimits(parts=a.return_parts, **({"part_bytes": a.part_bytes} if a.part_bytes else {}))
     packer = Packer(c, stages.all_specs(c), a.out, clock.wall_clock(), limits)
     packer.pack()  # the device record and any restored checkpoint come back even if nothing else does
@@ -230,8 +255,11 @@ def allocate(a: argparse.Namespace) -> int:
         return 0 if not queue else 4
     prior = PRIORS.get(a.preset, PRIORS["paper"])
     pace = Pace(a.prior_s_per_step or prior[0], a.prior_overhead_s if a.prior_overhead_s >= 0 else prior[1])
-    names = [specs[k].name for k in queue]
-    hooks = AllocationHooks(names, packer, deadline, pace, a.snapshot_s, ShareConfig(most=a.concurrency))
+    # runs of experiments other than the factorial are measured completely where they train (MLP probes and the
+    # untrained bound too): their records then need no weights on the CPU side
+    complete = {specs[t].name for t in queue if specs[t].experiment != "factorial"}
+    hooks = AllocationHooks([specs[t].name for t in queue], packer, deadline, pace, a.snapshot_s,
+                            ShareConfig(most=a.concurrency), complete)
     run_map(dataclasses.replace(c, time_budget_min=left_min + a.reserve_min, time_reserve_min=a.reserve_min), hooks)
     packer.pack()
     return 0
@@ -241,7 +269,9 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description="One GPU allocation's training (scripts/gpu_allocation.sh runs it).")
     ap.add_argument("out", type=Path, help="the folder the device machine returns")
     ap.add_argument("--work", type=Path, required=True, help="the map's working folder (corpus, checkpoints)")
-    ap.add_argument("--runs", nargs="*", default=list(PRIORITY), help="VARIANT or VARIANT@SEED, in priority order")
+    ap.add_argument("--runs", nargs="*", default=list(PRIORITY),
+                    help="VARIANT@SEED (the factorial) or a run name of any experiment (merge_allocations.py --plan "
+                         "prints the paper's queue), in priority order")
     ap.add_argument("--preset", default="paper")
     ap.add_argument("--steps", type=int, default=0, help="training steps per run (0: the preset's)")
     ap.add_argument("--budget-min", type=float, default=8.5, help="minutes from --started to the end")
@@ -272,7 +302,7 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit(f"error: {e}") from None
 
 
-__all__ = ["PRIORITY", "PRIORS", "parse_token", "token", "order_queue", "spec_key", "Pace", "checkpoint_step",
+__all__ = ["PRIORITY", "PRIORS", "parse_token", "token_of", "order_queue", "allocation_config", "Pace", "checkpoint_step",
            "AllocationHooks", "restore", "restore_run", "allocate", "main"]
 
 if __name__ == "__main__":

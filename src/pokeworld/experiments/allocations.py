@@ -66,7 +66,7 @@ from .allocation_cpu import attach_cpu_side, record_lines
 from .allocation_pack import COMPACT_MIN_ELEMENTS, INDEX, RECORDS, ReturnLimits, load_member, part_path, read_stream
 from . import allocation_plan
 from .allocation_plan import Returned, configuration_key, plan_lines
-from .allocation_queue import checked_key
+from .allocation_queue import catalog, factorial_key, word_of
 from .config import VARIANT_ORDER, MapConfig, recorded_map_config
 from .factorial import FACTORIAL
 from .runs import spec_measure_path
@@ -674,20 +674,24 @@ def carry_earlier_runs(merged: dict, previous: dict | None) -> dict:
 # ---------------------------------------------------------------------- the next allocation
 
 
-def run_key(a: Allocation, name: str) -> tuple[str, int]:
-    """(variant, seed) of run ``name`` of ``a``, from its config.json: a known variant and an integer seed
-    (:func:`.allocation_queue.checked_key`), else one ConfigError line naming the file (the words go into a printed
-    command)."""
+def run_key(a: Allocation, name: str, other_names: set[str]) -> str:
+    """The queue token of run ``name`` of ``a`` (:func:`.allocation_queue.word_of`: its name for a run of another
+    experiment than the factorial, else ``VARIANT@SEED``), from its config.json: a known variant and an integer seed,
+    else one ConfigError line naming the file (the words go into a printed command)."""
     path = a.root / "runs" / name / "config.json"
     cfg = read_json(path, "a run config")
-    return checked_key(cfg.get("variant"), cfg.get("seed", 0), str(path))
+    return word_of(name, cfg.get("variant"), cfg.get("seed", 0), other_names, str(path))
 
 
 def returned_of(a: Allocation) -> Returned:
     """What ``a`` returned, as the plan needs it: every run's words checked (:func:`run_key`)."""
+    seeds = {0, 1, 2}  # the paper queue's seeds: another experiment's run at another seed is named by its config
+    preset = str(a.map_config.get("preset", "paper"))
+    names = {s.name for t, s in catalog(preset if preset in ("tiny", "cpu", "paper") else "paper",
+                                        tuple(seeds)).items() if not factorial_key(t)}
     return Returned(a.source, a.configuration, a.corpus_sha256, str(a.device.get("git", "?")),
-                    {run_key(a, n) for n in a.progress.get("finished", [])},
-                    {run_key(a, n): step for n, step in a.checkpoints.items()})
+                    {run_key(a, n, names) for n in a.progress.get("finished", [])},
+                    {run_key(a, n, names): step for n, step in a.checkpoints.items()})
 
 
 def plan(allocs: list[Allocation], configuration: str | None = None) -> dict:
