@@ -96,3 +96,46 @@ REAL_JOINT = {  # §5 "One model, two robots": configuration-blind VFX vs the sp
 PLANNING = {  # App. C Table "planning": controller -> (goal-region reach, median distance improvement)
     "random": (0.01, 0.00), "V": (0.20, 0.02), "VX_t": (0.38, 0.15), "VX_p": (0.44, 0.18), "VFX": (0.57, 0.24),
 }
+
+# ----------------------------------------------------------------------------- values the reproduction ledger adds
+# (pokeworld.reproduction; the other experiments' values stay in their modules, e.g. experiments.factorial.FACTORIAL)
+
+TARGETS_PER_SEED = {  # Table "targets": ridge R² on contact windows, seeds (s0, s1); FACTORIAL holds their means
+    "V": {"log_k": (-0.02, -0.02), "log_m": (0.15, 0.14)},
+    "VF": {"log_k": (-0.02, -0.01), "log_m": (0.19, 0.21)},
+    "VX_p": {"log_k": (-0.02, -0.01), "log_m": (0.18, 0.18)},
+    "VX_t": {"log_k": (0.40, 0.43), "log_m": (0.26, 0.25)},
+    "VX": {"log_k": (0.46, 0.45), "log_m": (0.26, 0.28)},
+    "VFX": {"log_k": (0.50, 0.49), "log_m": (0.29, 0.31)},
+}
+
+COMPOSITION = (0.96, 1.00)  # App. C "Composition probes": finger, object, relative position, every variant
+OPEN_LOOP = {  # App. C after Table "targets": multi-horizon position probes and open-loop 8-step decoded error
+    "object_pos": (0.95, 0.98), "rollout8": (0.062, 0.082)}  # (its static-8 baseline: CORPUS_STATS["static8"])
+
+GAMMA_PLATEAU = 0.13  # abstract, §4.5: γ "plateaus near 0.13" in every model, both probe families
+GAMMA_LEDGER = {  # App. C, the γ intervention ledger (Fig. "ledger"): best γ readout at each stage
+    "single_horizon": 0.00, "multi_horizon": 0.05, "motion_channel": 0.12}  # later mechanisms: "no gain"
+
+PIXEL_READOUT_RATIO = {  # §4.5 / App. C "Pixel-derived certificates": model readout / pixel certificate
+    "log_k": (0.64, 0.79), "log_m": 0.43, "gamma": 0.30}
+FRAME_AVERAGED_LOG_K_CERTIFICATE = 0.0  # §4.4: with frame-averaged touch "stiffness is unrecoverable"
+MODEL_PARAMETERS = 5_000_000  # §3 "Models are ~5M parameters" (and Limitations)
+DRIFT_CERTIFICATE = 0.03  # App. C "Constructing the cells" (i): per-episode drift acceleration, rejected
+
+GAIN_CELL = {  # App. C "Constructing the cells": the actuation gain g as its own corpus, and that run's probes
+    "linear": -0.013, "recurrent": 0.689, "ridge": -0.011, "mlp": -0.010,
+    "log_k": 0.34, "log_m": 0.20, "object_pos": 0.96}
+
+CONTROLS_MLP = {  # Table "controls": the early-stopped MLP readouts in parentheses (ridge: experiments.controls)
+    "VFX": {"log_m": 0.26, "gamma": 0.06, "log_k": 0.50},
+    "VFX+sysid": {"log_m": 0.70, "gamma": 0.39, "log_k": 0.91},
+    "VFX-gnll": {"log_m": 0.29, "gamma": 0.07, "log_k": 0.48},
+    "V-recon": {"log_m": 0.00, "gamma": 0.00, "log_k": -0.10},
+    "VFX-recon": {"log_m": 0.19, "gamma": -0.04, "log_k": 0.63},
+}
+CONTROLS_DIRECT16 = {"VFX": 0.098, "VFX+sysid": 0.101, "VFX-gnll": 0.143}  # Table "controls" (recon rows: "—")
+
+REAL_CORPUS = {  # §5 and App. C: the RH20T corpora (cfg7 KUKA, cfg1 Flexiv)
+    "kuka_episodes": 896, "kuka_tasks": 56, "flexiv_episodes": 4258,
+    "onset_base_rate": {"cfg7": 0.0275, "cfg1": 0.0064}}  # contact-onset base rates (App. C protocol notes)

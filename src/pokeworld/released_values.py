@@ -43,8 +43,22 @@ MULTI_HORIZON = {
 }
 
 #: The single-horizon first experiment (exp/e001_xmodal_jepa: Δ = 1 only, no multi-horizon heads; not the
-#: configuration of Table "targets", shown to say how much the multi-horizon objective adds). Ridge, contact windows.
+#: configuration of Table "targets"'s probe columns, shown to say how much the multi-horizon objective adds; its
+#: ``probe_r2_pos_frame`` is the single-horizon position column of that table, §4.2's lazy equilibrium). Ridge,
+#: contact windows.
 SINGLE_HORIZON = {
+    ("V", 0): {"source": "exp/e001_xmodal_jepa/results/V_s0.json",
+               "ridge": {"log_k": -0.0107, "log_m": 0.0206, "gamma": -0.0214}, "object_pos_frame": 0.0381,
+               "params": 4001856, "minutes": 32.1},
+    ("VX_p", 0): {"source": "exp/e001_xmodal_jepa/results/VXp_s0.json",
+                  "ridge": {"log_k": -0.0102, "log_m": 0.0457, "gamma": -0.0134}, "object_pos_frame": 0.094,
+                  "params": 4020772, "minutes": 39.9},
+    ("VX_t", 0): {"source": "exp/e001_xmodal_jepa/results/VXt_s0.json",
+                  "ridge": {"log_k": 0.3008, "log_m": 0.0399, "gamma": 0.0018}, "object_pos_frame": 0.1717,
+                  "params": 4021063, "minutes": 40.0},
+    ("VX", 0): {"source": "exp/e001_xmodal_jepa/results/VX_s0.json",
+                "ridge": {"log_k": 0.3343, "log_m": 0.0497, "gamma": 0.0089}, "object_pos_frame": 0.5795,
+                "params": 4039979, "minutes": 32.0},
     ("VFX", 0): {"source": "exp/e001_xmodal_jepa/results/VFX_s0.json",
                  "ridge": {"log_k": 0.2662, "log_m": 0.0821, "gamma": 0.0009}, "object_pos_frame": 0.8817,
                  "params": 4090155, "minutes": 37.7},
@@ -54,10 +68,23 @@ SINGLE_HORIZON = {
 }
 
 
+#: The multiscale experiment (exp/e002_multiscale: multi-horizon heads, the experiment before the e003 runs above),
+#: whose V position (0.890) and VFX position (0.980) are §4.2's "multi-horizon heads restore it to 0.89 ... compose to
+#: 0.98". ``direct16`` = ``direct16_pos_err``, ``rollout16`` = ``rollout_pos_err["16"]``; ridge on contact windows.
+MULTISCALE = {
+    ("V", 0): {"source": "exp/e002_multiscale/results/V_s0.json",
+               "ridge": {"log_k": -0.0169, "log_m": 0.0024, "gamma": -0.0055}, "object_pos_frame": 0.8903,
+               "direct16": 0.1446, "rollout16": 0.3615, "static16": 0.2048, "params": 4089920},
+    ("VFX", 0): {"source": "exp/e002_multiscale/results/VFX_s0.json",
+                 "ridge": {"log_k": 0.3061, "log_m": 0.1455, "gamma": 0.0121}, "object_pos_frame": 0.9803,
+                 "direct16": 0.1142, "rollout16": 0.2338, "static16": 0.2048, "params": 4184054},
+}
+
+
 def released(variant: str, seed: int, table: dict = MULTI_HORIZON) -> dict:
     """The released run of ``variant`` at ``seed`` (empty when none was released or its numbers are not
     transcribed here)."""
     return table.get((variant, seed), {})
 
 
-__all__ = ["SOURCE_REPO", "SOURCE_COMMIT", "MULTI_HORIZON", "SINGLE_HORIZON", "released"]
+__all__ = ["SOURCE_REPO", "SOURCE_COMMIT", "MULTI_HORIZON", "SINGLE_HORIZON", "MULTISCALE", "released"]
