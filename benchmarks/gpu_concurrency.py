@@ -1,6 +1,6 @@
 """Several runs on one GPU: 1, 2 and 3 concurrent training processes, and one stacked group, per-model step time.
 
-Usage:  python benchmarks/gpu_concurrency.py [--preset paper] [--processes 1 2 3] [--members 6] [--steps 30]
+Usage:  python benchmarks/gpu_concurrency.py [--preset paper] [--processes 1 2 3] [--members 2 4 6] [--steps 30]
                                             [--compile auto] [--max-s 115] [--out OUT.json]
 
 Each configuration runs in fresh processes (no compilation is shared with another configuration):
@@ -9,7 +9,7 @@ Each configuration runs in fresh processes (no compilation is shared with anothe
   ``train.run`` does (:func:`train_stacked.bench_sequential` with one member); each times ``--steps`` steps after 3
   warm-up steps (which hold any compilation). Per-model step time = the slowest process's s/step ÷ k: the wall time
   the GPU needs per model-step when k runs share it.
-* ``stacked M``: one process training an M-member stacked group (``pokeworld.train.stacked``; the factorial's
+* ``stacked M`` (each M of ``--members``): one process training an M-member stacked group (``pokeworld.train.stacked``; the factorial's
   variants, zero-embedded), per-model step time = its s/step ÷ M.
 
 ``--compile auto`` (default) is training's own default: CUDA graphs on CUDA (the warm-up compiles), eager on a CPU.
@@ -43,7 +43,7 @@ def worker(a: argparse.Namespace) -> None:
     """One process of one configuration: time its steps and print one JSON line."""
     device = pick_device("auto")
     mix = "factorial" if a.worker == "stacked" else "seeds"
-    cfgs = member_configs(a.preset, a.members if a.worker == "stacked" else 1, mix, device, a.compile)
+    cfgs = member_configs(a.preset, a.members[0] if a.worker == "stacked" else 1, mix, device, a.compile)
     if a.worker == "single":
         cfgs = [dataclasses.replace(cfgs[0], seed=a.seed)]
     ds = synthetic_dataset(num_episodes=24, steps=40, size=cfgs[0].image_size, seed=0)
@@ -53,8 +53,35 @@ def worker(a: argparse.Namespace) -> None:
                       "wall_s": time.perf_counter() - t0}), flush=True)
 
 
+class Utilisation:
+    """nvidia-smi's GPU utilisation sampled every half second while a configuration runs (read only; None without
+    nvidia-smi): the share of time a kernel ran, not how full the GPU was."""
+
+    def __enter__(self) -> "Utilisation":
+        import shutil
+
+        self.proc = None
+        if shutil.which("nvidia-smi"):
+            self.proc = subprocess.Popen(["nvidia-smi", "--query-gpu=utilization.gpu", "--format=csv,noheader,nounits",
+                                          "-lms", "500"], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.mean = None
+        if self.proc is not None:
+            self.proc.terminate()
+            values = [float(x) for x in self.proc.communicate()[0].split() if x.replace(".", "", 1).isdigit()]
+            self.mean = round(sum(values) / len(values), 1) if values else None
+
+
 def launch(a: argparse.Namespace, kind: str, n: int, deadline: float) -> dict:
     """Run one configuration (n processes of ``single``, or one ``stacked`` of n members) until ``deadline``."""
+    with Utilisation() as util:
+        row = run_configuration(a, kind, n, deadline)
+    return {**row, "gpu_utilisation_percent": util.mean}
+
+
+def run_configuration(a: argparse.Namespace, kind: str, n: int, deadline: float) -> dict:
     base = [sys.executable, __file__, "--worker", kind, "--preset", a.preset, "--steps", str(a.steps),
             "--compile", a.compile, "--members", str(n)]
     procs = [subprocess.Popen(base + ["--seed", str(i)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -84,7 +111,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--preset", default="paper")
     ap.add_argument("--processes", nargs="+", type=int, default=[1, 2, 3])
-    ap.add_argument("--members", type=int, default=6, help="members of the stacked group (0: none)")
+    ap.add_argument("--members", type=int, nargs="*", default=[6],
+                    help="members of each stacked group to time (none: no stacked group)")
     ap.add_argument("--steps", type=int, default=30)
     ap.add_argument("--compile", choices=("auto", "on", "off"), default="auto")
     ap.add_argument("--max-s", type=float, default=115.0)
@@ -95,15 +123,15 @@ def main() -> None:
     if a.worker:
         worker(a)
         return
-    if any(k < 1 for k in a.processes) or a.members < 0 or a.steps < 1:
-        raise SystemExit("--processes must be ≥ 1, --members ≥ 0 and --steps ≥ 1")
+    if any(k < 1 for k in a.processes) or any(m < 1 for m in a.members) or a.steps < 1:
+        raise SystemExit("--processes and --members must be ≥ 1 and --steps ≥ 1")
     deadline = time.monotonic() + a.max_s
     device = pick_device("auto")
     meta = {"device": torch.cuda.get_device_name() if device.type == "cuda" else f"cpu ({os.cpu_count()} cores)",
             "torch": torch.__version__, "preset": a.preset, "compile": a.compile, "steps": a.steps,
             "loadavg": list(os.getloadavg())}
     rows = []
-    configs = [("single", k) for k in a.processes] + ([("stacked", a.members)] if a.members else [])
+    configs = [("single", k) for k in a.processes] + [("stacked", m) for m in a.members]
     for kind, n in configs:
         label = f"{n} process{'es' if n > 1 else ''}" if kind == "single" else f"stacked group of {n}"
         row = {"configuration": label, **(launch(a, kind, n, deadline) if time.monotonic() < deadline else

@@ -132,3 +132,23 @@ def test_runs_beyond_the_settled_level_are_paused_and_resumed_as_others_end(tmp_
         for p in procs:
             p.kill()
             p.wait()
+
+
+def test_finish_times_play_the_work_out_at_the_measured_rates():
+    from pokeworld.experiments.allocation_share import finish_times
+
+    tp = Throughput(0.01)
+    tp.add(1, 100.0)
+    tp.add(2, 150.0)
+    # alone: 10 s of overhead, then 1,000 steps at 100 steps/s
+    assert finish_times([(1000, 10.0)], tp, 4) == [20.0]
+    # two at once share 150 steps/s (75 each): the first ends its 750 steps at 10 s, the second runs alone
+    # after it (250 steps left at 100 steps/s)
+    a, b = finish_times([(750, 0.0), (1000, 0.0)], tp, 4)
+    assert abs(a - 10.0) < 1e-9 and abs(b - 12.5) < 1e-9
+    # at most one at once: the second waits for the first
+    a, b = finish_times([(750, 0.0), (1000, 0.0)], tp, 1)
+    assert abs(a - 7.5) < 1e-9 and abs(b - 17.5) < 1e-9
+    # more at once than measured: no gain assumed beyond the best measured total
+    assert abs(max(finish_times([(1500, 0.0)] * 4, tp, 4)) - 40.0) < 1e-9
+    assert finish_times([(0, 0.0)], tp, 4) == [0.0] and finish_times([], tp, 4) == []

@@ -171,6 +171,38 @@ class Ramp:
         return line
 
 
+def finish_times(work: list[tuple[int, float]], tp: Throughput, most: int) -> list[float]:
+    """Seconds until each run of ``work`` (steps left, overhead seconds left) ends, played out as a fluid: the
+    runs with work share the total rate of as many runs at once (at most ``most`` train, the rest wait), equally;
+    a run's overhead (start-up and compilation, or its measurement) counts as time it holds its place without
+    stepping. Pessimistic where R(n) is not measured (:meth:`Throughput.total`)."""
+    # each run as seconds of overhead then steps; a run in overhead still takes its share of places (a compiling or
+    # measuring run holds the GPU lightly, so its share of the steps goes to the others)
+    left = [[float(o), float(n)] for n, o in work]
+    ends = [0.0] * len(work)
+    t = 0.0
+    active = [i for i in range(len(work))]
+    while active:
+        run = active[:max(most, 1)]
+        for i in [i for i in run if left[i][0] <= 1e-9 and left[i][1] <= 1e-6]:  # nothing left: ended now
+            ends[i] = t
+            active.remove(i)
+        run = active[:max(most, 1)]
+        if not run:
+            break
+        stepping = [i for i in run if left[i][0] <= 0 and left[i][1] > 0]
+        rate = tp.total(len(stepping)) / len(stepping) if stepping else 0.0
+        # the next event: an overhead ends, or a stepping run's steps end
+        dt = min([left[i][0] for i in run if left[i][0] > 0] + [left[i][1] / rate for i in stepping if rate > 0])
+        t += dt
+        for i in run:
+            if left[i][0] > 0:
+                left[i][0] -= dt
+            elif i in stepping:
+                left[i][1] -= rate * dt
+    return ends
+
+
 def work(job: dict, conn) -> None:
     """A run's process: train and measure ``job`` (:func:`.stages.execute`) and send back its result; any error
     is sent as the run's, so that it ends this run only."""
@@ -208,6 +240,11 @@ class SharedRuns:
         self.overheads: list[float] = []
         self.declined: dict[str, str] = {}
         self.last_status = 0.0
+        self.t0 = clock.wall_clock()
+
+    def say(self, line: str) -> None:
+        """A line of the allocation's log, with the seconds since the runs began (the lease's record times them)."""
+        print(f"[share +{clock.wall_clock() - self.t0:.0f}s] {line}", flush=True)
 
     def active(self) -> list[Slot]:
         return [s for s in self.slots if not s.paused]
@@ -219,7 +256,7 @@ class SharedRuns:
             self.observe(now)
             line = self.ramp.update(self.tp)
             if line:
-                print(f"[share] {line}", flush=True)
+                self.say(line)
             self.balance()
             while queue and len(self.slots) < self.ramp.target:
                 verdict = self.admit(queue[0], now)
@@ -230,7 +267,7 @@ class SharedRuns:
                     self.start(job, now)
                 else:
                     self.declined[job["name"]] = verdict
-                    print(f"[share] {job['name']}: not started, {verdict}", flush=True)
+                    self.say(f"{job['name']}: not started, {verdict}")
             if not self.slots:
                 continue
             ready = mp_wait([s.process.sentinel for s in self.slots], timeout=self.cfg.poll_s)
@@ -253,8 +290,7 @@ class SharedRuns:
             return
         slot.paused = paused
         slot.watch.rows.clear()  # its rate is measured afresh once it trains again
-        print(f"[share] {slot.job['name']}: {'paused' if paused else 'resumed'} ({len(self.active())} training)",
-              flush=True)
+        self.say(f"{slot.job['name']}: {'paused' if paused else 'resumed'} ({len(self.active())} training)")
 
     def start(self, job: dict, now: float) -> None:
         ctx = multiprocessing.get_context("spawn")  # no CUDA state is inherited: each run makes its own context
@@ -267,8 +303,8 @@ class SharedRuns:
         process.start()
         send.close()
         self.slots.append(Slot(job, watch, process, receive, step))
-        print(f"[share] {job['name']}: started ({len(self.slots)} at once, ramp target {self.ramp.target}), "
-              f"{watch.steps - step} steps", flush=True)
+        self.say(f"{job['name']}: started ({len(self.slots)} at once, ramp target {self.ramp.target}), "
+                 f"{watch.steps - step} steps")
 
     def end(self, slot: Slot) -> None:
         self.slots.remove(slot)
@@ -283,11 +319,12 @@ class SharedRuns:
             result = {"name": slot.job["name"], "status": "partial",
                       "error": f"its process ended with exit code {slot.process.exitcode} and no result"}
         if result.get("error"):
-            print(f"[share] {slot.job['name']}: failed ({result['error'][:300]})", flush=True)
+            self.say(f"{slot.job['name']}: failed ({result['error'][:300]})")
         wall = clock.wall_clock() - slot.watch.started
         if result.get("status") == "finished":
             self.learn_overhead(slot, wall)
         result["wall_s"] = round(wall, 1)
+        self.say(f"{slot.job['name']}: {result.get('status')} after {wall:.0f} s ({len(self.slots)} still running)")
         self.finished(slot.job, result, frozenset(s.job["name"] for s in self.slots))
     def learn_overhead(self, slot: Slot, wall: float) -> None:
         """The run's wall time less the time its rows account for: start-up, compilation and measurement."""
@@ -314,13 +351,14 @@ class SharedRuns:
             self.last_status = now
             each = ", ".join(f"{s.watch.name} {s.watch.step()}/{s.watch.steps}{' (paused)' if s.paused else ''}"
                              for s in self.slots)
-            print(f"[share] {len(self.active())} training: {each}; steps/s in all by runs at once "
-                  f"{self.tp.table() or '(not measured yet)'}", flush=True)
+            self.say(f"{len(self.active())} training: {each}; steps/s in all by runs at once "
+                     f"{self.tp.table() or '(not measured yet)'}")
 
     def admit(self, job: dict, now: float) -> str:
         """'go', 'wait' (it would fit once fewer runs share the GPU) or why it cannot finish before the deadline.
-        With n runs then training at once (at most the ramp's target): the newcomer's own time (overhead + its
-        steps at the per-run rate of n) and the time for all the work left at the total rate of n must fit."""
+        The work left, the newcomer's included, is played out at the measured total rates (:func:`finish_times`:
+        n runs training share R(n) equally, each run's overhead before its last step): the newcomer goes when every
+        run then ends before the deadline."""
         left = self.deadline - now
         steps_left = max(0, stages.job_train_config(job).steps - self.start_step(job))
         alone = self.overhead_s + steps_left / self.tp.per_run(1)
@@ -328,11 +366,11 @@ class SharedRuns:
             return f"{steps_left} steps predicted to take {alone:.0f} s even alone but {max(left, 0):.0f} s are left"
         if any(s.paused for s in self.slots):
             return "wait"
-        n = min(len(self.slots) + 1, max(self.ramp.target, 1))
-        own = self.overhead_s + steps_left / self.tp.per_run(n)
-        rest = sum(max(0, s.watch.steps - s.watch.step()) for s in self.slots)
-        every = self.overhead_s + (rest + steps_left) / self.tp.total(n)
-        return "go" if self.cfg.margin * max(own, every) <= left else "wait"
+        # a run still to compile is charged the whole overhead, one already training its measurement (about half)
+        work = [(max(0, s.watch.steps - s.watch.step()),
+                 self.overhead_s / 2 if s.watch.rows else self.overhead_s) for s in self.slots]
+        ends = finish_times(work + [(steps_left, self.overhead_s)], self.tp, self.ramp.target)
+        return "go" if self.cfg.margin * max(ends) <= left else "wait"
 
     def record(self) -> dict:
         """What the sharing measured, for the allocation's index."""
@@ -341,4 +379,4 @@ class SharedRuns:
                 "declined": dict(self.declined)}
 
 
-__all__ = ["ShareConfig", "RunWatch", "Throughput", "Ramp", "work", "Slot", "SharedRuns"]
+__all__ = ["ShareConfig", "RunWatch", "Throughput", "Ramp", "finish_times", "work", "Slot", "SharedRuns"]
