@@ -302,3 +302,18 @@ def test_the_protocol_never_writes_into_the_store_it_reads(w, tmp_path, monkeypa
     with pytest.raises(PokeworldError, match="lies inside the input"):
         certify_model(w["model"], w["store"], w["store"], certificates=planted_certificates(), preset="tiny")
     assert snapshot(w["store"]) == before
+
+
+def test_probe_refuses_a_measurement_it_may_not_replace_before_any_work(w, tmp_path, monkeypatch, capsys):
+    # the folder's measure.json came with it (copied, not written by pokeworld here) and is out of date: probe
+    # would measure, keep it as measure.previous.json and only then be refused replacing it
+    folder = copy_folder(w["model"], tmp_path / "model")
+    edit_json(folder / "measure.json", lambda m: m["key"].update(final_mtime=1, config={**m["key"]["config"],
+                                                                                        "stride": 8}))
+    before = snapshot(folder)
+    tripwires(monkeypatch)
+    capsys.readouterr()
+    assert main(["probe", "--preset", "tiny", str(folder)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "measure.json exists and pokeworld did not write it" in err, err
+    assert snapshot(folder) == before

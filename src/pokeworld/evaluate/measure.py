@@ -332,8 +332,9 @@ def run(cfg: MeasureConfig) -> Path:
         return out
     changed = settings_changed(prev, key)
     kept = previous_path(out)
-    if changed:
-        check_outputs(run_dir, kept.name)  # refused now, not after the measurement
+    # both outputs refused now, not after the measurement: an earlier measure.json pokeworld did not write (a copy
+    # brought in with a downloaded model) is never replaced, and nothing is kept beside it first
+    check_outputs(run_dir, out.name, *([kept.name] if changed else []))
     dev = pick_device(cfg.device)
     # the weights (finite, fitting their kwargs) and the store's streams and the windows against the model, before
     # the store is read
