@@ -97,15 +97,18 @@ def planted_certificates() -> dict:
 
 def tripwires(monkeypatch) -> None:
     """Replace the first long step of every reader of a model folder by :class:`Worked`: probe's measurement, plan's
-    random controller, forecast-dependence's fresh corpus, the protocol's certificates and probes."""
+    random controller, forecast-dependence's fresh corpus, the protocol's certificates and probes, swm-plan's
+    stable-worldmodel (the extra it needs, before its controllers)."""
     from pokeworld import plan, protocol
     from pokeworld.evaluate import dependence_runs, measure
+    from pokeworld.swm import costable
 
     def worked(*args, **kwargs):
         raise Worked()
 
     for module, name in ((measure, "measure"), (plan, "control"), (dependence_runs, "fresh_corpus"),
-                         (protocol, "resolve_certificates"), (protocol, "run_probes")):
+                         (protocol, "resolve_certificates"), (protocol, "run_probes"),
+                         (costable, "stable_worldmodel"), (costable, "control")):
         monkeypatch.setattr(module, name, worked)
 
 
@@ -119,7 +122,9 @@ def read_as(reader: str, folder: Path, w: dict[str, Path], out: Path, capsys) ->
             "plan": ["plan", "--preset", "tiny", str(out), "--runs", str(folder), "--data", str(w["store"])],
             "forecast-dependence": ["forecast-dependence", "--preset", "tiny", str(out), "--runs", str(folder),
                                     "--store", str(w["store"])],
-            "export": ["export", str(folder), "--out", str(out)]}.get(reader)
+            "export": ["export", str(folder), "--out", str(out)],
+            "swm-plan": ["swm-plan", "--preset", "tiny", "--plan.out", str(out), "--plan.runs", str(folder),
+                         "--plan.data", str(w["store"])]}.get(reader)
     capsys.readouterr()
     try:
         if argv is None:
@@ -139,5 +144,5 @@ def read_as(reader: str, folder: Path, w: dict[str, Path], out: Path, capsys) ->
     return err
 
 
-READERS = ("probe", "plan", "forecast-dependence", "export", "protocol")
+READERS = ("probe", "plan", "forecast-dependence", "export", "protocol", "swm-plan")
 """Every reader of an exported folder."""

@@ -90,7 +90,7 @@ def test_an_export_replaces_an_earlier_export_card_last(w, tmp_path, monkeypatch
     monkeypatch.undo()
     assert not (out / CARD).exists() and (out / WEIGHTS).exists()
     tripwires(monkeypatch)
-    for reader in ("probe", "plan", "forecast-dependence", "protocol"):
+    for reader in (r for r in READERS if r != "export"):
         err = read_as(reader, out, w, tmp_path / f"out-{reader}", capsys)
         assert "did not finish" in err and CARD in err, (reader, err)
         assert written(tmp_path / f"out-{reader}") == []
