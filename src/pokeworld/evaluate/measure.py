@@ -52,11 +52,11 @@ from ..errors import ConfigError, PokeworldError
 from ..faults import crash_point
 from ..io import check_outputs, check_writable_dir, read_json, write_json
 from ..model_inputs import checked_model
-from .measure_record import MAX_MEASUREMENT_BYTES
 from ..models.xjepa import XJEPA
 from ..preflight import finished_run
 from ..run_store import trained_store
 from ..rundir import adopt_legacy_run, finished_marker, load_model, read_run_config
+from .measure_record import MAX_MEASUREMENT_BYTES
 from .prediction import (  # noqa: F401
     CONTEXT,
     HORIZON,
