@@ -86,8 +86,9 @@ def test_the_next_allocation_resumes_the_cut_run_and_the_plan_puts_it_first(kill
     plan = capsys.readouterr().out.splitlines()
     assert plan[1].startswith("[plan] next lease, in this order: VFX@0 VF@0 VX_t@0 VX_p@0 VX@0 VFX@1 VF@1 V@1 "
                               "VX_t@1 VX_p@1 VX@1 VFX@2 ")
-    # the returned folder lies outside the checkout: the plan copies it in, and the device reads that copy
-    assert plan[4] == f"cp -r -- {shlex.quote(str(out))} .resume/{out.name}"
+    # the returned folder lies outside the checkout: the plan copies its contents in (never into an earlier copy),
+    # and the device reads that copy
+    assert plan[4] == f"cp -r -- {shlex.quote(str(out) + '/.')} .resume/{out.name}"
     assert f'ALLOC_COMMIT=feed123 ALLOC_RESUME=.resume/{out.name} bash scripts/gpu_lease.sh start "$OUT" VFX@0' \
         in plan[7]
     step = allocations.open_allocation(out, tmp_path).checkpoints[VFX]

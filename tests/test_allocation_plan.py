@@ -94,7 +94,7 @@ def test_every_folder_to_resume_from_is_copied_into_the_checkouts_resume_folder(
     paths, copies = ap.device_folders([".resume/h200-1", *map(str, elsewhere)], root=root)
     assert paths == [".resume/h200-1", ".resume/h200-1-2", ".resume/h200-1-3", ".resume/$(id) a"]
     assert copies[0].startswith("mkdir -p .resume") and "/.resume/" in copies[0]
-    assert [shlex.split(c)[-2:] for c in copies[1:]] == [[str(o), p] for o, p in zip(elsewhere, paths[1:])]
+    assert [shlex.split(c)[-2:] for c in copies[1:]] == [[f"{o}/.", p] for o, p in zip(elsewhere, paths[1:])]
     assert ap.device_folders([".resume/h200-1"], root=root) == ([".resume/h200-1"], [])
 
 
@@ -148,3 +148,65 @@ def test_one_allocation_trains_and_measures_a_run_of_every_experiment(tmp_path):
         assert (measured.get("untrained") is not None) == (exp != "factorial"), exp
     merged = allocations.merge_allocations([a])
     assert set(merged["experiments"]) >= set(firsts)
+
+
+def _copied(root, folders):
+    """The plan's folders to resume from and its copy lines, the lines run in a real bash at ``root``."""
+    import subprocess
+
+    paths, copies = ap.device_folders(folders, root=root)
+    for line in copies:
+        subprocess.run(["/bin/bash", "-c", line], cwd=root, check=True, timeout=30)
+    return paths, copies
+
+
+def _files(folder):
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def test_a_later_plans_copy_never_nests_in_an_earlier_one_and_alloc_resume_names_it(tmp_path, monkeypatch):
+    # a lease returns into out/returned; a plan copies it into .resume/; the lease's next command returns more into
+    # the same folder, and the next plan must copy that, not nest it in the earlier copy nor name the earlier copy
+    root = tmp_path / "repo"
+    (root / ".git" / "info").mkdir(parents=True)
+    returned = tmp_path / "out" / "returned"
+    (returned / "parts").mkdir(parents=True)
+    (returned / "records.tar.gz").write_bytes(b"first")
+    assert _copied(root, [str(returned)])[0] == [".resume/returned"]
+    assert _files(root / ".resume" / "returned") == _files(returned)
+    # the same return planned again: its copy is there already, nothing to copy, the same folder named
+    assert ap.device_folders([str(returned)], root=root) == ([".resume/returned"], [])
+    (returned / "records.tar.gz").write_bytes(b"second")
+    (returned / "parts" / "part-000").write_bytes(b"weights")
+    paths, copies = _copied(root, [str(returned)])
+    assert paths == [".resume/returned-2"]
+    assert _files(root / ".resume" / "returned-2") == _files(returned)  # exactly the return the plan read
+    assert _files(root / ".resume" / "returned") == {"records.tar.gz": b"first"}  # the earlier copy kept as it was
+    # the copy lines run twice (pasted again): the same files in the same folder, nothing nested
+    import subprocess
+
+    for line in copies:
+        subprocess.run(["/bin/bash", "-c", line], cwd=root, check=True, timeout=30)
+    assert _files(root / ".resume" / "returned-2") == _files(returned)
+    # the printed plan: ALLOC_RESUME and the carried paths name the copy of this return
+    monkeypatch.chdir(root)
+    p = {"configuration": "k", "commits": [], "corpora": [], "finished": [], "other_configurations": {},
+         "queue": ["V@0"], "resume": {"V@0": {"step": 5, "from": str(returned)}}, "resume_from": [str(returned)]}
+    start = next(x for x in ap.plan_lines(p, "abc1234") if "gpu_lease.sh start" in x)
+    env = shlex.split(start.split(" && ")[-1])[1]
+    assert split_folder_list(env.split("=", 1)[1]) == [".resume/returned-2"]
+
+
+def test_a_planted_folder_under_the_resume_name_is_never_copied_into(tmp_path):
+    # a folder of other files (or a link) where the plan would copy: another name, the folder left as it is
+    root = tmp_path / "repo"
+    (root / ".git" / "info").mkdir(parents=True)
+    (root / ".resume" / "returned").mkdir(parents=True)
+    (root / ".resume" / "returned" / "mine").write_text("mine")
+    (root / ".resume" / "returned-2").symlink_to(tmp_path)
+    returned = tmp_path / "elsewhere" / "returned"
+    returned.mkdir(parents=True)
+    (returned / "records.tar.gz").write_bytes(b"r")
+    paths, _ = _copied(root, [str(returned)])
+    assert paths == [".resume/returned-3"] and _files(root / ".resume" / "returned-3") == _files(returned)
+    assert _files(root / ".resume" / "returned") == {"mine": b"mine"}

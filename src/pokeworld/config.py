@@ -139,6 +139,13 @@ def _sequence_problem(value: Any, args: tuple, limit: Limit | None) -> str | Non
     return None
 
 
+def field_problem(value: Any, tp: Any, limit: Limit | None = None) -> str | None:
+    """What is wrong with ``value`` (read from a record, e.g. a JSON file) as a value of the annotated type ``tp``
+    within ``limit`` (None: nothing): the check :func:`check_fields` makes of a config's fields, for records that
+    are not built into a config (a run's config.json as its readers read it)."""
+    return _problem(value, tp, limit)
+
+
 MAX_STORE_BYTES = 64 << 30
 """Most array bytes a store may declare in all (the paper's corpus is about 2.5 GiB): :func:`load` refuses more
 before reading anything, so a forged header cannot make it allocate without bound."""

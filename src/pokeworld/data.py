@@ -358,6 +358,24 @@ def load(path: str | os.PathLike, verify: bool = True) -> Dataset:
     return ds
 
 
+def stream_shapes(path: str | os.PathLike) -> dict[str, tuple[int, ...]]:
+    """The shapes of a store's streams (frames (E, T+1, H, W), proprio, touch (E, T+1, D), actions (E, T, Da)) from
+    its file's header, checked as :func:`load` checks them, without reading any array: what a command compares a
+    model's inputs with before it loads the store or does any work."""
+    path = Path(path)
+    h5 = path / "data.h5"
+    manifest = read_manifest(path)
+    try:
+        with h5py.File(h5, "r") as f:
+            nodes = _stored_nodes(f, h5)
+            _check_declared(nodes, manifest, h5)
+            return {n: tuple(nodes[n].shape) for n in STREAMS}
+    except DataError:
+        raise
+    except (OSError, KeyError, ValueError, TypeError, RuntimeError) as e:
+        raise DataError(f"cannot read {h5}: {e}. The file is truncated or corrupt; regenerate it") from None
+
+
 def is_complete(path: str | os.PathLike) -> bool:
     """True when ``path`` holds a finished dataset (used to skip regeneration)."""
     path = Path(path)

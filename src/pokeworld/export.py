@@ -5,11 +5,18 @@ with the library, tags, licence, dataset and the measured metrics; the text says
 it and the exact command that reproduces it), ``config.json`` (architecture and training config) and the weights
 as ``model.safetensors``: no pickle, so anyone can load them without running code. ``probe``, ``plan`` and the
 protocol read the folder as they read the run.
+
+Everything is checked and made before the first write: the run (finished, its weights finite and fitting their
+kwargs), its ``measure.json`` (:func:`pokeworld.evaluate.measure_record.read_readout`), and ``--out``, which must be
+new, empty or an earlier export (:data:`pokeworld.model_folder.EXPORTED_FOLDER`): a training run or any other
+folder is refused, nothing in it changed. The card is written last, after the weights and the config, and an
+earlier card is removed first, so a folder whose export stopped half-way has no card and no reader takes it.
 """
 
 from __future__ import annotations
 
 import json
+import os
 import shlex
 from dataclasses import dataclass
 from pathlib import Path
@@ -20,8 +27,17 @@ import torch
 from . import __version__, checkpoint
 from .config import to_dict
 from .errors import ConfigError
-from .io import check_outputs, read_json_if_present, read_regular_bytes, save_bytes, save_text, write_json
-from .model_folder import CARD, CONFIG, FORMAT, WEIGHTS, folder_config, read_weights
+from .evaluate.measure_record import read_readout
+from .io import (
+    check_outputs,
+    check_owned_dir,
+    read_regular_bytes,
+    remove_own_file,
+    save_bytes,
+    save_text,
+    write_json,
+)
+from .model_folder import CARD, CONFIG, EXPORTED_FOLDER, FORMAT, WEIGHTS, folder_config, read_weights
 from .models.xjepa import VARIANTS
 from .preflight import finished_run
 from .rundir import model_from_checkpoint, read_metrics
@@ -118,15 +134,13 @@ def front_matter(train_cfg: dict, measured: dict | None, name: str) -> str:
 
 
 def measured_metrics(run_dir: Path) -> dict | None:
-    """The probe's held-out ridge R² (contact windows) and prediction errors from ``run_dir/measure.json``; None
-    when the run was not measured."""
-    res = read_json_if_present(run_dir / "measure.json", "a measure.json")
+    """The probe's held-out ridge R² (contact windows) and prediction errors from ``run_dir/measure.json``, every
+    field checked (:func:`~pokeworld.evaluate.measure_record.read_readout`); None when the run was not measured."""
+    res = read_readout(run_dir / "measure.json")
     if not res:
         return None
-    ridge = res.get("probes", {}).get("ridge", {}).get("contact", {})
-    prediction = {k: v for k, v in res.get("prediction", {}).items() if isinstance(v, (int, float))}
-    return {"ridge": ridge, "prediction": prediction, "data_sha256": res.get("key", {}).get("data_sha256"),
-            "measure_config": res.get("key", {}).get("config", {})}
+    return {"ridge": res["ridge"].get("contact", {}), "prediction": res["prediction"],
+            "data_sha256": res["data_sha256"]}
 
 
 def card_text(train_cfg: dict, measured: dict | None, cfg: ExportConfig, step: int, note: str) -> str:
@@ -172,34 +186,56 @@ def metrics_lines(measured: dict | None) -> list[str]:
                 "the probes' numbers."]
     lines = ["## Measured (`pokeworld probe`, held-out probe-test episodes)", "", "| metric | value |", "|---|---|"]
     lines += [f"| {label} | {measured['ridge'][k]:+.3f} |" for k, label in CARD_METRICS.items()
-              if k in measured["ridge"]]
+              if measured["ridge"].get(k) is not None]
     lines += [f"| {label} | {measured['prediction'][k]:.4f} |" for k, label in CARD_ERRORS.items()
               if k in measured["prediction"]]
     return lines + ["", f"On the store with content sha256 `{measured.get('data_sha256')}`."]
 
 
+#: Files only a training run's folder holds.
+TRAINING_FILES = ("final.pt", "ckpt.pt", "DONE", "metrics.jsonl")
+
+
+def check_destination(out: Path) -> None:
+    """ConfigError unless ``out`` is new, an empty folder or an earlier export (:data:`EXPORTED_FOLDER`): a training
+    run's folder, a user's files or a link there are refused whole; nothing is created."""
+    if os.path.islink(out) or (os.path.lexists(out) and not out.is_dir()):
+        raise ConfigError(f"--out {out} is a link or a file, not a folder; name a new folder for the export")
+    if out.is_dir() and any(out.iterdir()):
+        if any(os.path.lexists(out / n) for n in TRAINING_FILES) or (
+                os.path.lexists(out / CONFIG) and folder_config(out) is None):
+            raise ConfigError(f"--out {out} holds a training run; an export never replaces one (the run would then "
+                              "load as the exported model under its own name): name a new folder for the export")
+        check_owned_dir(out, EXPORTED_FOLDER)
+
+
 def run(cfg: ExportConfig) -> Path:
     """Write ``cfg.out``: the model card, config.json and model.safetensors of the finished run ``cfg.run_dir``.
-    Refused with one line before anything is written: a run that has not finished, weights that do not fit
-    their declared model, an output folder holding files pokeworld did not write."""
+    Refused with one line before anything is written: a run that has not finished, weights that do not fit their
+    declared model or are not finite, a damaged measure.json, an output folder that is not an earlier export."""
     from safetensors.torch import save
 
     run_dir, out = Path(cfg.run_dir), Path(cfg.out)
     if out.resolve() == run_dir.resolve():
         raise ConfigError(f"--out {out} is the run folder itself; name a new folder for the export")
     train_cfg = finished_run(run_dir)
-    check_outputs(out, CARD, CONFIG, WEIGHTS)
     kwargs, state, step = exported_model(run_dir)
     measured = measured_metrics(run_dir)
     done = run_dir / "DONE"
     note = read_regular_bytes(done, "a DONE marker", 4096).decode(errors="replace").strip()[:300] \
         if done.is_file() else ""
     note = "" if note.startswith("finished") and "(" not in note else note
-    save_bytes(out / WEIGHTS, save(state, metadata={"format": FORMAT, "variant": str(train_cfg.get("variant"))}))
-    write_json(out / CONFIG, {"format": FORMAT, "library_name": "pokeworld", "model_type": "xjepa",
-                              "model_kwargs": kwargs, "train_config": train_cfg, "step": step,
-                              "pokeworld": __version__})
-    save_text(out / CARD, card_text(train_cfg, measured, cfg, step, note))
+    # every byte made before the first write, so nothing is written unless all of it is
+    weights = save(state, metadata={"format": FORMAT, "variant": str(train_cfg.get("variant"))})
+    config = {"format": FORMAT, "library_name": "pokeworld", "model_type": "xjepa", "model_kwargs": kwargs,
+              "train_config": train_cfg, "step": step, "pokeworld": __version__}
+    card = card_text(train_cfg, measured, cfg, step, note)
+    check_destination(out)
+    check_outputs(out, CARD, CONFIG, WEIGHTS)
+    remove_own_file(out / CARD)  # an earlier export's card: the folder is incomplete until the new one is written
+    save_bytes(out / WEIGHTS, weights)
+    write_json(out / CONFIG, config)
+    save_text(out / CARD, card)  # last: the card says the export is complete
     print(f"[export] {run_dir} ({train_cfg.get('variant')}, {step} steps, "
           f"{'measured' if measured else 'not measured'}): wrote {CARD}, {CONFIG}, {WEIGHTS} → {out}")
     return out

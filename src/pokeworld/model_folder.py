@@ -8,6 +8,9 @@ An exported folder holds
   architecture the weights fit and the training config of the run they come from;
 * ``model.safetensors`` — the weights, one named float tensor per entry of the model's state dict.
 
+The card is written last (atomically): a folder without it is an export that did not finish, and every reader
+refuses it (:func:`check_complete`), so weights and a config without their card never pass for a model.
+
 ``probe``, ``plan`` and the protocol read such a folder wherever they read a finished run
 (:mod:`pokeworld.rundir` recognises it by ``config.json``'s ``format``). Nothing in it is trusted: the
 safetensors format holds tensors only (loading it cannot run code), its size is bounded before it is read, and
@@ -25,8 +28,9 @@ from typing import Any
 import torch
 
 from .checkpoint import CheckpointError, first_line
-from .errors import DataError
-from .io import parse_json, read_json, read_regular_bytes
+from .errors import ConfigError, DataError
+from .io import OwnedDir, parse_json, read_json, read_regular_bytes
+from .run_fields import check_run_fields
 
 FORMAT = "pokeworld-xjepa-1"
 """``config.json``'s ``format`` in an exported folder (a training run's config.json has none)."""
@@ -38,6 +42,19 @@ MAX_WEIGHT_BYTES = 400_000_000 + (16 << 20)
 MAX_HEADER_BYTES = 16 << 20
 #: Element types the weights may hold (what torch.save would have stored for an X-JEPA state dict).
 DTYPES = {"F32", "F16", "BF16", "F64", "I64", "BOOL"}
+
+
+def _verify_exported(folder: Path) -> None:
+    """What makes an owned folder an export: its config.json, if any, is an exported model's (not a run's)."""
+    if os.path.lexists(folder / CONFIG) and folder_config(folder) is None:
+        raise ConfigError(f"{folder} holds a training run's {CONFIG}, not an exported model's; pokeworld writes an "
+                          "export only into a new folder or over an earlier export: name another --out")
+
+
+EXPORTED_FOLDER = OwnedDir(files=(r"README\.md", r"config\.json", r"model\.safetensors",
+                                  r"measure(-.+)?(\.previous)?\.json"), verify=_verify_exported)
+"""What an exported folder holds (the card, config, weights, and the measurements ``pokeworld probe`` adds): an
+export replaces only such a folder (:func:`pokeworld.io.check_owned_dir`)."""
 
 
 def folder_config(run_dir: str | os.PathLike) -> dict[str, Any] | None:
@@ -60,7 +77,20 @@ def exported_config(cfg: dict[str, Any], path: Path) -> dict[str, Any] | None:
         if not isinstance(cfg.get(key), kind) or isinstance(cfg.get(key), bool):
             raise CheckpointError(f"{path}: an exported model's config.json needs {key!r} as a {kind.__name__}, "
                                   f"got {type(cfg.get(key)).__name__}; the folder is damaged: export the run again")
+    if cfg["step"] < 0:
+        raise CheckpointError(f"{path}: its 'step' is {cfg['step']}, below 0; the folder is damaged: export the run "
+                              "again")
+    check_run_fields(cfg["train_config"], path, "train_config.")
     return cfg
+
+
+def check_complete(run_dir: str | os.PathLike) -> None:
+    """ConfigError unless the exported folder ``run_dir`` holds its card, a regular file: the card is written last,
+    so a folder without it is an export that stopped before it finished."""
+    card = Path(run_dir) / CARD
+    if not os.path.isfile(card) or os.path.islink(card):
+        raise ConfigError(f"{run_dir} is an export that did not finish (no model card {CARD}, which is written "
+                          "last): export the run again (pokeworld export RUN --out FOLDER)")
 
 
 def is_model_folder(run_dir: str | os.PathLike) -> bool:
@@ -111,5 +141,5 @@ def check_header(raw: bytes, path: Path) -> None:
                               f"element types: {sorted(DTYPES)}")
 
 
-__all__ = ["FORMAT", "CONFIG", "WEIGHTS", "CARD", "MAX_WEIGHT_BYTES", "folder_config", "exported_config", "is_model_folder",
-           "read_weights", "check_header"]
+__all__ = ["FORMAT", "CONFIG", "WEIGHTS", "CARD", "MAX_WEIGHT_BYTES", "EXPORTED_FOLDER", "folder_config",
+           "exported_config", "is_model_folder", "check_complete", "read_weights", "check_header"]

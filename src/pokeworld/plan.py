@@ -35,6 +35,7 @@ from .evaluate.measure import EpisodeLatents, full_precision, position_decoder
 from .evaluate.ranking import agreement
 from .evaluate.state import encode_observations, model_device
 from .io import check_outputs, save_figure, save_npz, save_text, write_json
+from .model_inputs import checked_model
 from .models.predictor import KVCache
 from .paper_values import PLANNING
 from .preflight import require_finished_runs
@@ -878,6 +879,25 @@ def controller_labels(runs) -> dict[str, list[str]]:
     return {v: [r] for v, r in zip(variants, runs)}
 
 
+def observations_fed(cfg: PlanConfig) -> int:
+    """The most observations a decision feeds a model at once: the context, or fewer while the history (the start,
+    ``settle`` steps and the steps controlled before the last replan) is shorter."""
+    last_decision = (cfg.steps - 1) // cfg.replan * cfg.replan
+    return min(cfg.context, cfg.settle + 1 + last_decision)
+
+
+def check_models(cfg: PlanConfig, runs, data: str = "") -> None:
+    """Every run's model read and held against what planning feeds it (:func:`pokeworld.model_inputs.checked_model`:
+    finite weights, the store's streams, :func:`observations_fed` within its max_len, the Δ=4 and Δ=16 heads the
+    cost reads), before the random controller or any decoder runs (callers of :func:`plan_runs` with runs from
+    elsewhere call it first). ``data``: the decoders' store for every run (default: ``cfg.data``, else each run's
+    own)."""
+    option = f"--context {cfg.context} with --settle {cfg.settle}"
+    for r in runs:
+        checked_model(r, data or cfg.data or trained_store(r, "plan"), observations_fed(cfg), option,
+                      horizons=tuple(d for d, _ in COST_TERMS))
+
+
 PLAN_OUTPUTS = ("plan.json", "plan.md", "distances.npz", "plan_episode.png", "plan_episode.pdf")
 """The files ``pokeworld plan`` writes in its output folder."""
 
@@ -889,6 +909,7 @@ def run(cfg: PlanConfig) -> Path:
     require_finished_runs(cfg.runs, "plan", "every --runs value must be a run folder: OUT is a positional argument "
                           "placed before --runs (pokeworld plan OUT --runs RUN1 RUN2), or use --out OUT", cfg.data)
     out = check_outputs(cfg.out, *PLAN_OUTPUTS)  # a user's plan.md in --out is refused before any planning
+    check_models(cfg, cfg.runs)
     planned = plan_runs(cfg, controller_labels(cfg.runs))
     summary = planned["summary"]
     write_json(out / "plan.json", {"config": to_dict(cfg), "results": summary,

@@ -64,10 +64,21 @@ from .evaluate.measure import (
     padded_actions,
     probe_windows,
 )
-from .io import hash_arrays, read_json, read_json_if_present, save_figure_as, save_text, write_json
-from .rundir import load_model
+from .io import (
+    check_apart,
+    check_outputs,
+    hash_arrays,
+    read_json,
+    read_json_if_present,
+    save_figure_as,
+    save_text,
+    write_json,
+)
+from .model_inputs import checked_model
 
 CERTIFICATES = "a certificate record (certificates.json)"
+PROTOCOL_OUTPUTS = ("protocol.json", "protocol.md", "protocol.png")
+"""The report :func:`certify_model` writes in its ``out`` folder (and ``certificates.json`` when it computes them)."""
 
 StateFn = Callable[..., Any]
 """``(frames, proprio, touch, actions) -> (B, L, D)``; an ``nn.Module`` qualifies."""
@@ -424,18 +435,25 @@ def certify_model(model: Union[StateFn, str, Path], data: Union[str, Path, Datas
     if config is not None and overrides:
         raise ConfigError("pass either config or field overrides, not both")
     cfg = config if config is not None else make_config(preset, **overrides)
-    # a run or exported folder, its weights checked before any data is read (any other string: "not callable")
-    if isinstance(model, (str, Path)) and Path(model).is_dir():
-        name = name or Path(model).name
-        model = load_model(model, map_location=cfg.device or "cpu").features
     t0 = time.time()
     data_path = None if isinstance(data, Dataset) else Path(data)
+    out = Path(out)
+    outputs = [out / n for n in PROTOCOL_OUTPUTS] + ([out / "certificates.json"] if certificates is None else [])
+    # the outputs never replace or write into what the protocol reads (the store, a certificates file)
+    check_apart([data_path, certificates if isinstance(certificates, (str, Path)) else None], outputs)
+    # a run or exported folder: its weights (finite, fitting their kwargs) and its inputs against the store's
+    # streams and the probe windows, before any data is read (any other string: "not callable")
+    if isinstance(model, (str, Path)) and Path(model).is_dir():
+        name = name or Path(model).name
+        model = checked_model(model, data, cfg.window, f"window={cfg.window}",
+                              device=cfg.device or "cpu").features
     ds = data if isinstance(data, Dataset) else load(data)
     _check_splits(ds)  # before the (slow) certificates, so a store without splits fails at once
     if forecaster is not None:
         check_store(ds)  # likewise a store the forecast responses cannot be read from
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    # every output checked before the first long step: a protocol.md pokeworld did not write is refused now, not
+    # after hours of certificates and probes
+    check_outputs(out, *(p.name for p in outputs))
     certs = resolve_certificates(ds, cfg, out, data_path, certificates)
     res = run_probes(model, ds, cfg, untrained)
     if forecaster is not None:

@@ -45,8 +45,9 @@ from .io import (
     read_regular_bytes,
     save_text,
 )
-from .model_folder import WEIGHTS, exported_config, folder_config, read_weights
+from .model_folder import CARD, WEIGHTS, check_complete, exported_config, folder_config, read_weights
 from .models.xjepa import VALUES_BEFORE_THE_FIELD, XJEPA, check_model_kwargs
+from .run_fields import check_run_fields
 
 #: The names training writes in a run directory (``tb`` a folder, the rest regular files).
 RUN_FILES = ("config.json", "metrics.jsonl", "ckpt.pt", "final.pt", "DONE", ".lock", "tb")
@@ -112,8 +113,9 @@ def check_run_dir_writable(out: str | os.PathLike) -> None:
 
 
 def read_run_config(run_dir: str | os.PathLike) -> dict[str, Any] | None:
-    """A run's ``config.json`` as a dict (None when it has none); DataError when it is not a JSON object. For an
-    exported model folder (:mod:`pokeworld.model_folder`), the training config of the run it was exported from."""
+    """A run's ``config.json`` as a dict (None when it has none); DataError when it is not a JSON object or a field
+    its readers use has the wrong type (:func:`pokeworld.run_fields.check_run_fields`). For an exported model folder
+    (:mod:`pokeworld.model_folder`), the training config of the run it was exported from, checked alike."""
     path = Path(run_dir) / "config.json"
     check_run_files(run_dir)
     if not path.exists():
@@ -121,7 +123,10 @@ def read_run_config(run_dir: str | os.PathLike) -> dict[str, Any] | None:
     cfg = read_json(path, "a run's config.json", dict, MAX_CONFIG_BYTES,
                     remedy="restore the file or train the run again into a new folder")
     exported = exported_config(cfg, path)
-    return exported["train_config"] if exported is not None else cfg
+    if exported is not None:
+        return exported["train_config"]
+    check_run_fields(cfg, path)
+    return cfg
 
 
 class MetricsLog:
@@ -179,7 +184,9 @@ def finished_run_config(run_dir: str | os.PathLike) -> dict[str, Any]:
     cfg = read_run_config(run_dir)
     if cfg is None:
         raise ConfigError(not_a_run(run_dir))
-    if not finished_marker(run_dir).exists():
+    if folder_config(run_dir) is not None:
+        check_complete(run_dir)
+    elif not finished_marker(run_dir).exists():
         raise ConfigError(f"{run_dir} has not finished training; re-run `pokeworld train` to resume it")
     if not isinstance(cfg.get("data"), str) or not cfg["data"]:
         raise DataError(f"{run_dir / 'config.json'} names no dataset (its 'data' is {cfg.get('data')!r:.60}, not a "
@@ -189,16 +196,18 @@ def finished_run_config(run_dir: str | os.PathLike) -> dict[str, Any]:
 
 def finished_marker(run_dir: str | os.PathLike) -> Path:
     """The file whose presence (and modification time) says a run finished: ``DONE`` in a training run, the
-    weights in an exported model folder."""
+    model card in an exported model folder (written last, after the weights)."""
     run_dir = Path(run_dir)
-    return run_dir / (WEIGHTS if folder_config(run_dir) is not None else "DONE")
+    return run_dir / (CARD if folder_config(run_dir) is not None else "DONE")
 
 
 def has_final_weights(run_dir: str | os.PathLike) -> bool:
-    """Whether ``run_dir`` holds a finished model: ``final.pt`` in a training run, the weights in an exported
-    model folder."""
+    """Whether ``run_dir`` holds a finished model: ``final.pt`` in a training run, the weights and the card (written
+    after them) in an exported model folder."""
     run_dir = Path(run_dir)
-    return (run_dir / "final.pt").is_file() or (folder_config(run_dir) is not None and (run_dir / WEIGHTS).is_file())
+    if folder_config(run_dir) is not None:
+        return (run_dir / WEIGHTS).is_file() and (run_dir / CARD).is_file()
+    return (run_dir / "final.pt").is_file()
 
 
 def read_metrics(run_dir: str | os.PathLike) -> list[dict[str, Any]]:
@@ -282,6 +291,11 @@ def check_state_fits(model: torch.nn.Module, state: Any, path: Path) -> None:
         if tensor.numel() * tensor.element_size() > tensor.untyped_storage().nbytes():
             raise CheckpointError(f"{path}: {name} declares {tensor.numel()} elements but stores "
                                   f"{tensor.untyped_storage().nbytes()} bytes; the checkpoint was crafted")
+        # a NaN or inf weight makes every state it touches NaN: the probes' fit would refuse it only after the
+        # whole encoding, and a plan would rank candidates by NaN
+        if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
+            raise CheckpointError(f"{path}: {name} holds NaN or infinite values; the weights are damaged (or come "
+                                  "from a diverged run): restore them, or train (or export) the run again")
 
 
 def model_from_checkpoint(ck: dict[str, Any], path: Path) -> XJEPA:
@@ -322,6 +336,7 @@ def load_model(run_dir: str | os.PathLike, map_location: str | torch.device = "c
     check_run_files(run_dir)
     exported = folder_config(run_dir)
     if exported is not None:
+        check_complete(run_dir)
         ck = {"model": read_weights(run_dir), "model_kwargs": exported["model_kwargs"]}
         return model_from_checkpoint(ck, run_dir / WEIGHTS).to(map_location).eval()
     path = run_dir / "final.pt"

@@ -20,13 +20,16 @@ from .. import __version__
 from ..config import SEED, Limit, check_fields, from_preset
 from ..data import load
 from ..errors import ConfigError
-from ..io import check_outputs, check_writable_dir, read_json, read_json_if_present, save_text, write_json
-from ..rundir import load_model, read_run_config
+from ..io import check_outputs, check_writable_dir, save_text, write_json
+from ..model_inputs import checked_model
+from ..rundir import read_run_config
 from ..run_store import trained_store
 from ..sim.replay import physics_of
 from . import tables as R
 from .dependence import PARAMETERS, REGRESSOR, RESPONSE, DependenceConfig, forecast_dependence, fresh_corpus
+from .dependence_record import read_record
 from .forecasters import PLANTS, SimulatorForecaster, XJEPAForecaster
+from .measure_record import read_readout
 
 REVISION = {
     "VFX": {"gamma": {"S": 1.04, "readout_contact": 0.12, "readout_glide": 0.50}},
@@ -86,9 +89,9 @@ def make_config(preset: str = "cpu", **overrides) -> DependenceRunsConfig:
 
 
 def _readout(run_dir: Path) -> dict:
-    """The run's ridge R² per parameter on contact and glide windows (None where not measured)."""
-    m = read_json_if_present(Path(run_dir) / "measure.json", "a measurement record", dict) or {}
-    ridge = m.get("probes", {}).get("ridge", {})
+    """The run's ridge R² per parameter on contact and glide windows (None where not measured), its measure.json
+    checked (:func:`~pokeworld.evaluate.measure_record.read_readout`)."""
+    ridge = (read_readout(Path(run_dir) / "measure.json") or {}).get("ridge", {})
     return {p: {kind: ridge.get(kind, {}).get(q) for kind in ("contact", "glide")} for p, q in PARAM_READOUT.items()}
 
 
@@ -99,15 +102,30 @@ def planted_rows(ds, cfg: DependenceConfig) -> dict:
                     for p in PARAMETERS} for plant in PLANTS}
 
 
-def measure_run(run_dir: Path, fresh, store, cfg: DependenceConfig, seed: int) -> dict:
-    """One run's forecast dependence on ``fresh`` (decoders fit on its training ``store``) and its readout."""
-    model = load_model(run_dir)
+def checked_forecaster_model(run_dir: str | Path, store: str, cfg: DependenceConfig):
+    """The run's model, read and held against what the measurement feeds it before any work
+    (:func:`pokeworld.model_inputs.checked_model`: finite weights, the store's streams, the context and its
+    ``horizon``-step future within its max_len, its Δ=horizon head) and a latent objective (a reconstruction model
+    has no latent forecast)."""
+    model = checked_model(run_dir, store, cfg.context + cfg.horizon,
+                          f"the context ({cfg.context}) and its {cfg.horizon}-step future", horizons=(cfg.horizon,),
+                          remedy="its forecasts cannot be measured on these windows")
+    if model.objective == "recon":
+        raise ConfigError(f"{run_dir}: a reconstruction-objective model has no latent forecast heads to measure")
+    return model
+
+
+def measure_run(run_dir: Path, fresh, store, cfg: DependenceConfig, seed: int, model=None,
+                readout: dict | None = None) -> dict:
+    """One run's forecast dependence on ``fresh`` (decoders fit on its training ``store``) and its readout
+    (``model`` and ``readout`` as already read; default: read here)."""
+    model = model if model is not None else checked_model(run_dir, store)
     rc = read_run_config(run_dir) or {}
     forecaster = XJEPAForecaster(model, store, seed=seed)
     return {"run": str(run_dir), "variant": rc.get("variant", model.variant), "seed": rc.get("seed"),
             "steps": rc.get("steps"), "dependence": forecast_dependence(forecaster, fresh, np.arange(fresh.num_episodes),
                                                                        cfg),
-            "readout": _readout(run_dir)}
+            "readout": readout if readout is not None else _readout(run_dir)}
 
 
 SETTINGS = ("store", "eval_episodes", "eval_seed", "bootstrap", "max_windows", "seed")
@@ -115,29 +133,29 @@ SETTINGS = ("store", "eval_episodes", "eval_seed", "bootstrap", "max_windows", "
 
 
 def merged_records(cfg: DependenceRunsConfig) -> list[dict]:
-    """The ``merge`` records, read and checked against ``cfg`` before anything is measured."""
-    records = []
-    for path in cfg.merge:
-        rec = read_json(path, "a forecast-dependence record", dict)
-        want = {k: getattr(cfg, k) for k in SETTINGS}
-        got = rec.get("config", {})
-        if any(got.get(k) != want[k] for k in SETTINGS):
-            raise ConfigError(f"{path} was measured with other settings ({got}); merge only records of the same "
-                              f"settings ({want})")
-        records.append(rec)
-    return records
+    """The ``merge`` records, every field read and checked (:func:`~.dependence_record.read_record`, same settings
+    as ``cfg``) before anything is measured."""
+    return [read_record(path, {k: getattr(cfg, k) for k in SETTINGS}) for path in cfg.merge]
 
 
 def run(cfg: DependenceRunsConfig) -> Path:
     if not cfg.runs and not cfg.merge:
         raise ConfigError("give at least one trained run directory with --runs (or records to join with --merge)")
+    # every input first: the earlier records, each run's store, model and readout; then the outputs
     earlier = merged_records(cfg)
+    stores = {str(r): cfg.store or trained_store(r, "[forecast-dependence]") for r in cfg.runs}
+    dep = DependenceConfig(bootstrap=cfg.bootstrap, max_windows=cfg.max_windows, seed=cfg.seed)
+    models = {str(r): checked_forecaster_model(r, stores[str(r)], dep) for r in cfg.runs}
+    measured = {str(Path(r)) for r in cfg.runs}
+    joined = []
+    for rec in earlier:  # in the order given, then this invocation's runs
+        joined += [row for row in rec["runs"] if row["run"] not in measured and row not in joined]
+    # a run probed after its dependence was measured gets its readout now
+    readouts = {row["run"]: _readout(Path(row["run"])) for row in joined if Path(row["run"], "measure.json").is_file()}
+    readouts |= {str(Path(r)): _readout(Path(r)) for r in cfg.runs}
     out = Path(cfg.out)
     check_writable_dir(out.parent)
     check_outputs(out, *(f"{cfg.name}.{ext}" for ext in ("json", "md", "png", "pdf")))
-    # every run checked first
-    stores = {str(r): cfg.store or trained_store(r, "[forecast-dependence]") for r in cfg.runs}
-    dep = DependenceConfig(bootstrap=cfg.bootstrap, max_windows=cfg.max_windows, seed=cfg.seed)
     # the first result line comes only after a store's fresh episodes and planted rows: say what is coming
     print(f"[forecast-dependence] plan: {len(set(stores.values()))} store(s) x {cfg.eval_episodes} fresh episodes "
           f"and the planted rows, then {len(cfg.runs)} run(s) ({cfg.bootstrap} bootstrap resamples each); a line "
@@ -151,18 +169,13 @@ def run(cfg: DependenceRunsConfig) -> Path:
             refs[path] = planted_rows(loaded[path][1], dep)
             print(f"[forecast-dependence] {path}: {cfg.eval_episodes} fresh episodes; planted rows done")
         store, fresh = loaded[path]
-        rows.append({**measure_run(Path(r), fresh, store, dep, cfg.seed), "store": path})
+        rows.append({**measure_run(Path(r), fresh, store, dep, cfg.seed, models.pop(str(r)),
+                                   readouts[str(Path(r))]), "store": path})
         print(f"[forecast-dependence] {r}: " + ", ".join(
             f"{p} S {v['S']:+.2f}" for p, v in rows[-1]["dependence"].items() if "S" in v))
-    measured = {row["run"] for row in rows}
-    joined = []
-    for rec in earlier:  # in the order given, then this invocation's runs
-        joined += [row for row in rec["runs"] if row["run"] not in measured and row not in joined]
-        refs = {**rec["planted"], **refs}
-    rows = joined + rows
-    for row in rows:  # a run probed after its dependence was measured gets its readout now
-        if Path(row["run"], "measure.json").is_file():
-            row["readout"] = _readout(Path(row["run"]))
+    for rec in earlier:
+        refs = {**(rec.get("planted") or {}), **refs}
+    rows = [{**row, "readout": readouts.get(row["run"], row["readout"])} for row in joined] + rows
     result = {"environment": cfg.environment, "config": {k: getattr(cfg, k) for k in SETTINGS}, "responses": RESPONSE,
               "regressors": REGRESSOR, "runs": rows, "planted": refs, "revision": REVISION,
               "provenance": {"pokeworld": __version__, "git": R.git_commit()}}

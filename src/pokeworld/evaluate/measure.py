@@ -51,10 +51,12 @@ from ..devices import pick_device
 from ..errors import ConfigError, PokeworldError
 from ..faults import crash_point
 from ..io import check_outputs, check_writable_dir, read_json, write_json
+from ..model_inputs import checked_model
 from ..models.xjepa import XJEPA
 from ..preflight import finished_run
 from ..run_store import trained_store
 from ..rundir import adopt_legacy_run, finished_marker, load_model, read_run_config
+from .measure_record import MAX_MEASUREMENT_BYTES
 from .prediction import (  # noqa: F401
     CONTEXT,
     HORIZON,
@@ -170,8 +172,6 @@ PRESETS = {"tiny": {"max_windows": 400, "mlp": False}, "cpu": {}, "paper": {"max
 MEASURE_PRESET_OF = {"tiny": "tiny", "cpu": "cpu", "demo": "cpu", "cpu_first": "cpu", "demo_first": "cpu", "paper": "paper"}
 #: The fields a run's config.json records that tell the training presets apart (the model's sizes).
 PRESET_FIELDS = ("image_size", "channels", "latent_dim", "width", "depth", "heads", "vec_dim")
-MAX_MEASUREMENT_BYTES = 64 << 20
-"""Largest measure.json read back (a measurement with every readout is tens of kilobytes)."""
 
 
 # --------------------------------------------------------------------------- belief objective
@@ -332,12 +332,17 @@ def run(cfg: MeasureConfig) -> Path:
         return out
     changed = settings_changed(prev, key)
     kept = previous_path(out)
-    if changed:
-        check_outputs(run_dir, kept.name)  # refused now, not after the measurement
+    # both outputs refused now, not after the measurement: an earlier measure.json pokeworld did not write (a copy
+    # brought in with a downloaded model) is never replaced, and nothing is kept beside it first
+    check_outputs(run_dir, out.name, *([kept.name] if changed else []))
+    dev = pick_device(cfg.device)
+    # the weights (finite, fitting their kwargs) and the store's streams and the windows against the model, before
+    # the store is read
+    model = checked_model(run_dir, data, max(cfg.window, cfg.context + HORIZON),
+                          f"--window {cfg.window} and --context {cfg.context} (with its {HORIZON}-step future)",
+                          device=dev)
     ds = load(data)
     torch.set_num_threads(max(1, torch.get_num_threads()))
-    dev = pick_device(cfg.device)
-    model = load_model(run_dir, map_location=dev)
     with full_precision(dev):
         res = measure(model, ds, cfg, untrained_copy(model) if cfg.untrained else None)
     res.update(key=key, run=run_cfg, data=data)

@@ -17,8 +17,10 @@ resume from is quoted into ALLOC_RESUME's list and the list quoted for the shell
 
 from __future__ import annotations
 
+import filecmp
 import hashlib
 import json
+import os
 import re
 import shlex
 from dataclasses import dataclass, field
@@ -112,11 +114,52 @@ def resume_value(folders: list[str]) -> str:
 RESUME_DIR = ".resume"
 
 
+def same_files(a: Path, b: Path) -> bool:
+    """Whether folders ``a`` and ``b`` hold the same regular files (relative names and bytes) and nothing else (no
+    link, no other file, no extra folder): a copy in :data:`RESUME_DIR` the plan may name instead of copying again."""
+    def listing(top: Path) -> dict[str, int] | None:
+        found: dict[str, int] = {}
+        for folder, dirs, files in os.walk(top):
+            for name in dirs + files:
+                path = Path(folder) / name
+                if path.is_symlink() or not (path.is_dir() or path.is_file()):
+                    return None
+                if path.is_file():
+                    found[str(path.relative_to(top))] = path.stat().st_size
+        return found
+
+    if not a.is_dir() or not b.is_dir() or a.is_symlink() or b.is_symlink():
+        return False
+    ours, theirs = listing(a), listing(b)
+    return ours is not None and ours == theirs and all(filecmp.cmp(a / n, b / n, shallow=False) for n in ours)
+
+
+def resume_destination(source: Path, home: Path, taken: set[str]) -> tuple[str, bool]:
+    """Where a copy of ``source`` lies in ``home`` (:data:`RESUME_DIR`): ``NAME`` (``NAME-2``… when taken by
+    another folder of this plan or holding other files: an earlier plan's copy of an older return, which is never
+    copied into, nested in or replaced), and whether it must still be copied (False: it already holds exactly
+    ``source``'s files, an earlier plan's copy of this return)."""
+    base = source.name or "allocation"
+    name, n = base, 1
+    while True:
+        dest = home / name
+        if name not in taken:
+            if not os.path.lexists(dest):
+                return name, True
+            if same_files(source, dest):
+                return name, False
+        n += 1
+        name = f"{base}-{n}"
+
+
 def device_folders(folders: list[str], root: Path | None = None) -> tuple[list[str], list[str]]:
     """Each folder to resume from as the device's copy of the checkout at ``root`` (default: the working directory,
     the repository root) sees it, and the shell lines that copy it into :data:`RESUME_DIR` first (ignored through
     .git/info/exclude, carried by the lease's commands). A folder already under ``.resume/`` stays where it is; any
-    other becomes ``.resume/NAME`` (``NAME-2``… when two share a name)."""
+    other is copied to a fresh ``.resume/NAME`` (:func:`resume_destination`), or named where an earlier plan copied
+    it, so running the lines again, or after an earlier plan's, never nests a copy in an old one and ALLOC_RESUME
+    names exactly the copy of the folder the plan read. Each copy line copies the folder's contents
+    (``SRC/.``): run twice, it writes the same files into the same folder."""
     root = (root or Path.cwd()).resolve()
     home = root / RESUME_DIR
     paths, copies, taken = [], [], set()
@@ -126,13 +169,11 @@ def device_folders(folders: list[str], root: Path | None = None) -> tuple[list[s
             paths.append(str(full.relative_to(root)))
             taken.add(full.relative_to(home).parts[0])
             continue
-        name, n = full.name or "allocation", 1
-        while name in taken:
-            n += 1
-            name = f"{full.name}-{n}"
+        name, copy = resume_destination(full, home, taken)
         taken.add(name)
         paths.append(f"{RESUME_DIR}/{name}")
-        copies.append(f"cp -r -- {shlex.quote(str(full))} {shlex.quote(paths[-1])}")
+        if copy:
+            copies.append(f"cp -r -- {shlex.quote(str(full) + '/.')} {shlex.quote(paths[-1])}")
     if copies:
         copies.insert(0, f"mkdir -p {RESUME_DIR} && (grep -qx '/{RESUME_DIR}/' .git/info/exclude 2>/dev/null "
                          f"|| echo '/{RESUME_DIR}/' >> .git/info/exclude)")
@@ -169,13 +210,19 @@ def plan_lines(p: dict, commit: str) -> list[str]:
     carry = ".whl" + "".join(f" {shlex.quote(f)}" for f in folders)
     if copies:  # the device receives this checkout only, and the lease copies it without what .gitignore names
         lines += ["[plan] first, here, in the repository root, copy the folders to resume from into the checkout "
-                  "(the device receives only the checkout; the carried paths count towards its 64 MiB):", *copies]
+                  "(the device receives only the checkout; the carried paths count towards its 64 MiB; a copy an "
+                  "earlier plan made of other files is kept, and ALLOC_RESUME names this plan's: "
+                  f"{' '.join(map(shlex.quote, folders))}):",
+                  *copies]
+    elif folders:
+        lines.append("[plan] the folders to resume from are in the checkout already: "
+                     f"{' '.join(map(shlex.quote, folders))}")
     return lines + [f"[plan] the lease: three device commands, each issued as soon as the previous returns "
                     f"(carry: {carry}; $OUT: the command's output folder)",
                     "# 1. start and collect (returns after 9 minutes):", cmds[0],
                     "# 2. collect, issued at once:", cmds[1], "# 3. final collect:", cmds[2]]
 
 
-__all__ = ["RESUME_DIR", "device_folders",
+__all__ = ["RESUME_DIR", "device_folders", "resume_destination", "same_files",
            "configuration_key", "checkout_configuration_of", "checkout_configuration", "Returned", "queue_of", "plan",
            "resume_value", "lease_commands", "plan_lines", "SETUP"]

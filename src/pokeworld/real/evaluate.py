@@ -37,8 +37,9 @@ from ..evaluate.prediction import position_decoder, prediction_quality
 from ..evaluate.probes import fit_predict
 from ..evaluate.state import EpisodeLatents, padded_actions, window_states
 from ..io import read_json_if_present, write_json
+from ..model_inputs import checked_model
 from ..run_store import trained_store
-from ..rundir import finished_marker, finished_run_config, load_model
+from ..rundir import finished_marker, finished_run_config
 from ..windows import make_windows
 
 TESTS = {"iid": "probe_test", "ood": "heldout"}
@@ -294,12 +295,11 @@ def run(cfg: RealEvalConfig) -> Path:
     if not cfg.overwrite and (read_json_if_present(out, "a real-data evaluation record") or {}).get("key") == key:
         print(f"[real] {out} is up to date; skipping")
         return out
+    # the weights and the store's frames, proprio, touch and action widths and the windows against the model,
+    # before the store is read
+    model = checked_model(run_dir, data, max(cfg.window, cfg.context + cfg.horizon),
+                          f"--window {cfg.window} and --context {cfg.context} with --horizon {cfg.horizon}")
     ds = load(data)
-    model = load_model(run_dir, map_location="cpu")
-    dims = (ds.proprio.shape[-1], ds.touch.shape[-1], ds.actions.shape[-1])
-    if dims != (model.dims["proprio"], model.dims["touch"], model.action_dim):
-        raise DataError(f"{data} has (proprio, touch, action) dims {dims}, the model in {run_dir} was trained on "
-                        f"{(model.dims['proprio'], model.dims['touch'], model.action_dim)}")
     res = evaluate(model, ds, cfg, untrained_copy(model) if cfg.untrained else None)
     res.update(key=key, run=run_cfg, data=data)
     write_json(out, res)

@@ -27,7 +27,7 @@ import torch
 
 from ..config import from_preset, to_dict
 from ..errors import ConfigError
-from ..io import save_text, write_json
+from ..io import check_outputs, save_text, write_json
 from ..plan import (
     METRICS,
     PRESETS as PLAN_PRESETS,
@@ -35,6 +35,7 @@ from ..plan import (
     PlanConfig,
     SimulatorScorer,
     approach_of,
+    check_models,
     control,
     episode_metrics,
     episode_setup,
@@ -42,6 +43,7 @@ from ..plan import (
     settled_history,
     start_sim,
 )
+from ..preflight import require_finished_runs
 from ..sim import PokeWorldSim
 from ..sim.envs import vision_frames
 from ..sim.policy import KNOT_SD, PROGRAM, programs
@@ -264,10 +266,13 @@ def run(cfg: SwmPlanConfig) -> Path:
     path."""
     if not cfg.plan.runs and not cfg.simulator_ceiling:
         raise ConfigError("give at least one trained run directory with --plan.runs (or keep --simulator-ceiling)")
+    # the runs as `pokeworld plan` checks them and the outputs, before the random controller or any solver runs
+    require_finished_runs(cfg.plan.runs, "swm-plan", "every --plan.runs value must be a finished run folder",
+                          cfg.plan.data)
+    out = check_outputs(cfg.plan.out, "swm_plan.json", "swm_plan.md")
+    check_models(cfg.plan, cfg.plan.runs)
     stable_worldmodel()
     torch.set_num_threads(1)
-    out = Path(cfg.plan.out)
-    out.mkdir(parents=True, exist_ok=True)
     compared = compare(cfg)
     lines = table_lines(compared["results"])
     write_json(out / "swm_plan.json", {"config": to_dict(cfg), **compared, "notes": solver_notes(cfg)})
