@@ -18,9 +18,11 @@ from __future__ import annotations
 import json
 import os
 import shlex
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
+
+import tyro
 
 import torch
 
@@ -31,6 +33,7 @@ from .evaluate.measure_record import read_readout
 from .io import (
     check_outputs,
     check_owned_dir,
+    parse_json,
     read_regular_bytes,
     remove_own_file,
     save_bytes,
@@ -68,6 +71,18 @@ class ExportConfig:
     data_command: str = ""
     """How the training store was made, quoted in the card's reproduce section (e.g. `pokeworld generate
     --preset cpu DIR`); default: the store is named by its path and content hash only."""
+    dtype: str = "float32"
+    """float32, or bfloat16: float32 tensors of at least 4,096 elements stored in bfloat16 (half the size; exact for
+    weights that came back from a GPU lease, which travel so rounded; biases, norms and statistics stay float32)."""
+    provenance: Annotated[dict, tyro.conf.Suppress] = field(default_factory=dict)
+    """Where the run was trained (lease, device, date, commit, environment, preset, corpus hash; a released model's,
+    from ``scripts/land_lease.py``): kept in config.json's ``source`` and said on the card. With it the exported
+    config names no machine's paths (the store is DIR, the run its name) and the run's measure.json and metrics
+    travel with the folder (measure.json, training_metrics.jsonl)."""
+
+    def __post_init__(self) -> None:
+        if self.dtype not in ("float32", "bfloat16"):
+            raise ConfigError(f"--dtype must be float32 or bfloat16, got {self.dtype!r}")
 
 
 def exported_model(run_dir: Path) -> tuple[dict, dict[str, torch.Tensor], int]:
@@ -117,7 +132,8 @@ def front_matter(train_cfg: dict, measured: dict | None, name: str) -> str:
         "library_name": "pokeworld", "license": LICENSE,
         "tags": ["pokeworld", "x-jepa", "world-model", "jepa", "sigreg", "physics", "identifiability",
                  f"variant-{variant}", "safetensors"],
-        "datasets": [f"pokeworld-{Path(str(train_cfg.get('data') or 'corpus')).name}"],
+        "datasets": [f"pokeworld-{Path(str(train_cfg.get('data') or 'corpus')).name}" if train_cfg.get("data") != "DIR"
+                     else f"pokeworld-{str(train_cfg.get('data_sha256'))[:12]}"],
         "dataset_sha256": train_cfg.get("data_sha256"),
     }
     if measured:
@@ -150,13 +166,13 @@ def card_text(train_cfg: dict, measured: dict | None, cfg: ExportConfig, step: i
     inputs, targets = VARIANTS.get(variant, (("?",), ("?",)))
     name = f"pokeworld X-JEPA {variant} (seed {train_cfg.get('seed', '?')})"
     lines = [front_matter(train_cfg, measured, name), f"# {name}", "",
-             f"An X-JEPA action-conditioned latent world model trained on PokeWorld with "
-             f"[pokeworld](https://github.com/tantansir/latent-world-model-identifiability) (the system of *What Can "
-             f"Latent World Models Know? Physical Parameter Identifiability in Multimodal Predictive "
-             f"Representations*): inputs {' + '.join(inputs)}, targets {' + '.join(targets)}. The card's metrics "
-             "say how much of the hidden mass, drag and stiffness a linear probe reads from its frozen state.", "",
+             f"An X-JEPA action-conditioned latent world model trained on PokeWorld with pokeworld (the open-source "
+             f"toolkit implementing *What Can Latent World Models Know? Physical Parameter Identifiability in "
+             f"Multimodal Predictive Representations*): inputs {' + '.join(inputs)}, targets {' + '.join(targets)}. "
+             "The card's metrics say how much of the hidden mass, drag and stiffness a linear probe reads from its "
+             "frozen state.", "",
              "## Use", "", "MODEL is this folder, DIR a PokeWorld store (`pokeworld generate`).", "", "```bash",
-             "pokeworld probe MODEL --data DIR      # probes and prediction errors -> MODEL/measure.json",
+             "pokeworld probe MODEL --data DIR      # probes and prediction errors -> MODEL/measure-<DIR's name>.json",
              "pokeworld plan OUT --runs MODEL       # CEM push-to-goal with this model", "```", "",
              "```python", "from pokeworld.rundir import load_model",
              "model = load_model('MODEL')           # the weights are safetensors: loading runs no code",
@@ -164,7 +180,8 @@ def card_text(train_cfg: dict, measured: dict | None, cfg: ExportConfig, step: i
              "certify_model('MODEL', data='DIR', out='OUT')   # the certificate-gated protocol", "```", "",
              "## Training", "",
              f"- variant {variant}, {step} steps ({train_cfg.get('steps')} configured), seed {train_cfg.get('seed')}",
-             f"- store: content sha256 `{train_cfg.get('data_sha256')}` (trained from `{train_cfg.get('data')}`)"]
+             f"- store: content sha256 `{train_cfg.get('data_sha256')}` (trained from `{train_cfg.get('data')}`)",
+             *source_lines(cfg.provenance, cfg.dtype)]
     rows = read_metrics(cfg.run_dir) if (Path(cfg.run_dir) / "metrics.jsonl").exists() else []
     if rows and isinstance(rows[-1].get("loss"), (int, float)):
         lines.append(f"- final training loss {rows[-1]['loss']:.4g} at step {rows[-1]['step']}")
@@ -175,9 +192,33 @@ def card_text(train_cfg: dict, measured: dict | None, cfg: ExportConfig, step: i
         lines += ["# the training store, DIR:", cfg.data_command]
     lines += [reproduce_command(train_cfg), "pokeworld probe RUN --data DIR", "```", ""]
     lines += metrics_lines(measured)
-    lines += ["", f"Licence: {LICENSE.upper()}. Exported with pokeworld {__version__} (`pokeworld export "
-              f"{cfg.run_dir} --out {cfg.out}`)."]
+    how = (f"`pokeworld export {cfg.run_dir} --out {cfg.out}`" if not cfg.provenance else
+           f"from the weights lease `{cfg.provenance.get('lease')}` returned: `python scripts/land_lease.py`, its "
+           "record in docs/results/leases/")
+    lines += ["", f"Licence: {LICENSE.upper()}. Exported with pokeworld {__version__} ({how})."]
     return "\n".join(lines) + "\n"
+
+
+def source_lines(source: dict, dtype: str) -> list[str]:
+    """The card's lines on where the run was trained (a released model's provenance) and how its weights are
+    stored."""
+    lines = []
+    if source:
+        lines.append(f"- trained on {source.get('device')} ({source.get('date')}, torch {source.get('torch')}, "
+                     f"commit {source.get('commit')}), GPU lease `{source.get('lease')}`, run `{source.get('run')}`")
+        lines.append(f"- environment `{source.get('environment')}` (PokeWorld's default: the authors' released "
+                     f"simulator), preset `{source.get('preset')}` (the released reference's objective and model); "
+                     f"corpus sha256 `{source.get('corpus_sha256')}`")
+        if source.get("returned"):
+            lines.append(f"- weights: {source['returned']}")
+        lines.append("- the numbers under Measured are the GPU's own `pokeworld probe` of the float32 weights after "
+                     "training (the paper map's measurement: ridge probes on every window of the corpus's probe "
+                     "splits; measure.json here); on a CPU, `pokeworld probe MODEL --data DIR --preset paper "
+                     "--no-mlp --no-untrained` recomputes them from these weights (ridge within 0.001)")
+    if dtype == "bfloat16":
+        lines.append(f"- model.safetensors: float32 tensors of at least {BF16_MIN_ELEMENTS} elements in bfloat16, "
+                     "the rest float32; loaded into the float32 model as they are")
+    return lines
 
 
 def metrics_lines(measured: dict | None) -> list[str]:
@@ -190,6 +231,39 @@ def metrics_lines(measured: dict | None) -> list[str]:
     lines += [f"| {label} | {measured['prediction'][k]:.4f} |" for k, label in CARD_ERRORS.items()
               if k in measured["prediction"]]
     return lines + ["", f"On the store with content sha256 `{measured.get('data_sha256')}`."]
+
+
+BF16_MIN_ELEMENTS = 4096
+"""``--dtype bfloat16`` stores float32 tensors of at least this many elements in bfloat16: the rule a GPU lease's
+return rounds by (``pokeworld.experiments.allocation_pack``), so its weights are stored exactly."""
+RELEASED_FILES = {"measure.json": "measure.json", "metrics.jsonl": "training_metrics.jsonl"}
+"""A released model's measurement and training log, from the run's file to the folder's."""
+
+
+MACHINE_PATH_KEYS = {"data": "DIR", "data_path": "DIR", "run_dir": "MODEL", "out": "MODEL"}
+"""Keys of a measure.json whose values are paths of the machine that measured: placeholders in a released model."""
+
+
+def without_paths(value: Any) -> Any:
+    """``value`` (a parsed measure.json) with every :data:`MACHINE_PATH_KEYS` string replaced by its placeholder."""
+    if isinstance(value, dict):
+        return {k: (MACHINE_PATH_KEYS[k] if k in MACHINE_PATH_KEYS and isinstance(v, str) and v else without_paths(v))
+                for k, v in value.items()}
+    if isinstance(value, list):
+        return [without_paths(v) for v in value]
+    return value
+
+
+def released_files(run_dir: Path) -> dict[str, bytes]:
+    """The run's measure.json (its machine's paths as placeholders) and metrics a released model carries (folder
+    name -> bytes), those the run has."""
+    out = {dest: read_regular_bytes(run_dir / src, f"a run's {src}", 64 << 20)
+           for src, dest in RELEASED_FILES.items() if (run_dir / src).is_file()}
+    if "measure.json" in out:
+        measured = parse_json(out["measure.json"], run_dir / "measure.json", "a run's measure.json",
+                              "measure the run again (pokeworld probe)")
+        out["measure.json"] = (json.dumps(without_paths(measured), indent=2) + "\n").encode()
+    return out
 
 
 #: Files only a training run's folder holds.
@@ -224,22 +298,32 @@ def run(cfg: ExportConfig) -> Path:
     done = run_dir / "DONE"
     note = read_regular_bytes(done, "a DONE marker", 4096).decode(errors="replace").strip()[:300] \
         if done.is_file() else ""
-    note = "" if note.startswith("finished") and "(" not in note else note
+    note = "" if (note.startswith("finished") and "(" not in note) or cfg.provenance else note
     # every byte made before the first write, so nothing is written unless all of it is
+    if cfg.dtype == "bfloat16":
+        state = {k: v.to(torch.bfloat16) if v.dtype == torch.float32 and v.numel() >= BF16_MIN_ELEMENTS else v
+                 for k, v in state.items()}
     weights = save(state, metadata={"format": FORMAT, "variant": str(train_cfg.get("variant"))})
+    if cfg.provenance:  # a released model: no machine's paths; the store is DIR, the run its name
+        train_cfg = {**train_cfg, **{k: "DIR" for k in ("data", "data_path") if k in train_cfg},
+                     "out": str(cfg.provenance.get("run", "RUN"))}
     config = {"format": FORMAT, "library_name": "pokeworld", "model_type": "xjepa", "model_kwargs": kwargs,
-              "train_config": train_cfg, "step": step, "pokeworld": __version__}
+              "train_config": train_cfg, "step": step, "pokeworld": __version__,
+              **({"source": dict(cfg.provenance)} if cfg.provenance else {})}
     card = card_text(train_cfg, measured, cfg, step, note)
+    extra = released_files(run_dir) if cfg.provenance else {}
     check_destination(out)
-    check_outputs(out, CARD, CONFIG, WEIGHTS)
+    check_outputs(out, CARD, CONFIG, WEIGHTS, *extra)
     remove_own_file(out / CARD)  # an earlier export's card: the folder is incomplete until the new one is written
     save_bytes(out / WEIGHTS, weights)
     write_json(out / CONFIG, config)
+    for name, data in extra.items():
+        save_bytes(out / name, data)
     save_text(out / CARD, card)  # last: the card says the export is complete
     print(f"[export] {run_dir} ({train_cfg.get('variant')}, {step} steps, "
           f"{'measured' if measured else 'not measured'}): wrote {CARD}, {CONFIG}, {WEIGHTS} → {out}")
     return out
 
 
-__all__ = ["ExportConfig", "run", "reproduce_command", "card_text", "front_matter",
-           "measured_metrics", "exported_model"]
+__all__ = ["ExportConfig", "run", "reproduce_command", "card_text", "front_matter", "source_lines",
+           "measured_metrics", "exported_model", "BF16_MIN_ELEMENTS", "RELEASED_FILES", "released_files"]

@@ -20,6 +20,7 @@ model before any weight is loaded into it, as for a checkpoint.
 
 from __future__ import annotations
 
+import hashlib
 import os
 import struct
 from pathlib import Path
@@ -52,9 +53,10 @@ def _verify_exported(folder: Path) -> None:
 
 
 EXPORTED_FOLDER = OwnedDir(files=(r"README\.md", r"config\.json", r"model\.safetensors",
-                                  r"measure(-.+)?(\.previous)?\.json"), verify=_verify_exported)
-"""What an exported folder holds (the card, config, weights, and the measurements ``pokeworld probe`` adds): an
-export replaces only such a folder (:func:`pokeworld.io.check_owned_dir`)."""
+                                  r"measure(-.+)?(\.previous)?\.json", r"training_metrics\.jsonl"),
+                           verify=_verify_exported)
+"""What an exported folder holds (the card, config, weights, the measurements ``pokeworld probe`` adds, and a
+released model's training log): an export replaces only such a folder (:func:`pokeworld.io.check_owned_dir`)."""
 
 
 def folder_config(run_dir: str | os.PathLike) -> dict[str, Any] | None:
@@ -98,10 +100,10 @@ def is_model_folder(run_dir: str | os.PathLike) -> bool:
     return folder_config(run_dir) is not None
 
 
-def read_weights(run_dir: str | os.PathLike) -> dict[str, torch.Tensor]:
-    """The tensors of ``run_dir/model.safetensors``: a regular file of at most :data:`MAX_WEIGHT_BYTES`, whose
-    header names only tensors of :data:`DTYPES` (checked before any tensor is decoded); CheckpointError naming
-    the file otherwise."""
+def read_weights(run_dir: str | os.PathLike, sha256: str = "") -> dict[str, torch.Tensor]:
+    """The tensors of ``run_dir/model.safetensors``: a regular file of at most :data:`MAX_WEIGHT_BYTES` (with
+    ``sha256``, bytes of that digest: the weights a record names), whose header names only tensors of
+    :data:`DTYPES` (checked before any tensor is decoded); CheckpointError naming the file otherwise."""
     path = Path(run_dir) / WEIGHTS
     if not os.path.lexists(path):
         raise CheckpointError(f"{run_dir} holds no {WEIGHTS}; export the run again (pokeworld export)")
@@ -109,6 +111,9 @@ def read_weights(run_dir: str | os.PathLike) -> dict[str, torch.Tensor]:
         raw = read_regular_bytes(path, "a model's weights", MAX_WEIGHT_BYTES)
     except DataError as e:
         raise CheckpointError(str(e)) from None
+    if sha256 and hashlib.sha256(raw).hexdigest() != sha256:
+        raise CheckpointError(f"{path} is not the weights its record names (sha256 {sha256[:12]}…): it was changed "
+                              "or replaced; restore it from the repository (git checkout -- the file)")
     check_header(raw, path)
     from safetensors import SafetensorError
     from safetensors.torch import load

@@ -206,7 +206,7 @@ def complete(a: argparse.Namespace) -> Path:
     work = a.work.resolve()
     work.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="pokeworld-cpu-side-") as scratch:
-        allocs = allocations.open_allocations(a.allocations, Path(scratch))
+        allocs = allocations.open_allocations(a.allocations, Path(scratch), a.models)
         merged = allocations.merge_allocations(allocs)
         returned = {n for al in allocs for n, w in al.weights.items()
                     if w == "returned" and (not a.runs or n in a.runs)}
@@ -251,6 +251,8 @@ def main(argv: list[str] | None = None) -> int:
                                              "and planning with them.")
     ap.add_argument("allocations", nargs="+", type=Path, help="allocation folders as returned")
     ap.add_argument("--work", type=Path, required=True, help="where the corpus, the runs and the outputs go")
+    ap.add_argument("--models", type=Path, default=Path("models"),
+                    help="where a landed lease's model folders are (default models/, the repository's)")
     ap.add_argument("--stages", nargs="+", default=["measure", "certify", "planning"],
                     choices=["measure", "certify", "planning"], help="which stages to run (default: all)")
     ap.add_argument("--certify-estimators", nargs="+", default=list(GATE_ESTIMATORS),

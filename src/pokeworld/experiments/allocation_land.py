@@ -18,22 +18,19 @@ already holding this run's weights is kept as it is.
 
 from __future__ import annotations
 
+import argparse
 import hashlib
-import json
-import shutil
 import tempfile
 from pathlib import Path
 
-from ..errors import ConfigError
+from ..errors import ConfigError, PokeworldError
 from ..io import check_outputs, read_regular_bytes, save_bytes, write_json
 from . import allocations
 from .allocation_pack import INDEX, RECORDS, part_path
 from .allocation_queue import catalog, factorial_key
 
-LEASE_INDEX = "lease.json"
-"""The record's index of its runs' model folders and kept parts."""
-MODELS = Path("models")
-"""Where released models live, relative to the repository root."""
+LEASE_INDEX = allocations.LEASE_INDEX
+MODELS = allocations.MODELS
 RECORD_FILES = (RECORDS, allocations.DEVICE_FILE, "allocation.log")
 
 
@@ -111,4 +108,28 @@ def land(returns: list[Path], record: Path, models: Path, lease: str, data_comma
     return lease_index
 
 
-__all__ = ["LEASE_INDEX", "MODELS", "model_name", "factorial_runs", "provenance", "land"]
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description="Land a GPU lease's returned folders in the repository: its record "
+                                             "and a released model per returned run of the factorial.")
+    ap.add_argument("returns", nargs="+", type=Path, help="every folder the lease's commands returned")
+    ap.add_argument("--record", type=Path, required=True, help="the lease's record folder (docs/results/leases/ID)")
+    ap.add_argument("--models", type=Path, default=MODELS, help="where the model folders go (default models/)")
+    ap.add_argument("--lease", default="", help="the lease's name on the cards (default: the record folder's)")
+    ap.add_argument("--data-command", default="pokeworld map --preset paper --experiments factorial OUT   "
+                                              "# DIR = OUT/data/standard",
+                    help="how the training store DIR is made, quoted on the cards")
+    a = ap.parse_args(argv)
+    try:
+        index = land(a.returns, a.record, a.models, a.lease or a.record.name, a.data_command)
+    except PokeworldError as e:
+        raise SystemExit(f"error: {e}") from None
+    print(f"[land_lease] {len(index['runs'])} released models under {a.models} "
+          f"({', '.join(r['model'] for r in index['runs'].values()) or 'none'}), "
+          f"{len(index['parts'])} parts kept; the lease's record -> {a.record / LEASE_INDEX}")
+    return 0
+
+
+__all__ = ["LEASE_INDEX", "MODELS", "model_name", "factorial_runs", "provenance", "land", "main"]
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -59,6 +59,7 @@ from ..io import (
     save_text,
     write_json,
 )
+from ..model_folder import folder_config, read_weights
 from ..rundir import model_from_checkpoint
 from ..train.optimizer_state import check_optimizer_fits
 from . import merge, report, stages
@@ -281,9 +282,57 @@ def open_lease(folders: list[Path], scratch: Path) -> Allocation:
     return a
 
 
-def open_allocations(paths: list[Path], scratch: Path) -> list[Allocation]:
-    """Every allocation among ``paths``: a lease's return folders joined into one (:func:`open_lease`)."""
-    return [open_lease(g, scratch) for g in lease_groups(list(paths))]
+LEASE_INDEX = "lease.json"
+"""A landed lease's index of the model folders that hold its runs' weights (:mod:`.allocation_land`)."""
+MODELS = Path("models")
+"""Where a landed lease's model folders are looked for by default: the repository's models/."""
+
+
+def open_landed(folder: Path, scratch: Path, models: Path = MODELS) -> Allocation:
+    """A lease landed in the repository (:mod:`.allocation_land`): its records, the parts it kept, and each run's
+    final weights from the model folder its :data:`LEASE_INDEX` names under ``models`` (the weights file checked
+    against the digest landed, read weights-only, its tensors against the model its kwargs declare), restored as
+    runs/NAME/final.pt in float32 beside the run's records."""
+    index = read_json(folder / LEASE_INDEX, "a landed lease's index")
+    a = open_allocation(folder, scratch)
+    rows = index.get("runs")
+    if not isinstance(rows, dict):
+        raise ConfigError(f"{folder / LEASE_INDEX}: 'runs' is not a table of runs; the record is damaged")
+    for name, row in rows.items():
+        where = f"{folder / LEASE_INDEX}: run {str(name)[:60]!r}"
+        if not (isinstance(name, str) and RUN_NAME.fullmatch(name) and name in a.progress.get("finished", [])
+                and isinstance(row, dict) and isinstance(row.get("model"), str) and RUN_NAME.fullmatch(row["model"])
+                and isinstance(row.get("model_sha256"), str) and SHA256.fullmatch(row["model_sha256"])):
+            raise ConfigError(f"{where} is not a finished run with a model folder and its digest; the record is "
+                              "damaged or was edited")
+        restore_model(a, name, models / row["model"], row["model_sha256"])
+    return a
+
+
+def restore_model(a: Allocation, name: str, folder: Path, sha256: str) -> None:
+    """Run ``name`` of ``a``'s final weights from the released model ``folder`` (see :func:`open_landed`)."""
+    import torch
+
+    try:
+        cfg = folder_config(folder)
+        if cfg is None:
+            raise ConfigError(f"{folder} is not an exported model folder (pokeworld export)")
+        state = {k: v.float() if v.dtype == torch.bfloat16 else v for k, v in read_weights(folder, sha256).items()}
+        run = a.root / "runs" / name
+        ck = {"model": state, "model_kwargs": cfg["model_kwargs"], "step": cfg["step"],
+              "config": read_json(run / "config.json", "a run config")}
+        model_from_checkpoint(ck, folder / "model.safetensors")
+    except PokeworldError as e:
+        raise ConfigError(f"the released model of {name}: {e}") from None
+    checkpoint.save(ck, run / "final.pt")
+    a.weights[name] = "returned"
+
+
+def open_allocations(paths: list[Path], scratch: Path, models: Path = MODELS) -> list[Allocation]:
+    """Every allocation among ``paths``: a lease's return folders joined into one (:func:`open_lease`), a landed
+    lease read with its model folders under ``models`` (:func:`open_landed`)."""
+    return [open_landed(g[0], scratch, models) if len(g) == 1 and (g[0] / LEASE_INDEX).is_file()
+            else open_lease(g, scratch) for g in lease_groups(list(paths))]
 
 
 def check_progress(prog: dict, path: Path) -> dict:
@@ -796,6 +845,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="allocation folders as returned (device.json beside the records and weights), packs or "
                          "map folders")
     ap.add_argument("--plan", action="store_true", help="print the next allocation's queue and command instead")
+    ap.add_argument("--models", type=Path, default=Path("models"),
+                    help="where a landed lease's model folders are (default models/, the repository's)")
     ap.add_argument("--commit", default="", help="with --plan: the commit the next allocation runs (default: "
                                                  "ALLOC_COMMIT, else this checkout's)")
     ap.add_argument("--out", type=Path, help="the merged record (results.json format)")
@@ -817,7 +868,7 @@ def main(argv: list[str] | None = None) -> int:
         if not a.plan:  # before anything is read: no output may be, or lie inside, an input
             check_apart([*a.allocations, a.certificates, a.cpu_side], output_paths(a))
         with tempfile.TemporaryDirectory(prefix="pokeworld-allocations-") as scratch:
-            allocs = open_allocations(a.allocations, Path(scratch))
+            allocs = open_allocations(a.allocations, Path(scratch), a.models)
             if a.plan:
                 print("\n".join(plan_lines(plan(allocs), a.commit or commit())))
                 return 0
@@ -832,7 +883,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 __all__ = ["DEVICE_FILE", "AGREE", "Allocation", "device_record", "commit", "gpu_name", "write_device", "read_json",
-           "unpack", "open_allocation", "lease_groups", "join_lease_parts", "open_lease", "open_allocations", "check_progress", "check_step", "restore_returned", "training_facts",
+           "unpack", "open_allocation", "lease_groups", "join_lease_parts", "open_lease", "open_allocations",
+           "open_landed", "restore_model", "LEASE_INDEX", "MODELS", "check_progress", "check_step", "restore_returned", "training_facts",
            "run_key", "returned_of", "plan", "plan_lines", "corpus_lines", "carry_other_corpora", "carry_earlier_runs",
            "export_plan", "export_targets", "export_runs", "output_paths", "write_merged",
            "allocation_record", "check_agreement", "read_certificates",

@@ -1,0 +1,9 @@
+"""Land a GPU lease's returned folders in the repository (pokeworld.experiments.allocation_land).
+
+    python scripts/land_lease.py RETURN1 RETURN2 ... --record docs/results/leases/ID [--models models]
+"""
+
+from pokeworld.experiments.allocation_land import main
+
+if __name__ == "__main__":
+    raise SystemExit(main())
