@@ -34,6 +34,7 @@ from pokeworld.losses import sigreg  # noqa: E402
 from pokeworld.models import XJEPA  # noqa: E402
 from pokeworld.train import (  # noqa: E402
     WindowSampler,
+    compiled,
     loss_kwargs,
     make_config,
     make_optimizer,
@@ -61,7 +62,7 @@ def time_steps(preset: str, steps: int, threads: int, compile: bool = False, cha
     torch.set_num_threads(threads)
     cfg, sampler, model, opt = setup(preset, channels_last, **over)
     kw = loss_kwargs(cfg)
-    fn = torch.compile(model) if compile else model
+    fn = compiled(model) if compile else model
 
     def step(i):
         train_step(model, opt, cfg, sampler.sample(cfg.batch_size), i, torch.device("cpu"), kw, loss_fn=fn)

@@ -41,6 +41,7 @@ from pokeworld.train import (  # noqa: E402
     WindowSampler,
     auto_threads,
     compile_mode_for,
+    compiled,
     data_stats,
     loss_kwargs,
     make_config,
@@ -112,7 +113,7 @@ def bench_sequential(cfgs, ds, device: torch.device, steps: int) -> dict:
         m.set_stats(stats)
         m = m.to(device).train()
         mode = compile_mode_for(c, device)  # as train.run compiles a separate run
-        fn = torch.compile(m, mode=mode) if mode else m
+        fn = compiled(m, mode=mode) if mode else m
         runs.append((c, m, fn, make_optimizer(m, c, fused=fast), loss_kwargs(c)))
     acc = torch.zeros((), device=device)
 

@@ -30,6 +30,7 @@ from pokeworld.train import (
     PRESETS,
     WindowSampler,
     auto_threads,
+    compiled,
     loss_kwargs,
     make_config,
     make_optimizer,
@@ -69,7 +70,7 @@ def bench(preset: str, steps: int, device: torch.device, fast: bool = False, com
     opt = make_optimizer(model, cfg, fused=fast)
     amp = cfg.amp and device.type == "cuda" and torch.cuda.is_bf16_supported()
     kw = loss_kwargs(cfg)
-    loss_fn = torch.compile(model, mode=compile_mode) if compile else model
+    loss_fn = compiled(model, mode=compile_mode) if compile else model
     acc = torch.zeros((), device=device)
 
     def step(i, fn=loss_fn):

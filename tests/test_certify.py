@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from pokeworld.certify import DEFAULT_ESTIMATORS, ESTIMATORS, certify, drag_estimates, make_config, pixel_object_state
+from pokeworld.certify import (DEFAULT_ESTIMATORS, ESTIMATORS, certify, certify_stage, drag_estimates, make_config,
+                               pixel_object_state)
 
 from pokeworld.errors import ConfigError, DataError
 from pokeworld.regressors import RidgeCV, TorchRegressor, r2_scores
@@ -72,6 +73,25 @@ def test_certify_on_tiny_corpus_reports_every_estimator(tiny_dataset):
     best = res["certificate"]["contact"]["gamma"]
     assert best["r2"] == max(r["contact"]["gamma"] for r in res["estimators"].values() if "contact" in r)
     assert res["counts"]["contact"]["fit"] > 0
+
+
+def test_a_gru_certificate_reports_its_epochs_to_the_whole_job(tiny_dataset):
+    """A whole job's estimate times a certificate by its own epochs: each of the three per-target fits reports its
+    epochs as the stage's progress, which rises to the end of each fit and to 1 at the last."""
+    from pokeworld import progress
+
+    cfg = make_config("tiny", kinds=("contact",), estimators=("gru",))
+    name = certify_stage(cfg.data, "contact", "gru")
+    job = progress.JobEstimate({name: 10.0})
+    reported = []
+    job.report = lambda stage, fraction: reported.append((stage, fraction))
+    with progress.whole_job(job):
+        certify(tiny_dataset, cfg)
+    assert {stage for stage, _ in reported} == {name} and name in job.taken
+    shares = [f for _, f in reported]
+    assert len(shares) >= 3 and shares[-1] == pytest.approx(1.0) and max(shares) <= 1.0
+    for k in (1, 2, 3):  # each fit ends at its third of the stage (early stopping or the epoch cap)
+        assert any(f == pytest.approx(k / 3) for f in shares), (k, shares)
 
 
 def test_certify_refuses_missing_probe_split(tiny_dataset):

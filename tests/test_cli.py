@@ -3,6 +3,7 @@
 import pytest
 
 from pokeworld.cli import COMMANDS, PRESET_COSTS, _flag_arity, main, split_args
+from pokeworld.errors import ConfigError
 from pokeworld.experiments import MapConfig
 
 
@@ -13,6 +14,19 @@ def test_positional_and_preset_are_parsed():
     assert split_args(["--no-mlp-probes", "OUT", "--train-steps", "5"], "out", ar)[1] == \
         ["--no-mlp-probes", "--out", "OUT", "--train-steps", "5"]
     assert split_args(["--train-steps", "5", "OUT"], "out", ar)[1] == ["--train-steps", "5", "--out", "OUT"]
+
+
+def test_the_positional_and_its_flag_are_one_argument(capsys):
+    ar = _flag_arity(MapConfig)
+    assert split_args(["--out", "B"], "out", ar)[1] == ["--out", "B"]  # either way alone
+    for argv in (["A", "--out", "B"], ["--out=B", "A"]):
+        with pytest.raises(ConfigError, match=r"--out given twice, as the bare word 'A' and as --out 'B'"):
+            split_args(argv, "out", ar)
+    assert main(["forecast-dependence", "A", "--out", "B"]) == 2  # one line, before anything runs
+    assert "give it once" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["forecast-dependence", "--help"])
+    assert "The bare OUT of the usage line is this option" in " ".join(capsys.readouterr().out.split())
 
 
 def test_nested_tuple_flags_keep_their_values():

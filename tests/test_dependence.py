@@ -203,6 +203,8 @@ def test_the_command_says_its_plan_first_and_writes_a_record_per_run(tmp_path, c
     assert lines[1].endswith("planted rows done") and lines[2].startswith(f"[forecast-dependence] {run}:")
     rec = json.loads((out / "forecast_dependence.json").read_text())
     assert [r["variant"] for r in rec["runs"]] == ["VFX"] and list(rec["planted"]) == [str(store)]
+    assert rec["environment"] == "reference PokeWorld (the store's manifest)"  # no --environment: the store's
+    assert "Environment: reference PokeWorld (the store's manifest)." in (out / "forecast_dependence.md").read_text()
     assert (out / "forecast_dependence.md").is_file() and lines[-1].startswith("[forecast-dependence] wrote ")
 
 
@@ -217,3 +219,51 @@ def test_the_figure_draws_an_s_outside_its_own_bootstrap_interval(tmp_path):
            "readout": {p: {"contact": 0.1} for p in ("gamma", "mass", "stiffness")}}
     path = figure({"environment": "planted", "runs": [row]}, tmp_path / "fd.png")
     assert path.stat().st_size > 0
+
+
+def test_the_figure_s_legend_hides_no_point_and_a_bare_panel_warns_nothing(tmp_path, monkeypatch):
+    """One legend below the three panels (the γ panel's own covered its points), and none asked of a panel with
+    nothing labelled (matplotlib warned "No artists with labels found")."""
+    import warnings
+
+    from pokeworld import io
+    from pokeworld.evaluate.dependence_runs import figure
+
+    drawn = []
+    monkeypatch.setattr(io, "save_figure", lambda fig, out, stem, dpi: drawn.append(fig) or [])
+    row = {"variant": "VFX", "seed": 0, "steps": 10,
+           "dependence": {"gamma": {"S": 1.04, "S_interval": [0.9, 1.2]}, "mass": {"S": 0.5, "S_interval": [0.2, 0.9]},
+                          "stiffness": {"note": "no touch forecast"}},
+           "readout": {"gamma": {"contact": 0.9}, "mass": {"contact": 0.1}, "stiffness": {"contact": None}}}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        figure({"environment": "planted", "runs": [row]}, tmp_path / "fd.png")
+    fig = drawn[0]
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    (legend,) = fig.legends
+    box = legend.get_window_extent(renderer)
+    assert not any(box.overlaps(ax.get_window_extent(renderer)) for ax in fig.axes)
+    labels = [t.get_text() for t in legend.get_texts()]
+    assert labels == ["S [95 % episode bootstrap]", "revision's VFX S (paper, not ours)", "readout R² (contact)"]
+    parameters = ("gamma", "mass", "stiffness")
+    bare = {**row, "variant": "V", "dependence": {p: {"note": "not measured"} for p in parameters},
+            "readout": {p: {"contact": None} for p in parameters}}
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        figure({"environment": "planted", "runs": [bare]}, tmp_path / "bare.png")
+    assert drawn[1].legends == []
+
+
+def test_the_record_names_the_environment_its_store_was_made_in(tiny_dataset):
+    from pokeworld.evaluate.dependence_runs import stores_environment
+
+    assert stores_environment({"data/s": tiny_dataset}, []) == "reference PokeWorld (the store's manifest)"
+    old = tiny_dataset.subset(np.arange(4))
+    old.manifest = {**tiny_dataset.manifest, "config": {k: v for k, v in tiny_dataset.manifest["config"].items()
+                                                        if k != "environment"}}
+    # a store made before environments existed names none: it is the calibrated one
+    assert stores_environment({"data/s": tiny_dataset, "data/old": old}, []) == \
+        "reference PokeWorld (data/s); calibrated PokeWorld (data/old)"
+    assert stores_environment({}, [{"environment": "calibrated PokeWorld"}]) == "calibrated PokeWorld"
+    assert stores_environment({}, [{"environment": "a"}, {"environment": "b"}]) == ""

@@ -25,3 +25,23 @@ def test_every_relative_link_in_the_docs_resolves():
     broken = [f"{page.relative_to(ROOT)} -> {target}" for page in pages
               for target in relative_links(page.read_text(encoding="utf-8")) if not (page.parent / target).exists()]
     assert not broken, "broken links: " + "; ".join(broken)
+
+
+def test_the_readme_s_first_figure_is_the_default_environment_s_and_its_sentence_reads_that_record():
+    """The figure under the README's title is the reference (default) environment's cpu map, and the sentence under
+    it quotes that record's numbers (the mean over its seeds), not those of the retired calibrated environment."""
+    import json
+    from collections import defaultdict
+
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    first = re.search(r"!\[[^]]*\]\(([^)]+)\)", readme)[1]
+    assert first == "docs/results/identifiability_map_cpu_reference.png"
+    record = json.loads((ROOT / "docs/results/map_cpu_reference.json").read_text())
+    assert record["map_config"]["environment"] == "reference"
+    log_k = defaultdict(list)
+    for run in record["runs"].values():
+        log_k[run["train"]["variant"]].append(run["probes"]["ridge"]["contact"]["log_k"])
+    sentence = readme[readme.index(first):readme.index("PokeWorld's default environment")]
+    for variant in ("VX_t", "VX", "VFX"):
+        assert f"{sum(log_k[variant]) / len(log_k[variant]):.2f} for {variant}" in sentence, variant
+    assert "default reference environment" in sentence and "calibrated" not in sentence

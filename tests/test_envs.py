@@ -6,7 +6,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import pokeworld.sim
-from pokeworld.errors import ConfigError
+from pokeworld.errors import ConfigError, InputError
 
 
 def test_check_env_passes():
@@ -28,16 +28,35 @@ def test_reset_options_set_exact_initial_conditions():
         env.reset(options={"wind": 1.0})
 
 
-def test_episode_truncates_after_max_steps():
-    env = gym.make("pokeworld/PokeWorld-v0", max_steps=5)
+def test_episode_truncates_after_max_episode_steps():
+    env = gym.make("pokeworld/PokeWorld-v0", max_episode_steps=5)
     env.reset(seed=0)
     flags = [env.step(env.action_space.sample())[3] for _ in range(5)]
     assert flags == [False] * 4 + [True]
+    env = gym.make("pokeworld/PokeWorld-v0", max_episode_steps=80)  # longer than the corpus: no earlier truncation
+    env.reset(seed=0)
+    assert [env.step(env.action_space.sample())[3] for _ in range(80)] == [False] * 79 + [True]
+
+
+def test_the_registered_spec_says_where_episodes_truncate():
+    """Gymnasium's convention: the registration names the episode length, so spec.max_episode_steps is 64."""
+    env = gym.make("pokeworld/PokeWorld-v0")
+    assert env.spec.max_episode_steps == pokeworld.sim.envs.EPISODE_STEPS == 64
+    env.reset(seed=0)
+    flags = [env.step(env.action_space.sample())[3] for _ in range(64)]
+    assert flags == [False] * 63 + [True]
+    venv = gym.make_vec("pokeworld/PokeWorld-v0", num_envs=2, vectorization_mode="vector_entry_point")
+    assert venv.spec.max_episode_steps == 64 and venv.unwrapped.max_episode_steps == 64
+    direct = pokeworld.sim.PokeWorldEnv()  # constructed directly, without Gymnasium's wrapper: truncates itself
+    direct.reset(seed=0)
+    assert [direct.step(direct.action_space.sample())[3] for _ in range(64)][-2:] == [False, True]
+    with pytest.raises(ConfigError, match="max_episode_steps must be a positive integer"):
+        pokeworld.sim.PokeWorldEnv(max_episode_steps=0)
 
 
 def test_vector_env_next_step_autoreset():
     venv = gym.make_vec("pokeworld/PokeWorld-v0", num_envs=3, vectorization_mode="vector_entry_point",
-                        max_steps=4)
+                        max_episode_steps=4)
     obs, info = venv.reset(seed=0)
     assert obs["vision"].shape == (3, 64, 64, 1)
     masses = info["mass"].copy()
@@ -129,8 +148,9 @@ def test_actions_outside_the_box_are_clipped_to_it():
     np.testing.assert_array_equal(info["finger_pos"][0], info["finger_pos"][1])
     env = gym.make("pokeworld/PokeWorld-v0")
     env.reset(seed=0)
-    with pytest.raises(ConfigError, match="finite"):
+    with pytest.raises(InputError, match="finite") as refused:  # an action is input, not configuration
         env.step(np.array([np.nan, 0.0], np.float32))
+    assert isinstance(refused.value, ValueError) and not isinstance(refused.value, ConfigError)
 
 
 def test_env_class_docstring_documents_touch_truncation_reward_and_clipping():

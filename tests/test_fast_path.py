@@ -15,8 +15,8 @@ from pokeworld.train import loop
 from pokeworld.data import save
 from pokeworld.errors import ConfigError
 from pokeworld.models import XJEPA
-from pokeworld.train import (WindowSampler, loss_kwargs, make_config, model_kwargs, run, sigreg_directions,
-                             sigreg_seed, synthetic_dataset, use_fast_path)
+from pokeworld.train import (WindowSampler, compiled, loss_kwargs, make_config, model_kwargs, run,
+                             sigreg_directions, sigreg_seed, synthetic_dataset, use_fast_path)
 
 CPU = torch.device("cpu")
 # at the tiny preset's 16 px the CNN's last map is 1×1 and its GroupNorm (one channel per group) zeroes the
@@ -129,10 +129,10 @@ def test_compiled_and_eager_losses_agree():
     batch = sampler.sample(cfg.batch_size)
     kw = dict(loss_kwargs(cfg), sigreg_seed=sigreg_seed(cfg, 3), sigreg_directions=sigreg_directions(cfg, 3, CPU))
     le, te, ge = _loss_and_grads(model, batch, **kw)
-    compiled = copy.deepcopy(model)
-    compiled.loss = torch.compile(compiled.loss)
+    twin = copy.deepcopy(model)
+    twin.loss = compiled(twin.loss)
     try:
-        lc, tc, gc = _loss_and_grads(compiled, batch, **kw)
+        lc, tc, gc = _loss_and_grads(twin, batch, **kw)
     except Exception as e:  # no C++ toolchain / unsupported platform: nothing to compare on this machine
         pytest.skip(f"torch.compile does not work on this CPU: {type(e).__name__}: {e}")
     torch.testing.assert_close(lc, le, rtol=1e-4, atol=1e-5)

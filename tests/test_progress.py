@@ -1,12 +1,16 @@
-"""Long work is never silent (issue #52, item 1): a heartbeat line while a stage runs, the workers' training progress
-read from their metrics in the parent, a plan line before a map starts, all silenced by --quiet."""
+"""Long work is never silent: a heartbeat line while a stage runs, the workers' training progress
+read from their metrics in the parent, a plan line before a map starts, all silenced by --quiet; and the demo's
+whole-job estimate, kept within twice the true total while a stage stalls, with progress that advances."""
 
 from __future__ import annotations
 
+import functools
 import json
 import time
 
-from pokeworld import progress
+import pytest
+
+from pokeworld import certify, progress
 from pokeworld.experiments import stages
 from pokeworld.experiments.launch import LaunchOptions, launch, training_status
 from pokeworld.experiments.presets import make_config as make_map_config
@@ -118,23 +122,24 @@ class FakeClock:
         return self.t
 
 
-def test_the_whole_job_estimate_weighs_stages_by_cost_and_follows_this_machine_s_pace():
+def test_an_overrunning_stage_lengthens_the_estimate_by_its_own_overrun_only():
     clock = FakeClock()
     job = progress.JobEstimate({"corpus": 10, "gru": 100, "linear": 1, "train": 300}, now=clock)
     assert job.left() == 411 and job.fraction() == 0
     job.begin("corpus")
-    clock.t += 20  # twice the prediction: the machine is at half speed
+    clock.t += 20  # twice its prediction
     line = job.end("corpus")
-    assert line.startswith("corpus took 20 s (predicted 10 s); whole job 2% done")
-    assert job.pace() == 2.0 and job.left() == 2 * 401
+    assert line.startswith("corpus took 20 s (predicted 10 s); whole job 5% done")
+    assert job.left() == 401  # the stages ahead keep their predictions: the corpus's overrun is its own
     job.begin("gru")
-    clock.t += 100  # half of gru at this pace: progress by cost, not by stage count (1 of 4 would read 25 %)
-    assert job.fraction() == (10 + 50) / 411
-    clock.t += 200  # gru ran past even the slowed prediction: the pace grows while it runs
-    assert job.pace() == (20 + 300) / (10 + 100) and job.left() == job.pace() * 301
+    clock.t += 25  # within half its prediction: the prediction's remainder
+    assert job.running_left() == 75
+    clock.t += 275  # three times its prediction, reporting nothing: a remainder that shrinks but stays
+    assert job.running_left() == progress.predicted_left(100, 300) == 100 * 3 / 11
+    assert job.left() == 301 + 100 * 3 / 11
     job.end("gru")
-    job.skip("linear")  # found done: counts as done, leaves the pace alone
-    assert job.pace() == (20 + 300) / 110 and job.fraction() == 111 / 411
+    job.skip("linear")  # found done: costs nothing
+    assert job.left() == 300
     job.begin("train")
     clock.t += 300
     job.end("train")
@@ -142,19 +147,38 @@ def test_the_whole_job_estimate_weighs_stages_by_cost_and_follows_this_machine_s
     assert job.total() == "in 10 min 20 s (estimated at the start: 6 min 51 s)"  # 20 + 300 + 300 s
 
 
-def test_a_fast_machine_shortens_the_estimate_and_heartbeats_carry_it(capsys):
+def test_predicted_left_never_reaches_zero_and_never_grows():
+    left = [progress.predicted_left(40, t) for t in range(0, 400)]
+    assert left[0] == 40 and left[20] == 20 and all(a >= b > 0 for a, b in zip(left, left[1:]))
+    assert abs(progress.predicted_left(40, 1e6) - 10) < 1e-3  # a quarter of the prediction in the limit
+
+
+def test_a_stage_s_rate_is_the_median_of_its_latest_intervals():
+    rate = progress.StageRate(begun=0.0)
+    assert rate.left(0.0) is None
+    rate.report(10.0, 0.1)  # the first interval holds the set-up: counted until another exists
+    assert rate.left(10.0) == 100 * 0.9 and rate.left(20.0) == 100 * 0.9 - 10  # counted down between reports
+    for t, share in ((12.0, 0.2), (14.0, 0.3), (314.0, 0.4), (316.0, 0.5)):  # one interval holds a 300-s stall
+        rate.report(t, share)
+    rate.report(318.0, 0.5)  # no progress: nothing measured
+    assert rate.left(316.0) == pytest.approx(20 * 0.5)  # 2 s per tenth, the stall outvoted
+    assert rate.left(1000.0) > 20 * 0.5 / 4  # a stall never counts it down to nothing
+
+
+def test_heartbeats_carry_the_estimate(capsys):
     clock = FakeClock()
     job = progress.JobEstimate({"a": 100, "b": 100}, now=clock)
     with progress.whole_job(job):
         with progress.stage("a", "map"):
             clock.t += 50
-        assert "[map] a took 50 s (predicted 1 min 40 s); whole job 50% done, ~50 s left" in capsys.readouterr().out
+        assert "[map] a took 50 s (predicted 1 min 40 s); whole job 33% done, ~1 min 40 s left" \
+            in capsys.readouterr().out
         with progress.stage("not a stage of the job", "certify"):  # a stage the job does not know: silent
             clock.t += 5
         assert capsys.readouterr().out == ""
         with progress.heartbeat("certify", "fitting", every=0.03):
             time.sleep(0.1)
-        assert "; whole job 50% done, ~50 s left" in capsys.readouterr().out
+        assert "; whole job 35% done, ~1 min 40 s left" in capsys.readouterr().out
     with progress.stage("b", "map"):  # no job any more: nothing is timed or said
         pass
     assert capsys.readouterr().out == "" and "b" not in job.taken
@@ -175,7 +199,13 @@ def test_the_demo_estimates_its_whole_job_from_its_stages():
     assert len(gru) == 1 and costs[gru[0]] == 2.0 * DEMO_STAGE_SECONDS["certificate gru"]
     assert costs["training and measurement"] > 300.0  # measurement inside the estimate
     line = stages.whole_job_line(progress.JobEstimate(costs), timed, slow)
-    assert "2.0x the reference machine's; the whole job takes about " in line and "certificate " in line
+    assert "2.0× slower than the reference machine; the whole job takes about " in line and "certificate " in line
+
+
+def test_the_machine_s_speed_is_said_as_slower_or_faster():
+    assert stages.relative_speed(2.6) == "2.6× slower than the reference machine"
+    assert stages.relative_speed(0.5) == "2.0× faster than the reference machine"
+    assert stages.relative_speed(1.02) == "as fast as the reference machine"
 
 
 def test_a_stage_that_reports_its_work_is_estimated_at_its_own_rate(tmp_path):
@@ -183,18 +213,123 @@ def test_a_stage_that_reports_its_work_is_estimated_at_its_own_rate(tmp_path):
     job = progress.JobEstimate({"certify": 100, "train": 1000, "report": 10}, now=clock)
     job.covers["train"] = 0.9  # training is 90 % of the stage; measuring the runs the rest
     job.begin("certify")
-    clock.t += 200  # at half the predicted speed
+    clock.t += 200
     job.end("certify")
     with progress.whole_job(job):
         job.begin("train")
         clock.t += 300
-        assert job.left() == 2 * 1000 - 300 + 2 * 10  # no report yet: the prediction at this pace
+        assert job.left() == 1000 - 300 + 10  # no report yet: its prediction
         _metrics(tmp_path / "a", [{"step": 50}])
         _metrics(tmp_path / "b", [{"step": 50}])
         runs = {"a": (tmp_path / "a", 100), "b": (tmp_path / "b", 100)}
         assert progress.runs_fraction(runs) == 0.5
         progress.report("train", progress.runs_fraction(runs))  # the runs train faster than predicted
-    assert job.fraction() == (100 + 1000 * 0.45) / 1110
-    assert job.left() == 300 * 0.55 / 0.45 + 2 * 10  # the stage at its own rate, the rest at the pace
+    assert job.left() == 300 * 0.55 / 0.45 + 10  # the stage at its own rate, the report at its prediction
     progress.report("train", 1.0)  # no job any more: ignored
-    assert job.done_share["train"] == 0.45
+    assert job.rate.share == 0.45
+
+
+# ---------------------------------------------------------------------------------------------- a planted job
+GRU = certify.certify_stage("out/demo/data/standard", "contact", "gru")
+GRU_GEOM = certify.certify_stage("out/demo/data/standard", "contact", "gru_geom")
+TRAINING = "training and measurement"
+PLANTED_COSTS = {"corpus standard": 26.0, GRU: 44.0, GRU_GEOM: 39.0, "certificate linear": 2.6,
+                 "certificate drag": 2.6, TRAINING: 600.0, "report": 13.0}
+"""The demo's stage predictions on a machine whose timed step is 2.6× the reference's."""
+
+
+class SteppingClock(FakeClock):
+    """A fake clock that moves a second at a time and, at every second, reads the job's estimate as a heartbeat
+    would: (elapsed, estimated total, share done)."""
+
+    def __init__(self):
+        super().__init__()
+        self.job: progress.JobEstimate | None = None
+        self.seen: list[tuple[float, float, float]] = []
+
+    def advance(self, seconds: float) -> None:
+        end = self.t + seconds
+        while self.t < end:
+            self.t = min(end, self.t + 1.0)
+            elapsed = self.t - self.job.started
+            self.seen.append((elapsed, elapsed + self.job.left(), self.job.fraction()))
+
+
+class PlantedFit:
+    """A certificate's GRU fit on the stepping clock: improves for ``best`` epochs, stops ``patience`` epochs
+    later, ``epoch_s`` seconds an epoch, and stalls ``stall_s`` seconds after epoch ``stall_after``."""
+
+    def __init__(self, clock, best, patience, epoch_s, stall_after, stall_s, on_epoch):
+        self.clock, self.best, self.patience, self.epoch_s = clock, best, patience, epoch_s
+        self.stall_after, self.stall_s, self.on_epoch = stall_after, stall_s, on_epoch
+
+    def fit(self):
+        self.clock.advance(3.0)  # the windows' features, before the first epoch
+        for epoch in range(1, self.best + self.patience + 1):
+            self.clock.advance(self.epoch_s)
+            if epoch == self.stall_after:
+                self.clock.advance(self.stall_s)
+            self.on_epoch(epoch, max(0, epoch - self.best))
+
+
+def run_planted_job(clock: SteppingClock, stalled: str, stall_s: float) -> float:
+    """The demo's stages on ``clock``, ``stalled`` stopping for ``stall_s`` seconds half-way; its true total."""
+    cfg = certify.make_config("cpu", epochs=60, separate_targets=False)
+    job = clock.job = progress.JobEstimate(PLANTED_COSTS, now=clock)
+    job.covers[TRAINING] = 0.85
+    pause = {name: stall_s if name == stalled else 0.0 for name in PLANTED_COSTS}
+    with progress.whole_job(job):
+        with progress.stage("corpus standard", "map"):
+            clock.advance(30.0 + pause["corpus standard"])
+        for name, best, epoch_s in ((GRU, 18, 2.5), (GRU_GEOM, 12, 2.2)):
+            with progress.stage(name, "certify"):  # certify's own path: its regressors report their epochs
+                make = certify.epoch_reporting(functools.partial(PlantedFit, clock, best, cfg.patience, epoch_s,
+                                                                 8, pause[name]), name, 1, cfg)
+                make().fit()
+        for name, seconds in (("certificate linear", 4.0), ("certificate drag", 3.0)):
+            with progress.stage(name, "certify"):
+                clock.advance(seconds)
+        with progress.stage(TRAINING, "map"):
+            for beat in range(1, 25):  # 720 s of training, its steps read every 30 s as the heartbeat does
+                clock.advance(30.0 + (pause[TRAINING] if beat == 12 else 0.0))
+                progress.report(TRAINING, beat / 24)
+            clock.advance(110.0)  # measuring the runs, which reports nothing
+        with progress.stage("report", "map"):
+            clock.advance(15.0)
+    return clock.t - job.started
+
+
+@pytest.mark.parametrize("stalled", [GRU, TRAINING, "corpus standard"])
+def test_a_planted_job_whose_stage_stalls_stays_within_twice_its_true_total(stalled, capsys):
+    clock = SteppingClock()
+    true_total = run_planted_job(clock, stalled, stall_s=300.0)
+    estimates = [total for _, total, _ in clock.seen]
+    assert true_total / 2 <= min(estimates) and max(estimates) <= 2 * true_total, (true_total, min(estimates),
+                                                                                 max(estimates))
+    assert clock.job.left() == 0 and clock.job.fraction() == 1
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("[map] corpus standard took ") and lines[-1].startswith("[map] report took ")
+
+
+def test_progress_advances_within_a_stage():
+    clock = SteppingClock()
+    run_planted_job(clock, GRU, stall_s=300.0)
+    shares = [share for _, _, share in clock.seen]
+    assert all(a <= b for a, b in zip(shares, shares[1:])) and clock.job.fraction() == 1.0  # never back
+    # within the stalled GRU certificate (from 33 s to about 6 min 30 s) progress never stands still for a heartbeat
+    inside = [share for elapsed, _, share in clock.seen if 40 <= elapsed <= 380]
+    assert all(b > a for a, b in zip(inside, inside[30:]))
+
+
+def test_a_certificate_fit_reports_its_epochs():
+    import numpy as np
+
+    from pokeworld.regressors import TorchRegressor
+
+    seen = []
+    rng = np.random.default_rng(0)
+    X, groups = rng.normal(size=(60, 4, 3)), np.repeat(np.arange(12), 5)
+    TorchRegressor("gru", hidden=4, layers=1, epochs=6, patience=2,
+                   on_epoch=lambda e, stale: seen.append((e, stale))).fit(X, X[:, -1, :1], groups)
+    assert [e for e, _ in seen] == list(range(1, len(seen) + 1))
+    assert seen[-1][0] == 6 or seen[-1][1] == 2  # the cap or early stopping ended it

@@ -36,7 +36,7 @@ def test_ppo_with_a_cnn_extractor_trains_on_the_dict_observation():
     from stable_baselines3 import PPO
     from stable_baselines3.common.torch_layers import NatureCNN
 
-    env = PokeWorldEnv(physics=PhysicsConfig(image_size=36), max_steps=16)  # NatureCNN's smallest input
+    env = PokeWorldEnv(physics=PhysicsConfig(image_size=36), max_episode_steps=16)  # NatureCNN's smallest input
     model = PPO("MultiInputPolicy", env, n_steps=64, batch_size=32, n_epochs=1, seed=0, device="cpu", verbose=0)
     extractor = model.policy.features_extractor.extractors["vision"]
     assert isinstance(extractor, NatureCNN)  # the frame goes through convolutions, not a flatten
@@ -52,7 +52,7 @@ def test_ppo_with_a_cnn_extractor_trains_on_the_dict_observation():
 def test_vision_frames_drops_the_channel_and_refuses_other_layouts():
     obs, _ = PokeWorldEnv().reset(seed=0)
     assert obs["vision"].shape == (64, 64, 1) and vision_frames(obs["vision"]).shape == (64, 64)
-    from pokeworld.errors import ConfigError
+    from pokeworld.errors import InputError
 
-    with pytest.raises(ConfigError, match="one channel last"):
+    with pytest.raises(InputError, match="one channel last"):
         vision_frames(np.zeros((64, 64), np.uint8))

@@ -20,9 +20,11 @@ def register_envs() -> None:
     import gymnasium
 
     if ENV_ID not in gymnasium.registry:
-        gymnasium.register(id=ENV_ID, entry_point="pokeworld.sim.envs:PokeWorldEnv",
+        # Gymnasium's convention: the episode length is the spec's max_episode_steps (the corpus's 64,
+        # pokeworld.sim.envs.EPISODE_STEPS), which make's TimeLimit wrapper and make_vec's vector env both apply
+        gymnasium.register(id=ENV_ID, entry_point="pokeworld.sim.envs:registered_env",
                            vector_entry_point="pokeworld.sim.envs:PokeWorldVectorEnv",
-                           max_episode_steps=None, disable_env_checker=False)
+                           max_episode_steps=64, disable_env_checker=False)
 
 
 register_envs()

@@ -34,6 +34,7 @@ whenever the two verdicts disagree; only the paper's rule licenses a claim.
 from __future__ import annotations
 
 import functools
+import itertools
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -46,7 +47,7 @@ from .data import Dataset, load
 from .errors import ConfigError, DataError
 from .io import adopt_legacy, check_outputs, read_json, read_json_if_present, write_json
 from .models.xjepa import area_downsample
-from .progress import heartbeat, stage
+from .progress import heartbeat, report, stage
 from .regressors import RidgeCV, TorchRegressor, r2_scores
 from .windows import Windows, make_windows, wall_contact
 
@@ -279,9 +280,29 @@ def observed_state(ds: Dataset, episodes: np.ndarray, pixels: bool, pixel_size: 
     return state
 
 
+def epoch_reporting(make, stage_name: str, fits: int, cfg: CertifyConfig):
+    """``make`` with its regressors reporting their epochs as ``stage_name``'s progress to a whole job's estimate
+    (:func:`pokeworld.progress.report`), so the estimate times the stage by its own epochs: the ``i``-th of ``fits``
+    fits is done by its epochs over the fewest it can still take (early stopping ends it no sooner than
+    ``patience`` epochs after its best validation loss, and no later than ``cfg.epochs``)."""
+    made = itertools.count()
+
+    def reporting():
+        i = next(made)
+
+        def on_epoch(epoch: int, stale: int) -> None:
+            fewest = min(cfg.epochs, epoch + cfg.patience - stale)
+            report(stage_name, (i + epoch / fewest) / fits)
+
+        return make(on_epoch=on_epoch)
+
+    return reporting
+
+
 def _estimator_r2(est: str, ds: Dataset, fit_ds: Dataset, cfg: CertifyConfig, windows, targets, states,
-                  dt: float) -> dict[str, float] | None:
-    """One estimator's held-out R² per target on one window kind (None when it does not apply to this store)."""
+                  dt: float, stage_name: str = "") -> dict[str, float] | None:
+    """One estimator's held-out R² per target on one window kind (None when it does not apply to this store);
+    a neural estimator reports its epochs as ``stage_name``'s progress (:func:`epoch_reporting`)."""
     w_fit, w_test = windows
     y_fit, y_test = targets
     fit_state, test_state = states
@@ -320,6 +341,7 @@ def _estimator_r2(est: str, ds: Dataset, fit_ds: Dataset, cfg: CertifyConfig, wi
             kw = dict(hidden=cfg.gru_hidden, layers=cfg.gru_layers) if arch == "gru" else {}
             make = functools.partial(TorchRegressor, arch, epochs=cfg.epochs, patience=cfg.patience,
                                      seed=cfg.seed, **kw)
+            make = epoch_reporting(make, stage_name, len(cfg.targets) if cfg.separate_targets else 1, cfg)
         pred = fit_targets(make, X_fit, y_fit, w_fit.episode, X_test, cfg.separate_targets)
         r2 = {t: float(v) for t, v in zip(cfg.targets, r2_scores(y_test, pred))}
     return r2
@@ -349,9 +371,10 @@ def _certify_kinds(ds: Dataset, fit_ds: Dataset, cfg: CertifyConfig, episodes, s
         for i, est in enumerate(cfg.estimators):
             now["what"] = f"{est} on {kind} windows ({len(w_fit)} fit / {len(w_test)} test; estimator {i + 1} of " \
                           f"{len(cfg.estimators)})"
-            with stage(certify_stage(cfg.data, kind, est), "certify"):  # a whole job's estimate hears of it
+            name = certify_stage(cfg.data, kind, est)
+            with stage(name, "certify"):  # a whole job's estimate hears of it
                 r2 = _estimator_r2(est, ds, fit_ds, cfg, (w_fit, w_test), (y_fit, y_test), (fit_state, test_state),
-                                   dt)
+                                   dt, name)
             if r2 is None:
                 continue
             results["estimators"].setdefault(est, {})[kind] = r2
@@ -550,4 +573,5 @@ def load_gate(path: str | Path) -> dict:
 
 
 __all__ = ["CertifyConfig", "PRESETS", "GATES", "GATE_ESTIMATOR", "certify", "gate", "gate_of", "load_gate", "run",
-           "make_config", "fit_targets", "drag_estimates", "pixel_object_state", "window_features"]
+           "make_config", "fit_targets", "drag_estimates", "pixel_object_state", "window_features", "certify_stage",
+           "epoch_reporting"]

@@ -172,12 +172,13 @@ def plain_text(text: str) -> str:
     return SOURCE_BREAK.sub(" ", RST_LITERAL.sub(r"\1", text))
 
 
-def plain_help_registry():
+def plain_help_registry(positional: tuple[type, str, str] | None = None):
     """A tyro registry that hands tyro every dataclass field's help as :func:`plain_text`.
 
     The field docstrings are written for Sphinx and the source; the terminal should show words, not markup. The
     rule asks tyro's own rules for the spec (re-entering the registry, where it steps aside) and rewrites only the
-    help text.
+    help text. ``positional`` (the command's config class, the field its bare word fills, and the word's name in
+    the usage line) adds to that field's help that the two are one argument.
     """
     from tyro.constructors import ConstructorRegistry, StructConstructorSpec
 
@@ -204,12 +205,24 @@ def plain_help_registry():
             return spec
         helps = advanced_help.get(info.type, {})  # made classes have no source for tyro to read docstrings from
         fields = tuple(dataclasses.replace(f, helptext=helps.get(f.name) or plain(f.helptext)) for f in spec.fields)
+        if positional is not None and info.type is positional[0]:
+            fields = tuple(dataclasses.replace(f, helptext=with_note(f.helptext, f"The bare {positional[2]} of the "
+                                                                     "usage line is this option: give it either way, "
+                                                                     "once."))
+                           if f.name == positional[1] else f for f in fields)
         common = COMMON_OPTIONS.get(info.type.__name__)
         if common:
             return advanced_group(spec.instantiate, fields, common, advanced_help)
         return dataclasses.replace(spec, fields=fields)
 
     return registry
+
+
+def with_note(helptext, note: str):
+    """``helptext`` (a string, or tyro's lazy callable giving one) with ``note`` after it."""
+    if callable(helptext):
+        return lambda: with_note(helptext(), note)
+    return f"{helptext} {note}" if helptext else note
 
 
 #: Per config class: the options most runs set, listed first by ``--help``; the others are listed after them under
@@ -420,7 +433,8 @@ def split_args(argv: list[str], positional: str | None, arity: dict[str, int]) -
 
     Flags consume their values by type (bool none, scalar one, tuple until the next flag), so a
     bare token that no flag consumes is the positional; after a tuple flag it cannot be told
-    apart from the tuple's values, so put the positional first in that case.
+    apart from the tuple's values, so put the positional first in that case. The positional and its flag are one
+    argument: giving both is a ConfigError.
     """
     preset, rest, i = "cpu", [], 0
     while i < len(argv):
@@ -435,6 +449,7 @@ def split_args(argv: list[str], positional: str | None, arity: dict[str, int]) -
         i += 1
     if positional is None:
         return preset, rest
+    flag = f"--{positional.replace('_', '-')}"
     out, found, i = [], False, 0
     while i < len(rest):
         tok = rest[i]
@@ -448,11 +463,16 @@ def split_args(argv: list[str], positional: str | None, arity: dict[str, int]) -
                 n -= 1 if n > 0 else 0
             continue
         if not found:
-            out += [f"--{positional.replace('_', '-')}", tok]
-            found = True
+            bare, found = tok, True
+            out += [flag, tok]
         else:
             out.append(tok)
         i += 1
+    flagged = [tok.split("=", 1)[1] for tok in rest if tok.startswith(f"{flag}=")] + [
+        rest[j + 1] for j, tok in enumerate(rest[:-1]) if tok == flag]
+    if found and flagged:  # the bare word is the flag's value: given both ways, one would silently win
+        raise ConfigError(f"{flag} given twice, as the bare word {bare!r} and as {flag} {flagged[0]!r}: they are one "
+                          "argument; give it once")
     return preset, out
 
 
@@ -474,12 +494,14 @@ def parse_config(name: str, argv: list[str]):
         raise ConfigError(f"{name} has no presets; drop --preset {preset}")
 
     own = bool(cmd.own_preset) and not preset_given(argv)
+    bare = (cls, cmd.positional, cmd.metavar or METAVARS.get(cmd.positional, cmd.positional.upper())) \
+        if cmd.positional else None
 
     def parse(preset: str, **base):
         default = getattr(config_mod, cmd.make)(preset, **base) if cmd.make else cls()
         with parsing_command_line():  # a field out of range: one line, not the parser's help box
             return tyro.cli(cls, default=default, args=rest, prog=command_prog(name, module_presets(config_mod)),
-                            registry=plain_help_registry(), description=command_description(name, preset, own))
+                            registry=plain_help_registry(bare), description=command_description(name, preset, own))
 
     cfg = parse(preset)
     if cmd.make and getattr(cfg, "environment", None) not in (None, getattr(cls(), "environment", None)):

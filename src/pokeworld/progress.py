@@ -1,7 +1,7 @@
 """Progress of long work, so that slow never reads as hung: a heartbeat line at least every 30 s while a stage runs
 (on a terminal and in a redirected log alike), the training progress of runs that other processes train, read
 from their ``metrics.jsonl`` (steps, steps/s, time left), and one whole-job estimate (:class:`JobEstimate`),
-re-estimated as each stage finishes from what this machine actually did.
+kept current from each stage's own measured rate (a certificate fit's epochs, training's steps).
 
 ``quiet(True)`` (``--quiet`` on ``map`` / ``demo``) silences the heartbeats; the stage lines stay.
 """
@@ -9,6 +9,7 @@ re-estimated as each stage finishes from what this machine actually did.
 from __future__ import annotations
 
 import contextlib
+import statistics
 import sys
 import threading
 import time
@@ -126,16 +127,62 @@ def runs_progress(runs: dict[str, tuple[Path, int]]) -> str:
             + ("; " + " | ".join(busy) if busy else ""))
 
 
+RATE_WINDOW = 5
+"""How many of a stage's latest report intervals set its rate (their median): one stalled interval among them does
+not move the estimate, a lasting change of speed does within a few reports."""
+
+
+class StageRate:
+    """A running stage's own measured rate, from the share of its work it reports done (a fit's epochs, training's
+    steps): seconds per unit of share, the median over its latest intervals between reports. The first interval,
+    which also holds the stage's set-up, counts only until another exists."""
+
+    def __init__(self, begun: float):
+        self.share, self.last = 0.0, begun
+        self.intervals: list[float] = []  # seconds per unit of share, one per interval between two reports
+
+    def report(self, now: float, share: float) -> None:
+        """``share`` of the stage is done at ``now``; a report without progress waits for the next (a stall's time
+        joins one interval, which the median then outvotes)."""
+        if share <= self.share:
+            return
+        self.intervals.append((now - self.last) / (share - self.share))
+        self.share, self.last = share, now
+
+    def left(self, now: float) -> float | None:
+        """Seconds the rest of the stage takes at its measured rate, counted down since its last report as
+        :func:`predicted_left` counts down a prediction (a stall's time is not taken for progress past half of
+        what was left); None before its first report."""
+        if not self.intervals:
+            return None
+        latest = self.intervals[1:][-RATE_WINDOW:] or self.intervals
+        return predicted_left(statistics.median(latest) * (1.0 - self.share), now - self.last)
+
+
+def predicted_left(cost: float, elapsed: float) -> float:
+    """What remains of work predicted to take ``cost`` seconds, ``elapsed`` seconds later with no news of it: the
+    prediction's remainder within half of it; past that a remainder that shrinks more slowly and never reaches zero
+    (a quarter of the prediction in the limit), so that overrunning work still reads as not done and the job's
+    total grows with its overrun, without the overrun being extrapolated to anything else."""
+    if cost <= 0:
+        return 0.0
+    x = elapsed / cost
+    return cost * (1.0 - x) if x <= 0.5 else cost * x / (4.0 * x - 1.0)
+
+
 class JobEstimate:
-    """One estimate of a whole job's time, from its start to its last line, re-estimated as each stage finishes.
+    """One estimate of a whole job's time, from its start to its last line, kept current as the job runs.
 
     ``costs`` maps each stage, in order, to its predicted seconds on this machine (a timing made at the start, or a
-    reference cost scaled by it). Progress is the share of the predicted cost that is done, so a stage that takes
-    ten minutes weighs what it costs, not one stage in N. The *pace* is the actual over the predicted time of the
-    finished stages (and of the running one, once it has run past its prediction): 2.0 means this machine is doing
-    the work at half the predicted speed (another job on its cores, say), and every prediction still ahead is
-    scaled by it. Stages found done already (a resumed job) count as done without entering the pace. ``now`` is
-    the clock (a test passes a fake one).
+    reference cost scaled by it). The time left is the predictions of the stages ahead plus what remains of the
+    running stage: at its own measured rate once it reports its progress (:meth:`report`: a certificate's fit by
+    its epochs, training by its steps), else by its prediction (:func:`predicted_left`). A stage that runs slower
+    than predicted therefore lengthens the estimate by its own overrun only: a stalled certificate does not scale
+    the training ahead, whose cost was timed on this machine and which measures its own rate once it runs. The
+    share done is the job's elapsed time over its estimated total (stages found done already counted at their
+    predicted cost), so it advances within a stage, and it never goes back when the estimate grows
+    (:meth:`fraction`). Stages found done already (a resumed job) cost nothing here. ``now`` is the clock (a test
+    passes a fake one).
     """
 
     def __init__(self, costs: dict[str, float], now: Callable[[], float] = time.monotonic):
@@ -146,77 +193,65 @@ class JobEstimate:
         self.taken: dict[str, float] = {}
         self.skipped: set[str] = set()
         self.running: tuple[str, float] | None = None
-        self.done_share: dict[str, float] = {}  # the running stage's share done, as its work reports it
+        self.rate: StageRate | None = None  # the running stage's own rate, from its reports
         self.covers: dict[str, float] = {}  # the share of a stage's cost its reported work stands for
+        self.shown, self.shown_at = 0.0, self.started  # the share done said last, and when
 
     def report(self, stage: str, fraction: float) -> None:
-        """The running ``stage``'s work is ``fraction`` done (e.g. training steps over all the runs' steps): its
-        time left then follows its own rate (elapsed over done) instead of its prediction. The part of the stage
-        that work stands for is ``covers[stage]`` (training, of a stage that measures the runs too)."""
-        if self.running and self.running[0] == stage:
-            self.done_share[stage] = min(1.0, max(0.0, fraction)) * self.covers.get(stage, 1.0)
-
-    def set_cost(self, stage: str, seconds: float) -> None:
-        """A stage's prediction, replaced by a better one (a timing made on this machine) before it starts."""
-        self.costs[stage] = max(0.0, float(seconds))
+        """The running ``stage``'s work is ``fraction`` done (a fit's epochs, training steps over all the runs'
+        steps): what remains of it then follows its own measured rate instead of its prediction. The part of the
+        stage that work stands for is ``covers[stage]`` (training, of a stage that measures the runs too)."""
+        if self.running and self.running[0] == stage and self.rate is not None:
+            self.rate.report(self.now(), min(1.0, max(0.0, fraction)) * self.covers.get(stage, 1.0))
 
     def begin(self, stage: str) -> None:
         self.running = (stage, self.now())
+        self.rate = StageRate(self.running[1])
 
     def end(self, stage: str) -> str:
         """Close ``stage`` (begun with :meth:`begin`); the line saying what it took and the re-estimate."""
         begun = self.running[1] if self.running and self.running[0] == stage else self.now()
         self.taken[stage] = self.now() - begun
-        self.running = None
+        self.running, self.rate = None, None
         return (f"{stage} took {duration(self.taken[stage])} (predicted {duration(self.costs.get(stage, 0))}); "
                 + self.status())
 
     def skip(self, stage: str) -> None:
-        """``stage`` was done already: it counts as done, and its (near-zero) time does not set the pace."""
+        """``stage`` was done already: it counts as done and costs nothing."""
         self.skipped.add(stage)
         if self.running and self.running[0] == stage:
-            self.running = None
-
-    def pace(self) -> float:
-        """Actual over predicted time of the work finished so far (1.0 before any), the running stage included
-        once it has run past its prediction at that pace."""
-        predicted = sum(self.costs.get(s, 0.0) for s in self.taken)
-        actual = sum(self.taken.values())
-        pace = actual / predicted if predicted > 0 else 1.0
-        if self.running:
-            name, begun = self.running
-            cost, elapsed = self.costs.get(name, 0.0), self.now() - begun
-            if cost > 0 and elapsed > cost * pace:
-                pace = (actual + elapsed) / (predicted + cost)
-        return pace
+            self.running, self.rate = None, None
 
     def _ahead(self) -> list[str]:
         done = set(self.taken) | self.skipped | ({self.running[0]} if self.running else set())
         return [s for s in self.costs if s not in done]
 
+    def running_left(self) -> float:
+        """Seconds still to go in the running stage (0 when none runs)."""
+        if not self.running:
+            return 0.0
+        name, begun = self.running
+        own = self.rate.left(self.now()) if self.rate is not None else None
+        return own if own is not None else predicted_left(self.costs.get(name, 0.0), self.now() - begun)
+
     def left(self) -> float:
-        """Seconds still to go: every stage ahead at the current pace, and what remains of the running one."""
-        pace = self.pace()
-        left = pace * sum(self.costs[s] for s in self._ahead())
-        if self.running:
-            name, begun = self.running
-            elapsed, done = self.now() - begun, self.done_share.get(name, 0.0)
-            left += (elapsed * (1 - done) / done if done > 0.02
-                     else max(0.0, pace * self.costs.get(name, 0.0) - elapsed))
-        return left
+        """Seconds still to go: the stages ahead at their predictions, and what remains of the running one."""
+        return sum(self.costs[s] for s in self._ahead()) + self.running_left()
 
     def fraction(self) -> float:
-        """The share of the job's predicted cost that is done (the running stage by its elapsed time)."""
-        total = sum(self.costs.values())
-        if total <= 0:
-            return 1.0
-        done = sum(self.costs.get(s, 0.0) for s in set(self.taken) | self.skipped)
-        if self.running:
-            name, begun = self.running
-            cost = self.costs.get(name, 0.0)
-            share = self.done_share.get(name) or (self.now() - begun) / max(cost * self.pace(), 1e-9)
-            done += cost * min(0.99, share)
-        return min(1.0, done / total)
+        """The share of the job done: its elapsed time (and the predicted cost of stages found done) over its
+        estimated total. It never goes back nor stands still: when the estimate grows past what was said, the share
+        said advances at half its pace (the time since over the estimated total, halved) until the elapsed time's
+        share catches up with it."""
+        now, left = self.now(), self.left()
+        done = now - self.started + sum(self.costs.get(s, 0.0) for s in self.skipped)
+        if left <= 0:
+            share = 1.0
+        else:
+            creep = self.shown + 0.5 * (now - self.shown_at) / (done + left)
+            share = min(0.99, max(done / (done + left), creep))
+        self.shown, self.shown_at = max(self.shown, share), now
+        return self.shown
 
     def status(self) -> str:
         """``whole job 42% done, ~12 min 30 s left of about 21 min 10 s``."""
@@ -259,5 +294,5 @@ def stage(name: str, tag: str) -> Iterator[None]:
 
 
 __all__ = ["HEARTBEAT_S", "quiet", "duration", "heartbeat", "run_progress", "runs_progress", "runs_fraction",
-           "report", "JobEstimate",
+           "report", "RATE_WINDOW", "StageRate", "predicted_left", "JobEstimate",
            "whole_job", "stage"]

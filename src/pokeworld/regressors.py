@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 import torch
@@ -231,11 +232,14 @@ class TorchRegressor:
     A fifth of the fit episodes is held out for early stopping (patience on the
     validation MSE); the best-validation weights are kept. Tensor inputs train and predict on their device
     (the split and the batch order are drawn on the host as for arrays, so both see the same ones).
+    ``on_epoch(epochs_done, stale)`` is called after every epoch, ``stale`` the epochs since the best validation
+    loss (the fit stops when it reaches ``patience``): a caller's progress report times the fit by its epochs.
     """
 
     def __init__(self, arch: str = "mlp", hidden: int = 256, layers: int = 2, dropout: float = 0.1,
                  lr: float = 1e-3, weight_decay: float = 1e-4, epochs: int = 200, batch_size: int = 256,
-                 patience: int = 15, seed: int = 0, val_fraction: float = 0.2):
+                 patience: int = 15, seed: int = 0, val_fraction: float = 0.2,
+                 on_epoch: Callable[[int, int], None] | None = None):
         if arch not in ("mlp", "gru"):
             raise DataError(f"unknown regressor arch {arch!r}")
         self.__dict__.update(locals())
@@ -269,7 +273,7 @@ class TorchRegressor:
         self.net = cls(d_in, Yt.shape[1], self.hidden, self.layers, self.dropout).to(Xt.device)
         opt = torch.optim.AdamW(self.net.parameters(), lr=self.lr, weight_decay=self.weight_decay)
         best, best_state, bad = np.inf, None, 0
-        for _ in range(self.epochs):
+        for epoch in range(1, self.epochs + 1):
             self.net.train()
             perm = tr_idx[torch.randperm(tr_idx.size, generator=g).numpy()]
             for i in range(0, perm.size, self.batch_size):
@@ -286,8 +290,10 @@ class TorchRegressor:
                 best_state = {k: t.clone() for k, t in self.net.state_dict().items()}
             else:
                 bad += 1
-                if bad >= self.patience:
-                    break
+            if self.on_epoch is not None:
+                self.on_epoch(epoch, bad)
+            if bad >= self.patience:
+                break
         self.net.load_state_dict(best_state)
         self.val_mse = best
         return self

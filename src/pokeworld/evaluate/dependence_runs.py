@@ -24,6 +24,7 @@ from ..io import check_outputs, check_writable_dir, save_text, write_json
 from ..model_inputs import checked_model
 from ..rundir import read_run_config
 from ..run_store import trained_store
+from ..sim.generate_config import generator_config
 from ..sim.replay import physics_of
 from . import tables as R
 from .dependence import PARAMETERS, REGRESSOR, RESPONSE, DependenceConfig, forecast_dependence, fresh_corpus
@@ -59,7 +60,8 @@ class DependenceRunsConfig:
     a store of the same generator (physics, policy, parameter ranges, episode length), which the caller vouches for;
     the record names it."""
     environment: str = ""
-    """What the record calls the environment the runs were trained on (e.g. the corpus and simulator)."""
+    """What the record calls the environment the runs were trained on (e.g. the corpus and simulator); default: the
+    environment each store's manifest names."""
     eval_episodes: int = 2400
     """Fresh evaluation episodes simulated from each training store's generator."""
     eval_seed: int = 1000
@@ -128,6 +130,21 @@ def measure_run(run_dir: Path, fresh, store, cfg: DependenceConfig, seed: int, m
             "readout": readout if readout is not None else _readout(run_dir)}
 
 
+def stores_environment(stores: dict, earlier: list[dict]) -> str:
+    """What a record calls its environment when ``--environment`` names none: the one each store's manifest names
+    (``reference PokeWorld (the store's manifest)``), each store's when they differ; else the ``earlier`` merged
+    records' own, when they agree; "" when nothing says."""
+    named = {path: generator_config(store.manifest, f"{path}'s manifest").environment
+             for path, store in stores.items()}
+    if len(set(named.values())) == 1:
+        where = "the store's manifest" if len(named) == 1 else f"the manifests of its {len(named)} stores"
+        return f"{next(iter(named.values()))} PokeWorld ({where})"
+    if named:
+        return "; ".join(f"{env} PokeWorld ({path})" for path, env in named.items())
+    merged = {rec.get("environment", "") for rec in earlier}
+    return merged.pop() if len(merged) == 1 else ""
+
+
 SETTINGS = ("store", "eval_episodes", "eval_seed", "bootstrap", "max_windows", "seed")
 """The config fields a record's numbers depend on (besides its runs): records merge only when these agree."""
 
@@ -176,7 +193,9 @@ def run(cfg: DependenceRunsConfig) -> Path:
     for rec in earlier:
         refs = {**(rec.get("planted") or {}), **refs}
     rows = [{**row, "readout": readouts.get(row["run"], row["readout"])} for row in joined] + rows
-    result = {"environment": cfg.environment, "config": {k: getattr(cfg, k) for k in SETTINGS}, "responses": RESPONSE,
+    environment = cfg.environment or stores_environment({path: store for path, (store, _) in loaded.items()},
+                                                        earlier)
+    result = {"environment": environment, "config": {k: getattr(cfg, k) for k in SETTINGS}, "responses": RESPONSE,
               "regressors": REGRESSOR, "runs": rows, "planted": refs, "revision": REVISION,
               "provenance": {"pokeworld": __version__, "git": R.git_commit()}}
     out.mkdir(parents=True, exist_ok=True)
@@ -233,7 +252,8 @@ def markdown(result: dict) -> str:
 
 
 def figure(result: dict, path: Path) -> Path:
-    """S with its interval per run and parameter (left axis per parameter), the readout beside it."""
+    """S with its interval per run and parameter (left axis per parameter), the readout beside it; one legend for
+    the three panels, below them, where it hides no point."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -241,7 +261,8 @@ def figure(result: dict, path: Path) -> Path:
 
     from ..io import save_figure
 
-    fig, axes = plt.subplots(1, len(PARAMETERS), figsize=(4.2 * len(PARAMETERS), 3.8), sharey=False)
+    fig, axes = plt.subplots(1, len(PARAMETERS), figsize=(4.2 * len(PARAMETERS), 4.3), sharey=False)
+    legend: dict[str, object] = {}  # label -> the first artist drawn with it, in any panel
     for ax, p in zip(np.atleast_1d(axes), PARAMETERS):
         names = [_label(r) for r in result["runs"]]
         for i, r in enumerate(result["runs"]):
@@ -251,26 +272,28 @@ def figure(result: dict, path: Path) -> Path:
                 # contain its full-sample value (few windows, a slope near zero), and error bars cannot be negative
                 lo, hi = v["S_interval"]
                 ax.vlines(i - 0.12, lo, hi, color="C0", lw=1.5)
-                ax.plot(i - 0.12, v["S"], "o", color="C0", label="S [95 % episode bootstrap]" if i == 0 else None)
+                legend.setdefault("S [95 % episode bootstrap]", ax.plot(i - 0.12, v["S"], "o", color="C0")[0])
             reported = REVISION.get(r["variant"], {}).get(p, {}).get("S")
             if reported is not None:
-                ax.plot(i - 0.12, reported, "*", color="grey", ms=10,
-                        label=f"revision's {r['variant']} S (paper, not ours)")
+                legend.setdefault(f"revision's {r['variant']} S (paper, not ours)",
+                                  ax.plot(i - 0.12, reported, "*", color="grey", ms=10)[0])
             rd = r["readout"][p]["contact"]
             if rd is not None:
-                ax.plot(i + 0.12, rd, "s", color="C1", label="readout R² (contact)" if i == 0 else None)
+                legend.setdefault("readout R² (contact)", ax.plot(i + 0.12, rd, "s", color="C1")[0])
         ax.axhline(1.0, color="grey", lw=0.8, ls="--")
         ax.axhline(0.0, color="grey", lw=0.8)
         ax.set_xticks(range(len(names)), names, rotation=30, fontsize=8)
         ax.set_title(f"{p}: S and readout", fontsize=9)
         ax.set_ylabel("S (1 = the simulator's dependence) / R²")
-        ax.legend(fontsize=7, loc="best")
     title = f"Forecast dependence beside readout ({result['environment'] or 'environment not named'})"
     fig.suptitle("\n".join(textwrap.wrap(title, 200)), fontsize=8)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.07, 1, 1))  # the bottom strip holds the legend
+    if legend:  # a record whose runs have no S and no readout draws no legend rather than an empty one
+        fig.legend(list(legend.values()), list(legend), loc="lower center", ncol=len(legend), fontsize=7,
+                   frameon=False)
     save_figure(fig, path.parent, path.stem, dpi=130)
     return path
 
 
 __all__ = ["DependenceRunsConfig", "PRESETS", "REVISION", "SETTINGS", "make_config", "markdown", "measure_run",
-           "merged_records", "planted_rows", "run"]
+           "merged_records", "planted_rows", "run", "stores_environment", "figure"]

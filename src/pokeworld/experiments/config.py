@@ -29,8 +29,8 @@ class MapConfig(LaunchOptions):
     """No heartbeat lines (every 30 s, what is running and how far the runs are); the stage lines stay."""
     whole_job_estimate: bool = False
     """Keep one estimate of the whole job's time from the start (the demo's stage costs on the reference machine,
-    scaled by a training step timed on this machine), re-estimated as each stage finishes from what this machine
-    actually did; the demo turns it on (its stage costs are the demo's)."""
+    scaled by a training step timed on this machine), kept current from each stage's own measured rate as it runs
+    (a certificate fit's epochs, training's steps); the demo turns it on (its stage costs are the demo's)."""
     preset: str = "cpu"
     """Preset used for every stage (generate, certify, train, measure): tiny (seconds, tests), cpu (2 CPU
     cores, ≈ 20 min per 4,000-step model, two side by side) or paper (GPU, ≈ 14 min per 20k-step model on

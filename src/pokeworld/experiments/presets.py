@@ -39,16 +39,17 @@ DEMO = {  # the newcomer's first run: four variants, one seed; 7 min 02 s measur
     # ... on the corpus's own probe-fit split: a certificate corpus would add its generation to the demo's budget
     # and its 3,000-window cap would leave it fit-set limited all the same
     "certify_fit_episodes": 0,
-    # one whole-job time estimate from the start, corrected as each stage finishes (DEMO_STAGE_SECONDS)
+    # one whole-job time estimate from the start, kept current from each stage's measured rate (DEMO_STAGE_SECONDS)
     "whole_job_estimate": True,
 }
 
 #: What the demo's stages cost on the reference machine (2 idle cores; `python benchmarks/train_cpu.py` 8.03–8.35
 #: model-steps/s for two `cpu` models side by side), in seconds: the priors of the demo's whole-job estimate
-#: (:func:`.stages.whole_job_costs`), scaled by a training step timed on this machine at the start, then corrected
-#: by the pace of the stages as they finish. With the timed training (4 runs x 2,200 steps, two at a time, ~5 min)
-#: they add up to the measured idle demo on the reference environment (7 min 02 s, docs/results/demo.md): its two
-#: GRU certificates took 20 and 18 s on a machine whose training step was 1.2x the reference's.
+#: (:func:`.stages.whole_job_costs`), scaled by a training step timed on this machine at the start; a stage that
+#: reports its progress (a certificate's epochs, training's steps) is then estimated from its own measured rate.
+#: With the timed training (4 runs x 2,200 steps, two at a time, ~5 min) they add up to the measured idle demo on
+#: the reference environment (7 min 02 s, docs/results/demo.md): its two GRU certificates took 20 and 18 s on a
+#: machine whose training step was 1.2x the reference's.
 DEMO_STAGE_SECONDS = {"corpus": 10.0, "certificate gru": 17.0, "certificate gru_geom": 15.0, "certificate": 1.0,
                       "measure per run": 12.0, "report": 5.0}
 #: One demo model's step on one thread of the reference machine (benchmarks/results/train_cpu_demo.json, "one

@@ -13,10 +13,25 @@ from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from ..errors import ConfigError
+from ..errors import ConfigError, InputError
 from .core import PARAM_NAMES, ParamRanges, PhysicsConfig, PokeWorldSim
 
 _RESET_KEYS = {"params", "finger_pos", "object_pos", "object_vel", "finger_vel"}
+
+EPISODE_STEPS = 64
+"""Control steps after which an episode truncates: the corpus's episode length, registered with Gymnasium as the
+env's ``max_episode_steps``."""
+
+
+def episode_steps(value: int | None, required: bool = False) -> int | None:
+    """``value`` as an episode length: a positive int, or None (no truncation of the env's own; Gymnasium's
+    TimeLimit then truncates) unless ``required``."""
+    if value is None and not required:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise ConfigError(f"max_episode_steps must be a positive integer, got {value!r}")
+    return int(value)
+
 
 
 def vision_frames(vision: np.ndarray) -> np.ndarray:
@@ -24,7 +39,7 @@ def vision_frames(vision: np.ndarray) -> np.ndarray:
     models' encoders read (a view, no copy)."""
     vision = np.asarray(vision)
     if vision.ndim < 3 or vision.shape[-1] != 1:
-        raise ConfigError(f"vision must be (..., H, W, 1) (one channel last), got shape {vision.shape}")
+        raise InputError(f"vision must be (..., H, W, 1) (one channel last), got shape {vision.shape}")
     return vision[..., 0]
 
 
@@ -52,10 +67,10 @@ def bounded_actions(actions, n: int) -> np.ndarray:
     """``actions`` as an (n, 2) float array clipped to the action space [-1, 1]² (see :class:`PokeWorldEnv`)."""
     a = np.asarray(actions, dtype=np.float64)
     if a.size != 2 * n:
-        raise ConfigError(f"actions must hold {n} × 2 values (the action space's shape), got shape {a.shape}")
+        raise InputError(f"actions must hold {n} × 2 values (the action space's shape), got shape {a.shape}")
     a = a.reshape(n, 2)
     if not np.all(np.isfinite(a)):
-        raise ConfigError(f"actions must be finite, got {a.tolist()}")
+        raise InputError(f"actions must be finite, got {a.tolist()}; pass finite force commands")
     return np.clip(a, -1.0, 1.0)
 
 
@@ -66,7 +81,8 @@ class PokeWorldEnv(gym.Env):
     Action: a 2-d force command in the action space Box(-1, 1, (2,)); the finger is pushed with
     ``gain · F_max · action + bias`` (gain and bias are hidden per-episode parameters). A component outside
     [-1, 1] is clipped to it (the force saturates at F_max, the Gymnasium convention of most control envs):
-    ``[5, 0]`` acts exactly as ``[1, 0]``. A non-finite action raises ConfigError.
+    ``[5, 0]`` acts exactly as ``[1, 0]``. A non-finite action raises :class:`~pokeworld.errors.InputError` (a
+    ValueError).
 
     Observation (a dict):
 
@@ -82,19 +98,23 @@ class PokeWorldEnv(gym.Env):
 
     Reward: always 0, and the episode never terminates: PokeWorld has no task; it is a data source for world
     models (tasks such as push-to-goal are scored outside the env, :mod:`pokeworld.plan`). Episodes truncate
-    after ``max_steps`` control steps (64 by default, the corpus's episode length). ``info`` carries the true
-    parameters (``mass``, ``gamma``, ``stiffness``, ``bias_x``, ``bias_y``, ``gain``) and the finger and object states.
+    after ``max_episode_steps`` control steps (64, the corpus's episode length): ``gymnasium.make`` registers it
+    as the env's ``spec.max_episode_steps`` and truncates through Gymnasium's TimeLimit wrapper
+    (``gymnasium.make(ENV_ID, max_episode_steps=N)`` for another length); an env constructed directly truncates
+    itself after its own ``max_episode_steps``. ``info`` carries the true parameters (``mass``, ``gamma``,
+    ``stiffness``, ``bias_x``, ``bias_y``, ``gain``) and the finger and object states.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
 
     def __init__(self, physics: PhysicsConfig | None = None, ranges: ParamRanges | None = None,
-                 max_steps: int = 64, render_mode: str | None = None):
+                 max_episode_steps: int | None = EPISODE_STEPS, render_mode: str | None = None):
         if render_mode not in (None, "rgb_array"):
             raise ConfigError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.cfg = physics or PhysicsConfig()
         self.ranges = ranges or ParamRanges()
-        self.max_steps, self.render_mode = int(max_steps), render_mode
+        self.max_episode_steps = episode_steps(max_episode_steps)
+        self.render_mode = render_mode
         self.observation_space = _obs_space(self.cfg)
         self.action_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
         self._sim = PokeWorldSim(1, self.cfg, self.ranges)
@@ -111,7 +131,8 @@ class PokeWorldEnv(gym.Env):
     def step(self, action):
         obs = self._sim.step(bounded_actions(action, 1))
         self._t += 1
-        return self._single(obs), 0.0, False, self._t >= self.max_steps, self._info()
+        truncated = self.max_episode_steps is not None and self._t >= self.max_episode_steps
+        return self._single(obs), 0.0, False, truncated, self._info()
 
     def render(self):
         if self.render_mode == "rgb_array":
@@ -129,15 +150,16 @@ class PokeWorldEnv(gym.Env):
 
 class PokeWorldVectorEnv(VectorEnv):
     """Natively vectorised PokeWorld (one numba kernel steps every sub-environment); spaces, action clipping,
-    reward and truncation as in :class:`PokeWorldEnv`, per sub-environment."""
+    reward and truncation as in :class:`PokeWorldEnv`, per sub-environment. It truncates itself after
+    ``max_episode_steps`` (``gymnasium.make_vec`` passes the registered 64, or the length it is given)."""
 
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": []}
 
     def __init__(self, num_envs: int = 1, physics: PhysicsConfig | None = None,
-                 ranges: ParamRanges | None = None, max_steps: int = 64):
+                 ranges: ParamRanges | None = None, max_episode_steps: int = EPISODE_STEPS):
         self.num_envs = int(num_envs)
         self.cfg = physics or PhysicsConfig()
-        self.max_steps = int(max_steps)
+        self.max_episode_steps = episode_steps(max_episode_steps, required=True)
         self._sim = PokeWorldSim(self.num_envs, self.cfg, ranges)
         self.single_observation_space = _obs_space(self.cfg)
         self.single_action_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
@@ -162,11 +184,17 @@ class PokeWorldVectorEnv(VectorEnv):
             obs = self._sim.reset(mask=resetting)
             self._t[resetting] = 0
         self._t[~resetting] += 1
-        truncated = (self._t >= self.max_steps) & ~resetting
+        truncated = (self._t >= self.max_episode_steps) & ~resetting
         self._needs_reset = truncated.copy()
         reward = np.zeros(self.num_envs)
         terminated = np.zeros(self.num_envs, bool)
         return obs, reward, terminated, truncated, self._sim.privileged()
+
+
+def registered_env(**kwargs) -> PokeWorldEnv:
+    """The entry point ``gymnasium.make`` calls: a :class:`PokeWorldEnv` that leaves truncation to the TimeLimit
+    wrapper Gymnasium adds from the registered (or given) ``max_episode_steps``, so that one length rules."""
+    return PokeWorldEnv(**{"max_episode_steps": None, **kwargs})
 
 
 def register() -> None:
@@ -176,4 +204,5 @@ def register() -> None:
     register_envs()
 
 
-__all__ = ["PokeWorldEnv", "PokeWorldVectorEnv", "register", "vision_frames", "PARAM_NAMES"]
+__all__ = ["EPISODE_STEPS", "PokeWorldEnv", "PokeWorldVectorEnv", "episode_steps", "register", "registered_env",
+           "vision_frames", "PARAM_NAMES"]

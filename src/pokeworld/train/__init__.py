@@ -30,6 +30,7 @@ from .config import (
 from .sampler import WindowSampler, data_stats
 from .single import run
 from .step import (
+                     compiled,
                      decay_split,
                      loss_kwargs,
                      lr_lambda,
@@ -47,4 +48,4 @@ __all__ = ["TrainConfig", "PRESETS", "RESUMABLE_FIELDS", "RETIRED_FIELDS", "make
            "check_existing", "auto_threads", "resolve_device", "use_fast_path", "compile_mode_for", "run", "load_model",
            "finished_run_config", "WindowSampler", "data_stats", "synthetic_dataset", "model_kwargs", "lr_lambda",
            "make_optimizer", "decay_split", "loss_kwargs", "train_step", "sigreg_directions", "sigreg_row_index",
-           "sigreg_seed", "to_device"]
+           "sigreg_seed", "to_device", "compiled"]

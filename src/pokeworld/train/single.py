@@ -53,7 +53,7 @@ from .config import (
 from .loop import LoopSchedule, Progress, past, run_loop
 from .optimizer_state import check_optimizer_fits
 from .sampler import WindowSampler, data_stats
-from .step import loss_kwargs, lr_lambda, make_optimizer, model_kwargs, train_step
+from .step import compiled, loss_kwargs, lr_lambda, make_optimizer, model_kwargs, train_step
 
 
 def run(cfg: TrainConfig, status_every: float = 0.0) -> Path:
@@ -178,7 +178,7 @@ class _SingleRun:
         # draws its SIGReg row subset on the host inside the loss: that part runs outside the graphs)
         self.mode = compile_mode_for(cfg, dev)
         self.eager_fn = net
-        self.loss_fn = torch.compile(net, mode=self.mode) if self.mode else net
+        self.loss_fn = compiled(net, mode=self.mode) if self.mode else net
         self.compile_checked = self.mode is None  # a compiled step proves itself once, on the first step
 
     def fall_back_to_eager(self, error: Exception) -> None:

@@ -4,6 +4,7 @@ schedule, the loss's fixed arguments, and the per-step SIGReg directions and row
 from __future__ import annotations
 
 import math
+import warnings
 from typing import Any
 
 import torch
@@ -18,6 +19,17 @@ def to_device(x: torch.Tensor, dev: torch.device, non_blocking: bool = False) ->
     if non_blocking and dev.type == "cuda":
         return x.pin_memory().to(dev, non_blocking=True)
     return x.to(dev)
+
+def compiled(fn, mode: str | None = None):
+    """``torch.compile(fn, mode=mode)`` without the warnings torch's own compiler stack raises as it loads:
+    inductor imports ``torch.utils.mkldnn``, whose classes are built with torch's deprecated
+    ``torch.jit.script_method`` (a DeprecationWarning for each of its 14 methods, about nothing pokeworld does).
+    That module is imported first with exactly that warning ignored; anything else still warns."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=r"`torch\.jit\.script_method` is deprecated",
+                                category=DeprecationWarning)
+        import torch.utils.mkldnn  # noqa: F401 - loaded here, quietly, before torch.compile loads it
+    return torch.compile(fn, mode=mode)
 
 def sigreg_seed(cfg: TrainConfig, step: int) -> int:
     """Seed of the step's SIGReg directions: a function of (seed, step) only, so identical on every
