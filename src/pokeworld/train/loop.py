@@ -119,6 +119,24 @@ class Progress:
         if self.pbar is not None:
             self.pbar.set_postfix(loss=f"{loss:.4f}", fps=f"{frames_per_s:.0f}")
 
+    def expect(self, step: int, seconds: float, timed: int) -> None:
+        """Say once, early, how long the run will take from its first timed steps (``timed`` steps after the first,
+        which holds any compilation, took ``seconds``) and how to stop and resume: a preset meant for a GPU takes
+        hours a step on a CPU, and that should be known before the hours start. Said when an hour or more is left."""
+        if timed <= 0 or seconds <= 0:
+            return
+        per_step = seconds / timed
+        left = (self.sched.end - step) * per_step
+        if left < 3600:
+            return
+        line = (f"[train {self.label}] expected: {self.sched.end - step} more steps at {per_step:.2f} s/step (the "
+                f"first {timed} timed) ≈ {left / 3600:.1f} h on this machine; Ctrl-C stops it with a checkpoint at "
+                "the step in progress and the same command resumes from there")
+        if self.pbar is not None:
+            self.pbar.write(line)
+        else:
+            print(line, flush=True)
+
     def status(self, step: int, loss: float | None) -> str:
         loss = self.last_loss if loss is None else loss
         rate = (step - self.step0) / max(time.perf_counter() - self.t_start, 1e-9)
@@ -246,7 +264,15 @@ def _loop(t: Trainee, sched: LoopSchedule, dev: torch.device, progress: Progress
     acc: dict[str, torch.Tensor] = {}
     first_bad = torch.full(loss_shape, -1, dtype=torch.long, device=dev)  # first step with a non-finite loss
     n_acc, t0 = 0, time.perf_counter()
+    # the expected time, from the steps after the first (which holds any compilation); on a CPU only, where a step
+    # is done when it returns (a GPU's are queued)
+    timing = {"from": None, "said": dev.type != "cpu"}
     while step < sched.end:
+        if not timing["said"] and step == sched.start + 1:
+            timing["from"] = time.perf_counter()
+        elif not timing["said"] and timing["from"] is not None and step == sched.start + 1 + EXPECT_AFTER:
+            progress.expect(step, time.perf_counter() - timing["from"], EXPECT_AFTER)
+            timing["said"] = True
         terms = t.step(step)
         crash_point("train_step")
         first_bad = torch.where((first_bad < 0) & ~torch.isfinite(terms["loss"]), step, first_bad)
@@ -280,6 +306,10 @@ def _loop(t: Trainee, sched: LoopSchedule, dev: torch.device, progress: Progress
         if stopping:
             break
     return step
+
+
+EXPECT_AFTER = 3
+"""Steps timed (after the first) before training says how long the whole run will take."""
 
 
 def past(deadline: float) -> bool:
