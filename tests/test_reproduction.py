@@ -165,3 +165,21 @@ def test_the_committed_ledger_is_what_the_committed_records_give():
     assert md == ledger_markdown(committed), "docs/results/reproduction.md is stale: run the same script"
     summary = re.search(r"\*\*75 rows: (\d+) reproduced · (\d+) reproduced at cpu only", md)
     assert summary and int(summary[1]) == committed["counts"]["reproduced"]
+
+
+def test_readmes_counts_are_the_ledgers():
+    """README's headline states the generated ledger's counts, never its own."""
+    import json
+    import re
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    counts = json.loads((root / "docs" / "results" / "reproduction.json").read_text())["counts"]
+    text = " ".join((root / "README.md").read_text().split())
+    m = re.search(r"Of the paper's (\d+) quantitative results, (\d+) are reproduced at its budget, (\d+) at `cpu` "
+                  r"only, (\d+) are not \(each with its measured cause\) and (\d+) are not run", text)
+    assert m, "README's headline does not state the ledger's counts"
+    total, ok, cpu, bad, not_run = map(int, m.groups())
+    assert (ok, cpu, bad, not_run) == (counts["reproduced"], counts["reproduced at cpu only"],
+                                       counts["not reproduced"], counts["not run"])
+    assert total == sum(counts.values())
