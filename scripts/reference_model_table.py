@@ -6,7 +6,7 @@ released code, and the per-variant table of the paper's numbers beside the refer
 Our parameter counts come from building each variant of the ``paper`` preset (and of the first paper model,
 ``FIRST_PAPER_MODEL``) with the corpus's stream widths (proprio 4, touch 7, action 2); the reference's numbers are
 data in :mod:`pokeworld.reference_values` (each with its source file); the paper's in
-:mod:`pokeworld.experiments.factorial` and :mod:`pokeworld.paper_values`. The "ours at paper (GPU)" column is
+:mod:`pokeworld.experiments.factorial` and :mod:`pokeworld.published.paper`. The "ours at paper (GPU)" column is
 filled from ``--gpu-map RECORD``, the merged record of GPU allocations of the aligned configuration
 (``scripts/merge_allocations.py --out``), each variant's cell checked against issue 59's target (ridge log k and log m,
 and MLP log k where measured, within 0.1 of the paper's mean of two seeds); a variant not in it says it is not yet
@@ -21,7 +21,7 @@ import argparse
 from collections import defaultdict
 from pathlib import Path
 
-from pokeworld import paper_values as P
+from pokeworld.published import paper as P
 from pokeworld import reference_values as R
 from pokeworld.experiments.factorial import FACTORIAL_MLP
 from pokeworld.io import read_json, save_text, write_json

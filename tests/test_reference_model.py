@@ -136,7 +136,7 @@ def test_every_variants_released_seed_0_run_is_beside_ours():
     # the paper-budget record shows the authors' run of the same variant and seed beside each of ours: every variant
     # of Table "targets" has its seed-0 run, read at the same commit as the transcribed reference runs
     from pokeworld import reference_values as R
-    from pokeworld.released_values import SOURCE_COMMIT, released
+    from pokeworld.published.release import SOURCE_COMMIT, released
 
     assert SOURCE_COMMIT == R.RESULTS_COMMIT
     for variant, run in R.RUNS.items():

@@ -44,7 +44,7 @@ from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 
-from .. import __version__, certify, checkpoint, paper_values as P
+from .. import __version__, certify, checkpoint
 from ..bounded_tar import TarBounds, extract
 from ..config import from_dict
 from ..errors import ConfigError, PokeworldError
@@ -61,6 +61,7 @@ from ..io import (
     write_json,
 )
 from ..model_folder import folder_config, read_weights
+from ..published import paper as P
 from ..rundir import model_from_checkpoint
 from ..train.optimizer_state import check_optimizer_fits
 from ..experiments import merge, report, stages

@@ -13,13 +13,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .. import paper_values as P
 from ..certify import gate_of
 from ..errors import ConfigError, PokeworldError
 from ..evaluate.tables import LABELS, fmt
-from ..io import read_json
-from ..released_values import MULTI_HORIZON, SINGLE_HORIZON, SOURCE_COMMIT, SOURCE_REPO, released
 from ..experiments.factorial import FACTORIAL, FACTORIAL_MLP
+from ..io import read_json
+from ..published import paper as P
+from ..published.release import MULTI_HORIZON, SINGLE_HORIZON, SOURCE_COMMIT, SOURCE_REPO, released
 
 CPU_SIDE = "cpu_side"
 MAX_JSON_BYTES = 4 << 20
@@ -115,7 +115,7 @@ def read_side(work: Path) -> dict:
 
 def attach_cpu_side(merged: dict, work: Path) -> dict:
     """``merged`` completed with the CPU side computed under ``work`` (:mod:`.complete`) and each run's
-    released values (:mod:`pokeworld.released_values`); returns what was attached."""
+    released values (:mod:`pokeworld.published.release`); returns what was attached."""
     side = read_side(work)
     if side.get("corpus", {}).get("content_sha256") != merged["provenance"]["corpus_sha256"]:
         raise ConfigError(f"{work} holds the CPU side of another corpus than the allocations trained on")

@@ -9,14 +9,14 @@ log_stiffness -> log_k, log_mass -> log_m), the decoded 16-step position errors 
 frame-position readout.
 """
 
-from .reference_values import RUNS
+from ..reference_values import RUNS
 
 SOURCE_REPO = "tantansir/latent-world-model-identifiability"
 SOURCE_COMMIT = "a19f5b8716ad725694cc28e52441ca81f1e3fdc9"
 
 #: The multi-horizon runs behind the paper's Table "targets" (exp/e003_motion, λ 0.02, 20,000 steps).
 #: (variant, seed) -> values; ``source`` is the file inside SOURCE_REPO. Every variant's seed-0 run is
-#: :data:`.reference_values.RUNS` (transcribed once, there); VFX and VF, at both seeds, with their frame-position
+#: :data:`pokeworld.reference_values.RUNS` (transcribed once, there); VFX and VF, at both seeds, with their frame-position
 #: readout too.
 MULTI_HORIZON = {
     **{(variant, 0): run for variant, run in RUNS.items()},
