@@ -5,7 +5,7 @@ released code, and the per-variant table of the paper's numbers beside the refer
 
 Our parameter counts come from building each variant of the ``paper`` preset (and of the first paper model,
 ``FIRST_PAPER_MODEL``) with the corpus's stream widths (proprio 4, touch 7, action 2); the reference's numbers are
-data in :mod:`pokeworld.reference_values` (each with its source file); the paper's in
+data in :mod:`pokeworld.published.release` (each with its source file); the paper's in
 :mod:`pokeworld.experiments.factorial` and :mod:`pokeworld.published.paper`. The "ours at paper (GPU)" column is
 filled from ``--gpu-map RECORD``, the merged record of GPU allocations of the aligned configuration
 (``scripts/merge_allocations.py --out``), each variant's cell checked against issue 59's target (ridge log k and log m,
@@ -21,11 +21,11 @@ import argparse
 from collections import defaultdict
 from pathlib import Path
 
-from pokeworld.published import paper as P
-from pokeworld import reference_values as R
 from pokeworld.experiments.factorial import FACTORIAL_MLP
 from pokeworld.io import read_json, save_text, write_json
 from pokeworld.models import VARIANTS, XJEPA
+from pokeworld.published import paper as P
+from pokeworld.published import release as R
 from pokeworld.train.config import FIRST_PAPER_MODEL, REFERENCE_MODEL, make_config
 from pokeworld.train.step import model_kwargs
 
@@ -161,7 +161,7 @@ def variant_rows(cpu: dict[str, dict] | None = None, gpu: dict[str, dict] | None
 
 def record(cpu: dict[str, dict] | None = None, command: str = "", gpu: dict[str, dict] | None = None) -> dict:
     return {"command": command or "python scripts/reference_model_table.py --out docs/results/reference_fidelity_model",
-            "reference": {"repo": R.REFERENCE_REPO, "results_commit": R.RESULTS_COMMIT, "model_commit": R.MODEL_COMMIT,
+            "reference": {"repo": R.SOURCE_REPO, "results_commit": R.RESULTS_COMMIT, "model_commit": R.MODEL_COMMIT,
                           "model_files": ["exp/e003_motion/model.py", "exp/e003_motion/train.py"]},
             "paper_preset_overrides": {k: list(v) if isinstance(v, tuple) else v for k, v in REFERENCE_MODEL.items()},
             "stream_dims": {"proprio": DIMS[0], "touch": DIMS[1], "action": DIMS[2]}, "tolerance": TOLERANCE,

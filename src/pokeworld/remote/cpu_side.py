@@ -19,7 +19,7 @@ from ..evaluate.tables import LABELS, fmt
 from ..experiments.factorial import FACTORIAL, FACTORIAL_MLP
 from ..io import read_json
 from ..published import paper as P
-from ..published.release import MULTI_HORIZON, SINGLE_HORIZON, SOURCE_COMMIT, SOURCE_REPO, released
+from ..published.release import MULTI_HORIZON, RESULTS_COMMIT, SINGLE_HORIZON, SOURCE_REPO, released
 
 CPU_SIDE = "cpu_side"
 MAX_JSON_BYTES = 4 << 20
@@ -196,7 +196,7 @@ def record_lines(merged: dict) -> list[str]:
     with the machine and date that computed ours."""
     lines = ["## Every number of each run, beside the paper's and the authors' released run", "",
              f"Released: the authors' per-run JSON of the same variant and seed ({SOURCE_REPO} at "
-             f"{SOURCE_COMMIT[:7]}, exp/e003_motion/results, λ 0.02, 20,000 steps); paper: its tables (mean of two "
+             f"{RESULTS_COMMIT[:7]}, exp/e003_motion/results, λ 0.02, 20,000 steps); paper: its tables (mean of two "
              "seeds). Ridge, prediction and glide numbers are the device's measurement; MLP probes, the untrained "
              "bound and planning were computed on the CPU from the returned weights (float32 tensors of at least "
              "4,096 elements rounded to bfloat16 for the trip).", ""]
