@@ -14,7 +14,7 @@ import math
 from pathlib import Path
 
 from pokeworld.io import atomic_path, write_json
-from pokeworld.paper_values import PLANNING
+from pokeworld.published.paper import PLANNING
 
 KEEP = ("reach", "median_closest_improvement", "median_improvement", "mean_improvement", "object_moved", "spearman",
         "topk_overlap", "topk_chance",

@@ -1,7 +1,7 @@
 """The CPU side of GPU allocations: the same seeded corpus, the MLP probes and the untrained bound of every returned
 run, the certificates and planning, each stage recorded with this machine, its date and its time.
 
-The logic and its documentation live in :mod:`pokeworld.experiments.allocation_complete`; this is its command line.
+The logic and its documentation live in :mod:`pokeworld.remote.complete`; this is its command line.
 
     python scripts/complete_allocations.py ALLOC_A ALLOC_B ... --work WORK [--plan-episodes N] [--certify-...]
     python scripts/merge_allocations.py ALLOC_A ALLOC_B ... --cpu-side WORK --out docs/results/map_paper.json \
@@ -10,7 +10,7 @@ The logic and its documentation live in :mod:`pokeworld.experiments.allocation_c
 
 import sys
 
-from pokeworld.experiments.allocation_complete import main
+from pokeworld.remote.complete import main
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -7,14 +7,14 @@
 #   2. a smoke check of at most a minute: the two tests of tests/test_cuda.py on the map's path (the CUDA-graph
 #      default trains and resumes in the paper preset's objective and model; a GPU-trained run is measured),
 #      skipped on a CPU;
-#   3. the runs of VARIANTS one at a time (pokeworld.experiments.allocation_run), each started only when its
+#   3. the runs of VARIANTS one at a time (pokeworld.remote.run), each started only when its
 #      predicted time fits what is left, measured with ridge probes and packed into OUT before the next starts;
 #      the checkpoint of the run training is packed too, every ALLOC_SNAPSHOT_S seconds, so a kill at any moment
 #      loses at most the run in progress, and a later allocation given this OUT in ALLOC_RESUME resumes it.
 # OUT then holds allocation.log, device.json, .pokeworld-owned (pokeworld's record of what it wrote), records.tar.gz
 # (the map's records: configs, metrics, measurements, progress, the corpus manifest, returned.json) and
 # pack.tar.part00.. (the finished runs' final weights and the unfinished run's checkpoint, large tensors in
-# bfloat16; pokeworld.experiments.allocation_pack). No certificates are computed here (the CPU side certifies the
+# bfloat16; pokeworld.remote.pack). No certificates are computed here (the CPU side certifies the
 # same seeded corpus). ALLOC_MODE=bench instead runs the full CUDA tests and the benchmark, and trains nothing.
 # Then, on the CPU side:  python scripts/merge_allocations.py OUT1 OUT2 ... --out ...   (merge; see there)
 #                         python scripts/merge_allocations.py --plan OUT1 OUT2 ...     (the next allocation's command)
@@ -50,7 +50,7 @@
 #                        (scripts/complete_allocations.py; docs/model.md "Measurement on or off the training path")
 #   ALLOC_CONCURRENCY    most runs training at once on the GPU (default 1: one after another). More: each run in a
 #                        process of its own, a ramp from one run that doubles while the total steps/s grows by 8 %
-#                        (pokeworld.experiments.allocation_share; no accelerator setting is changed)
+#                        (pokeworld.remote.share; no accelerator setting is changed)
 #   ALLOC_RETURN_PARTS   parts of at most 15 MiB the weights may take in all (default 0: what one return folder
 #                        holds, 3); a lease sets more, since each of its commands returns the parts no earlier one did
 #   ALLOC_WORK           the map's working folder (corpus, checkpoints; default a new folder under /tmp, never in OUT)
@@ -83,7 +83,7 @@ elapsed_s() { awk -v s="$START" -v n="$(date +%s.%N)" 'BEGIN { printf "%.0f", n 
 log() { echo "[gpu_allocation +$(elapsed_s)s] $*"; }
 
 log "mode $MODE, device -> $OUT/device.json"
-"$PY" -c 'import json, sys; from pokeworld.experiments.allocations import write_device
+"$PY" -c 'import json, sys; from pokeworld.remote.allocations import write_device
 print(json.dumps(write_device(sys.argv[1])))' "$OUT/device.json" || exit 3
 cp "$OUT/device.json" "$WORK/map/device.json"  # the records take it along
 
@@ -135,14 +135,14 @@ else
       | sed -u 's/^/[gpu util, mem util, mem used] /' ) &
     GPU_WATCH=$!
   fi
-  "$PY" -m pokeworld.experiments.allocation_run "${args[@]}"
+  "$PY" -m pokeworld.remote.run "${args[@]}"
   RC=$?
   [ -n "$GPU_WATCH" ] && { pkill -P "$GPU_WATCH" 2>/dev/null; kill "$GPU_WATCH" 2>/dev/null; }
 fi
 
 # what the device machine returns: at most 8 files of at most 16 MiB each, 64 MiB together
 problems=$("$PY" -c 'import sys; from pathlib import Path
-from pokeworld.experiments.allocation_pack import check_return_folder
+from pokeworld.remote.pack import check_return_folder
 print("; ".join(check_return_folder(Path(sys.argv[1]))))' "$OUT")
 if [ -n "$problems" ] && [ "${ALLOC_RETURN_PARTS:-0}" -gt 0 ] 2>/dev/null; then
   problems="; more than one return holds: a lease's commands return it in pieces ($problems)"

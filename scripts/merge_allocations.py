@@ -1,7 +1,7 @@
 """Merge GPU allocations of the paper-budget map (``scripts/gpu_allocation.sh``) into one record and its report, or
 print the next allocation's command from what earlier ones returned.
 
-The logic and its documentation live in :mod:`pokeworld.experiments.allocations`; this is its command line.
+The logic and its documentation live in :mod:`pokeworld.remote.allocations`; this is its command line.
 
     python scripts/merge_allocations.py ALLOC_A ALLOC_B ... --certificates certificates_paper.json \
         --out docs/results/map_paper.json --markdown docs/results/map_paper.md [--runs-out runs/paper]
@@ -10,7 +10,7 @@ The logic and its documentation live in :mod:`pokeworld.experiments.allocations`
 
 import sys
 
-from pokeworld.experiments.allocations import main
+from pokeworld.remote.allocations import main
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -1,14 +1,16 @@
 """PokeWorld's environments against the authors' released reference, statistic by statistic (run by hand).
 
 Generates each environment's corpus at a preset render-free (the statistics read states, touch and actions only),
-measures the statistics of issue 59's side-by-side table on it (pokeworld.sim.fidelity) and writes JSON + Markdown:
+measures the statistics of the side-by-side table on it (pokeworld.sim.fidelity) and writes JSON + Markdown:
 
     python scripts/reference_fidelity.py --preset paper --out docs/results/reference_fidelity
 
-The reference's numbers are issue 59's, measured by running its released simulator (exp/e001_xmodal_jepa/pokeworld.py
-of tantansir/latent-world-model-identifiability, the later ``glide_ep`` draw removed) outside the project; the
-calibrated environment's are checked against issue 59's "ours" column first, which proves the measurement. The JSON
-keeps a ``model`` section for the model half (parameter counts, per-variant numbers); this script leaves what is
+The reference's numbers were measured outside the project by running the authors' released simulator
+(exp/e001_xmodal_jepa/pokeworld.py of tantansir/latent-world-model-identifiability, the later ``glide_ep`` draw
+removed), side by side with the same statistics of the calibrated environment's paper corpus (the outside
+measurement's calibrated column, ``fidelity.CALIBRATED_ISSUE``); the calibrated environment's numbers measured here
+are checked against that column first, which proves the measurement. The JSON keeps a ``model`` section for the
+model half (parameter counts, per-variant numbers: scripts/reference_model_table.py); this script leaves what is
 there untouched.
 """
 
@@ -20,9 +22,9 @@ from pokeworld.io import read_json, read_json_if_present, save_text, write_json
 from pokeworld.sim import fidelity
 from pokeworld.sim.generate import content_config, make_config, simulate
 
-REFERENCE_SOURCE = ("issue 59, \"Measured side by side\": the authors' released simulator "
-                    "(exp/e001_xmodal_jepa/pokeworld.py, tantansir/latent-world-model-identifiability, with the later "
-                    "glide_ep draw removed), run outside the project; its probe-test split reproduces static-16 0.2048 "
+REFERENCE_SOURCE = ("the authors' released simulator (exp/e001_xmodal_jepa/pokeworld.py, "
+                    "tantansir/latent-world-model-identifiability, with the later glide_ep draw removed), run outside "
+                    "the project side by side with the calibrated environment's paper corpus; its probe-test split reproduces static-16 0.2048 "
                     "(exp/e003_motion/results/VFX_s0_l0.02.json static_baseline_err) and the window counts 3,228 / 3,319")
 LABELS = {"restitution_k500": "head-on restitution, k 500 (m 1.22, v 1.3)", "restitution_k1732": "… k 1732",
           "restitution_k6000": "… k 6000", "static16": "static-16 ‖p(31) − p(15)‖",
@@ -47,31 +49,33 @@ def markdown(rec: dict) -> str:
     lines = ["# PokeWorld against the authors' released reference\n",
              "## Environment\n", f"Ours: `{rec['command']}` (render-free corpora at the `{rec['preset']}` preset, "
              f"seed {rec['seed']}; statistics on the probe-test split, the ridge fit on probe-fit). Reference: "
-             f"{REFERENCE_SOURCE}. Definitions: `pokeworld.sim.fidelity`. Pass: within issue 59's tolerance.\n",
+             f"{REFERENCE_SOURCE}. Definitions: `pokeworld.sim.fidelity`. Pass: within the tolerance column.\n",
              "| statistic | reference | tolerance | reference env (ours, default) | pass | calibrated env (ours) | "
-             "issue 59's \"ours\" (calibrated) |", "|---|---|---|---|---|---|---|"]
+             "calibrated env, measured outside |", "|---|---|---|---|---|---|---|"]
     for name, (value, tol) in fidelity.REFERENCE.items():
         v = ref["verdicts"][name]
         lines.append(f"| {LABELS[name]} | {value:g} | ±{tol:g} | {v['ours']:.3f} | {'pass' if v['pass'] else 'FAIL'} "
                      f"| {cal['statistics'][name]:.3f} | {fidelity.CALIBRATED_ISSUE[name]:g} |")
     passed = sum(v["pass"] for v in ref["verdicts"].values())
     ours = {t: ref["statistics"][f"ridge_{t}"] - cal["statistics"][f"ridge_{t}"] for t in fidelity.TARGETS}
-    issue = {t: fidelity.REFERENCE[f"ridge_{t}"][0] - fidelity.CALIBRATED_ISSUE[f"ridge_{t}"] for t in fidelity.TARGETS}
+    outside = {t: fidelity.REFERENCE[f"ridge_{t}"][0] - fidelity.CALIBRATED_ISSUE[f"ridge_{t}"]
+               for t in fidelity.TARGETS}
     same = [n for n, (_, tol) in fidelity.REFERENCE.items() if not n.startswith("ridge")
             and abs(cal["statistics"][n] - fidelity.CALIBRATED_ISSUE[n]) <= tol]
     differ = [n for n in fidelity.REFERENCE if not n.startswith("ridge") and n not in same]
-    lines += ["", "The check of the measurement: on the calibrated environment's corpus it reproduces issue 59's "
-              f"\"ours\" column within the same tolerances for {len(same)} of {len(same) + len(differ)} non-ridge rows"
+    lines += ["", "The check of the measurement: on the calibrated environment's corpus it reproduces the outside "
+              "measurement's calibrated column within the same tolerances for "
+              f"{len(same)} of {len(same) + len(differ)} non-ridge rows"
               + (f"; not for {', '.join(differ)}" if differ else "") + ". (Static-16 reads 0.181 here, the number the "
-              "issue itself gives for the same corpus's paper-budget runs, \"static-16 0.181 (0.205)\"; the table's "
-              "0.168 we could not reproduce by any reading of its definition we tried.)", "",
-              "The ridge rows are a measurement of our own: issue 59 names its 19 hand features but does not "
-              "publish them, and the reference's code has no such set. Ours (`fidelity.HAND_FEATURES`: peak force, "
-              "contact time, impulse, force over acceleration, glide decay rate, overlap, …) does not reproduce the "
-              "issue's calibrated column (the check the other rows pass), so its pass / fail against the reference's "
-              "levels is not evidence either way. What it can compare is the shift from the calibrated to the "
+              "outside measurement itself gives for the same corpus's paper-budget runs, \"static-16 0.181 (0.205)\"; "
+              "its table's 0.168 we could not reproduce by any reading of its definition we tried.)", "",
+              "The ridge rows are a measurement of our own: the outside measurement names its 19 hand features "
+              "but does not publish them, and the reference's code has no such set. Ours (`fidelity.HAND_FEATURES`: "
+              "peak force, contact time, impulse, force over acceleration, glide decay rate, overlap, …) does not "
+              "reproduce the outside measurement's calibrated column (the check the other rows pass), so its pass / "
+              "fail against the reference's levels is not evidence either way. What it can compare is the shift from the calibrated to the "
               "reference environment: ours " + " / ".join(f"{ours[t]:+.2f}" for t in fidelity.TARGETS)
-              + ", the issue's " + " / ".join(f"{issue[t]:+.2f}" for t in fidelity.TARGETS)
+              + ", the outside measurement's " + " / ".join(f"{outside[t]:+.2f}" for t in fidelity.TARGETS)
               + " (log m / γ / log k): the same signs. The reference's own raw-window control (`raw_lin+obj` of "
               "probe_controls.py, ridge on the flattened 16-frame window) reads "
               + " / ".join(f"{ref['statistics'][f'raw_ridge_{t}']:.2f}" for t in fidelity.TARGETS)
@@ -81,8 +85,8 @@ def markdown(rec: dict) -> str:
               f"/ moving windows on the probe-test split: {ref['statistics']['contact_windows']} / "
               f"{ref['statistics']['moving_windows']} of {6 * ref['split_counts']['probe_test']} (the reference's "
               "3,228 / 3,319 of 4,800).\n",
-              "## Model\n", "Parameter counts and per-variant numbers beside the paper's and the reference's JSONs: the "
-              "`model` section of reference_fidelity.json (filled by the model half of issue 59).\n"]
+              "## Model\n", "Parameter counts and per-variant numbers beside the paper's and the reference's JSONs: "
+              "[reference_fidelity_model.md](reference_fidelity_model.md) (`scripts/reference_model_table.py`).\n"]
     return "\n".join(lines)
 
 
@@ -102,8 +106,8 @@ def main() -> None:
            "preset": args.preset, "seed": args.seed, "reference_source": REFERENCE_SOURCE,
            "reference": {k: {"value": v, "tolerance": t} for k, (v, t) in fidelity.REFERENCE.items()},
            "calibrated_issue_column": fidelity.CALIBRATED_ISSUE, "environments": envs,
-           "model": previous.get("model", {"note": "parameter counts and per-variant numbers: the model half of "
-                                                   "issue 59 fills this section"})}
+           "model": previous.get("model", {"note": "parameter counts and per-variant numbers: "
+                                                   "reference_fidelity_model.json (scripts/reference_model_table.py)"})}
     write_json(Path(args.out + ".json"), rec)
     save_text(Path(args.out + ".md"), markdown(rec))
     print(markdown(rec))

@@ -5,10 +5,10 @@ released code, and the per-variant table of the paper's numbers beside the refer
 
 Our parameter counts come from building each variant of the ``paper`` preset (and of the first paper model,
 ``FIRST_PAPER_MODEL``) with the corpus's stream widths (proprio 4, touch 7, action 2); the reference's numbers are
-data in :mod:`pokeworld.reference_values` (each with its source file); the paper's in
-:mod:`pokeworld.experiments.factorial` and :mod:`pokeworld.paper_values`. The "ours at paper (GPU)" column is
+data in :mod:`pokeworld.published.release` (each with its source file); the paper's in
+:mod:`pokeworld.experiments.factorial` and :mod:`pokeworld.published.paper`. The "ours at paper (GPU)" column is
 filled from ``--gpu-map RECORD``, the merged record of GPU allocations of the aligned configuration
-(``scripts/merge_allocations.py --out``), each variant's cell checked against issue 59's target (ridge log k and log m,
+(``scripts/merge_allocations.py --out``), each variant's cell checked against the target (ridge log k and log m,
 and MLP log k where measured, within 0.1 of the paper's mean of two seeds); a variant not in it says it is not yet
 trained. ``--cpu-map RESULTS`` adds an "ours at cpu" column from a `cpu` map's ``results.json`` on the reference
 environment (mean over the seeds it holds, the seeds named):
@@ -21,17 +21,17 @@ import argparse
 from collections import defaultdict
 from pathlib import Path
 
-from pokeworld import paper_values as P
-from pokeworld import reference_values as R
 from pokeworld.experiments.factorial import FACTORIAL_MLP
 from pokeworld.io import read_json, save_text, write_json
 from pokeworld.models import VARIANTS, XJEPA
+from pokeworld.published import paper as P
+from pokeworld.published import release as R
 from pokeworld.train.config import FIRST_PAPER_MODEL, REFERENCE_MODEL, make_config
 from pokeworld.train.step import model_kwargs
 
 DIMS = (4, 7, 2)  # proprio, touch, action widths of the PokeWorld corpus (and of the reference's)
-TOLERANCE = 0.02  # issue 59's target: every variant within 2 % of the reference's count
-TARGET_TOLERANCE = 0.1  # issue 59's GPU target: every cell of Table "targets" within 0.1 of the paper's
+TOLERANCE = 0.02  # the parameter-count target: every variant within 2 % of the reference's count
+TARGET_TOLERANCE = 0.1  # the GPU target: every cell of Table "targets" within 0.1 of the paper's
 NOT_TRAINED = "not yet trained: needs a GPU allocation"
 
 #: paper.tex Table "targets" (ridge, contact windows, seeds s0 / s1).
@@ -132,7 +132,7 @@ def map_cells(results: dict, option: str = "--cpu-map", preset: str = "cpu") -> 
 
 
 def target_check(variant: str, ours: dict) -> dict:
-    """Issue 59's GPU target for one variant: each cell of Table "targets" (ridge log k and log m; MLP log k where
+    """The GPU target for one variant: each cell of Table "targets" (ridge log k and log m; MLP log k where
     the paper and we both have it) against the paper's mean of two seeds, within :data:`TARGET_TOLERANCE`."""
     paper = {f"ridge_{k}": sum(PAPER_SEEDS[variant][k]) / 2 for k in ("log_k", "log_m")}
     mine = {"ridge_log_k": ours["log_k"], "ridge_log_m": ours["log_m"]}
@@ -161,7 +161,7 @@ def variant_rows(cpu: dict[str, dict] | None = None, gpu: dict[str, dict] | None
 
 def record(cpu: dict[str, dict] | None = None, command: str = "", gpu: dict[str, dict] | None = None) -> dict:
     return {"command": command or "python scripts/reference_model_table.py --out docs/results/reference_fidelity_model",
-            "reference": {"repo": R.REFERENCE_REPO, "results_commit": R.RESULTS_COMMIT, "model_commit": R.MODEL_COMMIT,
+            "reference": {"repo": R.SOURCE_REPO, "results_commit": R.RESULTS_COMMIT, "model_commit": R.MODEL_COMMIT,
                           "model_files": ["exp/e003_motion/model.py", "exp/e003_motion/train.py"]},
             "paper_preset_overrides": {k: list(v) if isinstance(v, tuple) else v for k, v in REFERENCE_MODEL.items()},
             "stream_dims": {"proprio": DIMS[0], "touch": DIMS[1], "action": DIMS[2]}, "tolerance": TOLERANCE,
@@ -221,7 +221,7 @@ def markdown(rec: dict) -> str:
               "Contact windows. Paper: Table \"targets\" (ridge, seeds s0 / s1), Table \"mlp\", §4.2 (direct / rollout / "
               "static 16-step, arena units; reported for the full model). Reference: seed 0, λ 0.02, 20,000 steps "
               "(source per row). Ours at paper: the `paper` preset on a GPU (20,000 steps), log k / log m / γ "
-              "ridge, MLP log k / log m / γ, direct- / rollout- / static-16, and issue 59's target (ridge log k and "
+              "ridge, MLP log k / log m / γ, direct- / rollout- / static-16, and the target (ridge log k and "
               "log m, and MLP log k where measured, within 0.1 of the paper's mean of two seeds). Ours at cpu: the "
               "`cpu` preset on the "
               "reference environment (about 1/20 of the paper's budget), log k / log m / γ ridge, MLP log k, "

@@ -14,8 +14,8 @@ from typing import Any, Callable
 
 import torch
 
-from pokeworld.experiments.allocation_pack import compact, member_name, tar_bytes
 from pokeworld.models.xjepa import XJEPA
+from pokeworld.remote.pack import compact, member_name, tar_bytes
 from pokeworld.train.optimizer_state import optimizer_params
 
 DATA = Path(__file__).resolve().parent / "data" / "allocation_h100"

@@ -1,5 +1,5 @@
 """What a GPU allocation brings back when it is killed, and how the next one resumes (scripts/gpu_allocation.sh at the
-tiny preset on this CPU); the return format's limits and checks (pokeworld.experiments.allocation_pack); the next
+tiny preset on this CPU); the return format's limits and checks (pokeworld.remote.pack); the next
 allocation's plan (scripts/merge_allocations.py --plan)."""
 
 import io
@@ -19,9 +19,9 @@ import torch
 
 from pokeworld import checkpoint, experiments as experiment
 from pokeworld.errors import ConfigError, PokeworldError
-from pokeworld.experiments import allocation_pack as ap, allocations
-from pokeworld.experiments.allocation_queue import order_queue, parse_token
 from pokeworld.io import atomic_path
+from pokeworld.remote import allocations, pack as ap
+from pokeworld.remote.queue import order_queue, parse_token
 
 ROOT = Path(__file__).resolve().parents[1]
 V, VFX = (f"{v}-h1-4-16-lam0.02-standard-s0" for v in ("V", "VFX"))

@@ -17,8 +17,8 @@ from hypothesis import strategies as st
 
 from allocation_planting import FINISHED, PARTIAL, member, plant, tiny_checkpoint, with_partial
 from pokeworld.errors import PokeworldError
-from pokeworld.experiments import allocations
-from pokeworld.experiments.allocation_queue import parse_token
+from pokeworld.remote import allocations
+from pokeworld.remote.queue import parse_token
 from pokeworld.swm import targets_table as T
 from test_swm_targets_table import INPUT, TARGET, planted_record
 

@@ -1,4 +1,4 @@
-"""A lease landed in the repository (pokeworld.experiments.allocation_land, scripts/land_lease.py), checked on a tiny
+"""A lease landed in the repository (pokeworld.remote.land, scripts/land_lease.py), checked on a tiny
 allocation of this CPU: its factorial runs become released model folders whose weights are exactly the returned
 ones, the record and the model folders read back as the returned folders do, and damage or a foreign folder is
 refused in one line."""
@@ -14,8 +14,8 @@ import torch
 
 from pokeworld import checkpoint
 from pokeworld.errors import ConfigError
-from pokeworld.experiments import allocation_land, allocations
 from pokeworld.model_folder import read_weights
+from pokeworld.remote import allocations, land
 
 ROOT = Path(__file__).resolve().parents[1]
 V, VFX = (f"{v}-h1-4-16-lam0.02-standard-s0" for v in ("V", "VFX"))
@@ -39,7 +39,7 @@ def _weights(a, name):
 
 def test_a_landed_lease_reads_back_with_exactly_the_returned_weights(returned, tmp_path):
     record, models = tmp_path / "record", tmp_path / "models"
-    index = allocation_land.land([returned], record, models, "tiny-lease")
+    index = land.land([returned], record, models, "tiny-lease")
     assert sorted(r["model"] for r in index["runs"].values()) == ["xjepa-V-tiny-s0", "xjepa-VFX-tiny-s0"]
     assert index["parts"] == [] and not list(record.glob("pack.tar.part*"))
     folder = models / "xjepa-VFX-tiny-s0"
@@ -65,7 +65,7 @@ def test_a_landed_lease_reads_back_with_exactly_the_returned_weights(returned, t
 
 def test_changed_weights_or_a_foreign_model_folder_are_refused_in_one_line(returned, tmp_path):
     record, models = tmp_path / "record", tmp_path / "models"
-    allocation_land.land([returned], record, models, "tiny-lease")
+    land.land([returned], record, models, "tiny-lease")
     weights = models / "xjepa-V-tiny-s0" / "model.safetensors"
     data = bytearray(weights.read_bytes())
     data[-1] ^= 1
@@ -78,7 +78,7 @@ def test_changed_weights_or_a_foreign_model_folder_are_refused_in_one_line(retur
     mine.mkdir(parents=True)
     (mine / "notes.txt").write_text("mine")
     with pytest.raises(ConfigError, match="did not write"):
-        allocation_land.land([returned], tmp_path / "record2", tmp_path / "models2", "tiny-lease")
+        land.land([returned], tmp_path / "record2", tmp_path / "models2", "tiny-lease")
     assert (mine / "notes.txt").read_text() == "mine" and len(list(mine.iterdir())) == 1
 
 

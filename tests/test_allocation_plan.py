@@ -1,4 +1,4 @@
-"""The next device lease (scripts/merge_allocations.py --plan, pokeworld.experiments.allocation_plan): the queue of
+"""The next device lease (scripts/merge_allocations.py --plan, pokeworld.remote.plan): the queue of
 this checkout's configuration only, and commands whose every word is checked or shell-quoted."""
 
 import json
@@ -9,9 +9,10 @@ import pytest
 from allocation_planting import current_model
 
 from pokeworld.errors import ConfigError
-from pokeworld.experiments import allocation_plan as ap, allocations, stages
-from pokeworld.experiments.allocation_queue import split_folder_list
+from pokeworld.experiments import stages
 from pokeworld.experiments.presets import make_config
+from pokeworld.remote import allocations, plan as ap
+from pokeworld.remote.queue import split_folder_list
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -99,7 +100,7 @@ def test_every_folder_to_resume_from_is_copied_into_the_checkouts_resume_folder(
 
 
 def test_the_paper_queue_holds_every_experiment_of_the_map_in_the_papers_order():
-    from pokeworld.experiments.allocation_queue import PAPER_QUEUE, catalog, paper_queue
+    from pokeworld.remote.queue import PAPER_QUEUE, catalog, paper_queue
     from pokeworld.experiments.registry import EXPERIMENTS
 
     queue, specs = paper_queue(), catalog("paper")
@@ -127,7 +128,7 @@ def test_one_allocation_trains_and_measures_a_run_of_every_experiment(tmp_path):
     import subprocess
     import sys
 
-    from pokeworld.experiments.allocation_queue import catalog, paper_queue
+    from pokeworld.remote.queue import catalog, paper_queue
 
     specs, firsts = catalog("tiny"), {}
     for t in paper_queue("tiny"):

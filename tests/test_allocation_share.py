@@ -1,4 +1,4 @@
-"""Several runs at once on one GPU (pokeworld.experiments.allocation_share): the rates read off metrics rows, the
+"""Several runs at once on one GPU (pokeworld.remote.share): the rates read off metrics rows, the
 ramp's decisions, the admission against the deadline and the pausing of runs that did not pay, on planted numbers
 (the end-to-end path, two tiny runs at once through the lease, is tests/test_gpu_lease.py)."""
 
@@ -7,7 +7,7 @@ import subprocess
 import time
 from pathlib import Path
 
-from pokeworld.experiments.allocation_share import Ramp, RunWatch, ShareConfig, SharedRuns, Slot, Throughput
+from pokeworld.remote.share import Ramp, RunWatch, ShareConfig, SharedRuns, Slot, Throughput
 
 
 def _rows(folder: Path, rows: list[dict]) -> None:
@@ -81,7 +81,7 @@ def _job(tmp_path, name: str, steps: int = 1000) -> dict:
 
 
 def test_a_run_that_cannot_finish_even_alone_is_not_started_and_one_that_would_slow_others_waits(tmp_path):
-    import pokeworld.experiments.allocation_share as share
+    import pokeworld.remote.share as share
 
     now = time.time()
     # 1000 steps at the prior's 100 steps/s: 10 s + 10 s of overhead
@@ -135,7 +135,7 @@ def test_runs_beyond_the_settled_level_are_paused_and_resumed_as_others_end(tmp_
 
 
 def test_finish_times_play_the_work_out_at_the_measured_rates():
-    from pokeworld.experiments.allocation_share import finish_times
+    from pokeworld.remote.share import finish_times
 
     tp = Throughput(0.01)
     tp.add(1, 100.0)

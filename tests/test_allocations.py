@@ -17,9 +17,9 @@ import torch
 
 from pokeworld import certify, experiments as experiment
 from pokeworld.errors import ConfigError
-from pokeworld.experiments import allocations
-from pokeworld.experiments.allocation_pack import check_return_folder, read_stream
 from pokeworld.experiments.record import record_problem
+from pokeworld.remote import allocations
+from pokeworld.remote.pack import check_return_folder, read_stream
 from pokeworld.rundir import load_model
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -293,7 +293,7 @@ def test_the_measurement_device_is_a_choice_every_job_carries(tmp_path):
 
 def test_a_probe_subset_names_its_corpus_and_keeps_only_probe_episodes(tiny_dataset, tmp_path):
     from pokeworld.data import load, read_manifest, save
-    from pokeworld.experiments.allocation_complete import probe_subset
+    from pokeworld.remote.complete import probe_subset
 
     corpus = save(tiny_dataset, tmp_path / "corpus")
     sub = probe_subset(corpus, 5, tmp_path)

@@ -80,6 +80,27 @@ def test_no_import_cycle_and_no_private_names_across_modules():
     assert not _cycles(edges), _cycles(edges)
 
 
+#: (package, package it must never import, other than itself): the map's experiments know nothing of how their runs
+#: travel to a GPU and back (pokeworld.remote imports pokeworld.experiments, never the reverse); the published
+#: values are data, importing nothing of pokeworld.
+NEVER_IMPORTS = [("pokeworld.experiments", "pokeworld.remote"), ("pokeworld.published", "pokeworld")]
+
+
+def _inside(name: str, package: str) -> bool:
+    return name == package or name.startswith(package + ".")
+
+
+def test_imports_point_one_way_between_packages():
+    mods = _modules()
+    wrong = [f"{name} imports {target}" for lower, upper in NEVER_IMPORTS
+             for name, (path, tree) in mods.items() if _inside(name, lower)
+             for target, _ in _imports(name, path, tree, mods)
+             if _inside(target, upper) and not _inside(target, lower)]
+    assert not wrong, wrong
+    assert all(any(_inside(m, p) for m in mods) for pair in NEVER_IMPORTS for p in pair), "a package listed is gone"
+    assert _inside("pokeworld.remote.run", "pokeworld.remote") and not _inside("pokeworld.remoteness", "pokeworld.remote")
+
+
 def test_no_function_over_100_lines():
     long = [f"{name}.{node.name}: {node.end_lineno - node.lineno + 1} lines"
             for name, (_, tree) in _modules().items() for node in ast.walk(tree)
@@ -116,7 +137,7 @@ WRITE_ALLOWED = {
     ("pokeworld.real.synthetic", "_write_cameras"): "called inside write_scene's atomic_path",
     ("pokeworld.real.synthetic", "_write_metadata"): "called inside write_scene's atomic_path",
     ("pokeworld.real.synthetic", "write_calib"): "inside its own atomic_path",
-    ("pokeworld.experiments.allocation_pack", "compact_bytes"): "serialises into memory (BytesIO), no file",
+    ("pokeworld.remote.pack", "compact_bytes"): "serialises into memory (BytesIO), no file",
     ("pokeworld.swm.targets_table", "figure_png"): "renders into memory (BytesIO) before any output is written",
 }
 READ_ALLOWED = {
@@ -129,6 +150,7 @@ READ_ALLOWED = {
     ("pokeworld.real.rh20t.scene", "*"): "RH20T files read through rh20t.files' bounded regular-file readers",
     ("pokeworld.swm.dataset", "*"): "an swm HDF5 root attribute, bounded by its declared size",
     ("pokeworld.real.fixtures", "*"): "test fixtures damaging files they wrote",
+    ("pokeworld.remote.land", "land"): "a weights part it joined itself in its own scratch folder, copied as bytes",
 }
 
 

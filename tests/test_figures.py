@@ -18,8 +18,8 @@ import pytest
 from matplotlib.figure import Figure
 from matplotlib.text import Text
 
-from pokeworld import paper_values as P
 from pokeworld.evaluate.tables import QUANTITIES
+from pokeworld.published import paper as P
 
 VARIANTS = ("V", "VF", "VX_p", "VX_t", "VX", "VFX")
 

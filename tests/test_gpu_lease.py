@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from pokeworld.errors import PokeworldError
-from pokeworld.experiments import allocation_pack as ap, allocations
+from pokeworld.remote import allocations, pack as ap
 
 ROOT = Path(__file__).resolve().parents[1]
 V, VFX = (f"{v}-h1-4-16-lam0.02-standard-s0" for v in ("V", "VFX"))

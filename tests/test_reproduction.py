@@ -7,9 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from pokeworld import paper_values as P
 from pokeworld.experiments.factorial import FACTORIAL
 from pokeworld.io import read_json, write_json
+from pokeworld.published import paper as P
 from pokeworld.reproduction import (
     NOT_REPRODUCED, NOT_RUN, R2, REPRODUCED, REPRODUCED_AT_CPU, ROWS, Cell, Derived, Read, Row, ledger,
     ledger_markdown, per_seed)

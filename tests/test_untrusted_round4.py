@@ -23,8 +23,8 @@ from allocation_planting import (FINISHED, PARTIAL, edit_json, member, plant, ti
 from pokeworld import checkpoint
 from pokeworld.checkpoint import CheckpointError
 from pokeworld.errors import DataError, PokeworldError
-from pokeworld.experiments import allocations
 from pokeworld.io import record_owned
+from pokeworld.remote import allocations
 from pokeworld.swm import targets_table as T
 from test_swm_targets_table import TARGET, planted_record
 
@@ -56,7 +56,7 @@ def test_plan_refuses_a_variant_that_is_a_command_and_quotes_every_folder(tmp_pa
     folder = tmp_path / "returned $(touch pwned) 'a b'"
     current = current_model(variant="VF", seed=0, steps=20000)
     plant(folder, [member(PARTIAL, "ckpt", tiny_checkpoint(config=current))], edit=with_partial_current)
-    from pokeworld.experiments.allocation_queue import split_folder_list
+    from pokeworld.remote.queue import split_folder_list
 
     fails(["--plan", str(folder), "--commit", "abc; touch pwned"], "hexadecimal")
     # the planted records are of an earlier environment, whose runs the checkout's plan only names: plan them as
@@ -130,7 +130,7 @@ def test_a_duplicate_member_is_refused_in_the_records_and_read_once_from_the_par
             info.size = len(data)
             tar.addfile(info, io.BytesIO(data))
     fails([str(folder), "--out", str(tmp_path / "m.json")], "holds 'progress.json' twice")
-    from pokeworld.experiments.allocation_pack import read_stream
+    from pokeworld.remote.pack import read_stream
 
     m = member(PARTIAL, "ckpt", tiny_checkpoint())
     parts = plant(tmp_path / "parts", [m, m, member(PARTIAL, "ckpt", tiny_checkpoint(step=9))], edit=with_partial)
@@ -313,7 +313,7 @@ def test_malformed_swm_targets_rows_are_one_line(tmp_path, change, match):
 
 
 def test_resume_folders_with_spaces_survive_the_shell_script(tmp_path):
-    from pokeworld.experiments.allocation_queue import folder_list, split_folder_list
+    from pokeworld.remote.queue import folder_list, split_folder_list
 
     folders = [str(tmp_path / "a b"), str(tmp_path / "c'd"), "$(touch x)"]
     assert split_folder_list(folder_list(folders)) == folders

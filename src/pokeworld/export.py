@@ -235,7 +235,7 @@ def metrics_lines(measured: dict | None) -> list[str]:
 
 BF16_MIN_ELEMENTS = 4096
 """``--dtype bfloat16`` stores float32 tensors of at least this many elements in bfloat16: the rule a GPU lease's
-return rounds by (``pokeworld.experiments.allocation_pack``), so its weights are stored exactly."""
+return rounds by (``pokeworld.remote.pack``), so its weights are stored exactly."""
 RELEASED_FILES = {"measure.json": "measure.json", "metrics.jsonl": "training_metrics.jsonl"}
 """A released model's measurement and training log, from the run's file to the folder's."""
 

@@ -37,8 +37,8 @@ from .evaluate.state import encode_observations, model_device
 from .io import check_outputs, save_figure, save_npz, save_text, write_json
 from .model_inputs import checked_model
 from .models.predictor import KVCache
-from .paper_values import PLANNING
 from .preflight import require_finished_runs
+from .published.paper import PLANNING
 from .run_store import trained_store
 from .rundir import finished_run_config, load_model
 from .sim import PhysicsConfig, PokeWorldSim, physics as physics_kernels

@@ -2,8 +2,8 @@
 committed records (``scripts/reproduction_ledger.py`` writes docs/results/reproduction.{json,md}).
 
 Each row (:data:`ROWS`) is one result of the paper: its section, the quantity, and one :class:`Cell` per number in
-it. A cell holds the paper's value (from :mod:`pokeworld.paper_values` or an experiment's module), the authors'
-released value where their release has the run (:mod:`pokeworld.released_values`), a :class:`Tolerance`, and
+it. A cell holds the paper's value (from :mod:`pokeworld.published.paper` or an experiment's module), the authors'
+released value where their release has the run (:mod:`pokeworld.published.release`), a :class:`Tolerance`, and
 *where* ours is read: a record under docs/results and a path into its JSON, once for the paper's budget and once
 for the ``cpu`` budget. A path segment ``{seed}`` matches every seed the record holds (ours is their mean, compared
 with the paper's mean over the same seeds), so a record that gains runs changes the ledger without an edit here.
@@ -34,7 +34,6 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
-from . import paper_values as P
 from .experiments.attributes import ATTRIBUTES
 from .experiments.config import recorded_map_config
 from .experiments.controls import CONTROLS
@@ -48,7 +47,8 @@ from .experiments.lambda_sweep import LAMBDA
 from .experiments.lazy import LAZY
 from .experiments.tokens import TOKENS
 from .io import read_json
-from .released_values import MULTI_HORIZON, MULTISCALE, SINGLE_HORIZON
+from .published import paper as P
+from .published.release import MULTI_HORIZON, MULTISCALE, SINGLE_HORIZON
 from .sim.environments import DEFAULT as DEFAULT_ENVIRONMENT
 
 REPRODUCED = "reproduced"
@@ -1225,7 +1225,7 @@ def ledger_markdown(result: dict) -> str:
              "default-environment reproduction); **not reproduced** — a cell outside tolerance where measured (the "
              "paper's budget first), with the measured cause; **not run** — a cell no record holds. A row is judged "
              "at one budget at a time. Seeds: a paper value given per seed (s0/s1) is compared with ours over the "
-             "seeds we have. Released: the authors' per-run numbers (`pokeworld.released_values`); where they differ "
+             "seeds we have. Released: the authors' per-run numbers (`pokeworld.published.release`); where they differ "
              "from the paper's beyond the tolerance the row is judged against them too.", "",
              "Tolerances: " + "; ".join(f"{k} ({v})" for k, v in result["tolerances"]) + ".", ""]
     for part, title in result["parts"]:

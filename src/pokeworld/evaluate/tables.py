@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import paper_values as P
 from ..certify import GATES  # noqa: F401  (re-exported for the tables that mark gated parameters)
+from ..published import paper as P
 
 QUANTITIES = ("log_k", "log_m", "gamma", "object_pos", "object_vel")
 

@@ -7,14 +7,15 @@
 * :mod:`.runs` — run specs, run names and paths in a map folder;
 * :mod:`.report` — results.json, results.md and the figure; :mod:`.merge` — fold a later map's runs into a
   record (``scripts/merge_map_results.py``);
-* :mod:`.allocations` — the paper-budget map from short GPU allocations: where one ran, and the merge of any
-  number of them (``scripts/gpu_allocation.sh``, ``scripts/merge_allocations.py``);
 * :mod:`.registry` — every experiment, one module each (its run specs, its report section, its paper values):
   :mod:`.factorial`, :mod:`.lazy`, :mod:`.lambda_sweep`, :mod:`.coverage`, :mod:`.frame_averaged`,
   :mod:`.controls`, :mod:`.dose_touch`, :mod:`.dose_glide`, :mod:`.attributes`, :mod:`.belief`, :mod:`.planning`,
   :mod:`.coordinate`, :mod:`.ledger`, :mod:`.tokens`.
 
 Adding an experiment: a module with ``NAME``, ``specs(c)`` and ``section(results)``, listed in the registry.
+
+The map's runs carried to a GPU and back (the paper-budget map in short device leases) are :mod:`pokeworld.remote`,
+which imports this package; nothing here imports it.
 """
 
 from .config import MapConfig

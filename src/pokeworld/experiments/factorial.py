@@ -5,7 +5,6 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from .. import paper_values as P
 from ..evaluate.tables import (
     LABELS,
     dagger,
@@ -16,6 +15,7 @@ from ..evaluate.tables import (
     probe,
     variant_runs,
 )
+from ..published import paper as P
 from .runs import RunSpec, spec
 
 if TYPE_CHECKING:

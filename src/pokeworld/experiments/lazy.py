@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from .. import paper_values as P
 from ..evaluate.tables import fmt, probe
+from ..published import paper as P
 from .factorial import FACTORIAL
 from .runs import RunSpec, spec
 

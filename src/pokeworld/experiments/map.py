@@ -7,7 +7,7 @@ trains the runs that can share a step as stacked ensembles and ``certify_alongsi
 meanwhile. Time-sliced running (``time_budget_min``): every invocation trains until its budget is nearly spent,
 checkpoints, writes ``progress.json`` and exits normally; the same command resumes. ``pack`` tars the small
 result files for the trip back from a lent machine. A caller may steer the runs one at a time (:class:`RunHooks`):
-a GPU allocation (:mod:`.allocation_run`) orders them, starts one only when it fits the time left and packs each
+a GPU allocation (:mod:`pokeworld.remote.run`) orders them, starts one only when it fits the time left and packs each
 for the trip back as soon as it is measured.
 """
 
@@ -99,7 +99,7 @@ class RunHooks:
 
     def run_all(self, c: MapConfig, jobs: list[dict], specs: list, started: float) -> None:
         """Run the jobs: by default one at a time (:func:`run_one_by_one`); a GPU allocation may run several at
-        once (:mod:`.allocation_share`)."""
+        once (:mod:`pokeworld.remote.share`)."""
         run_one_by_one(c, jobs, specs, started, self)
 
 

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import __version__, paper_values as P
+from .. import __version__
 from ..certify import GATES, gate_of
 from ..config import to_dict
 from ..evaluate.tables import (
@@ -27,6 +27,7 @@ from ..evaluate.tables import (
     variant_runs,
 )
 from ..io import read_json_if_present, save_figure, save_text
+from ..published import paper as P
 from .config import recorded_map_config
 from .registry import REPORT_ORDER
 from .runs import spec_measure_path

@@ -212,7 +212,7 @@ def write_progress(c: MapConfig, specs: list[RunSpec], started: float) -> dict:
     return prog
 
 #: Files ``pack`` takes, as globs relative to the map directory (all small: JSON, markdown, figures). A GPU
-#: allocation (:mod:`.allocation_run`) adds three: device.json (where its map ran), returned.json (the index of the
+#: allocation (:mod:`pokeworld.remote.run`) adds three: device.json (where its map ran), returned.json (the index of the
 #: weights and checkpoints it brings back beside the pack) and a resumed run's resumed.json (from which allocation's
 #: checkpoint, at which step).
 PACK_GLOBS = ("map_config.json", "progress.json", "device.json", "returned.json", "results.json", "results.md",

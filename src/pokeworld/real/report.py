@@ -1,6 +1,6 @@
 """Tables and the scissors figure of ``pokeworld real``, shaped like the paper's App. C, paper beside ours.
 
-Paper numbers come from :mod:`pokeworld.paper_values` and sit in their own columns; a cell of ours is
+Paper numbers come from :mod:`pokeworld.published.paper` and sit in their own columns; a cell of ours is
 "—" when the run or metric is missing (never a paper value).
 """
 
@@ -8,8 +8,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .. import paper_values as P
 from ..io import remove_own_file, save_figure_as, save_text
+from ..published import paper as P
 
 DASH = "—"
 

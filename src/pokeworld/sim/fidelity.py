@@ -1,4 +1,4 @@
-"""How close a PokeWorld corpus is to the authors' released reference: the statistics of issue 59's side-by-side table.
+"""How close a PokeWorld corpus is to the authors' released reference: the statistics of a side-by-side table.
 
 Every window statistic follows the reference's evaluation code (``exp/e003_motion/train.py`` of
 ``tantansir/latent-world-model-identifiability``): its episodes record 64 states, each *after* a control step, so
@@ -31,7 +31,7 @@ MIN_WINDOWS = 20
 RESTITUTION_K, RESTITUTION_M, RESTITUTION_V = (500.0, 1732.0, 6000.0), 1.22, 1.3
 TARGETS = ("log_m", "gamma", "log_k")
 
-#: statistic -> (reference value, tolerance of issue 59's targets)
+#: statistic -> (reference value, tolerance): the released simulator's numbers, measured outside the project
 REFERENCE: dict[str, tuple[float, float]] = {
     "restitution_k500": (0.74, 0.05), "restitution_k1732": (0.77, 0.05), "restitution_k6000": (0.79, 0.05),
     "static16": (0.205, 0.015), "contact_step_fraction": (0.32, 0.04), "contact_window_fraction": (0.67, 0.04),
@@ -39,7 +39,8 @@ REFERENCE: dict[str, tuple[float, float]] = {
     "first_frame_moving": (0.62, 0.04), "ridge_log_m": (0.79, 0.08), "ridge_gamma": (0.30, 0.08),
     "ridge_log_k": (0.95, 0.03),
 }
-#: the same statistics as issue 59 measured them on the calibrated environment's paper corpus (its "ours" column)
+#: the same statistics of the calibrated environment's paper corpus, measured outside the project beside the
+#: reference's (the outside measurement's calibrated column; scripts/reference_fidelity.py checks ours against it)
 CALIBRATED_ISSUE: dict[str, float] = {
     "restitution_k500": 0.48, "restitution_k1732": 0.48, "restitution_k6000": 0.48, "static16": 0.168,
     "contact_step_fraction": 0.29, "contact_window_fraction": 0.85, "glide_window_fraction": 0.034,
@@ -207,7 +208,7 @@ def restitutions(physics: PhysicsConfig) -> dict[str, float]:
 
 
 def verdicts(stats: dict[str, float]) -> dict[str, dict]:
-    """Each statistic beside the reference's value and whether it lies within issue 59's tolerance."""
+    """Each statistic beside the reference's value and whether it lies within its tolerance."""
     return {name: {"ours": stats[name], "reference": ref, "tolerance": tol,
                    "pass": bool(abs(stats[name] - ref) <= tol + 1e-12)}
             for name, (ref, tol) in REFERENCE.items() if name in stats}

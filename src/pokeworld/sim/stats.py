@@ -29,7 +29,7 @@ import numpy as np
 from ..config import check_fields
 from ..data import Dataset, load
 from ..errors import DataError
-from ..paper_values import CORPUS_STATS
+from ..published.paper import CORPUS_STATS
 from ..windows import glide_frames, wall_contact
 
 CONTEXT, HORIZON = 8, 16

@@ -5,13 +5,13 @@ A record is one environment's: allocations are grouped by their **configuration 
 the sha256 of the corpus generator's content config (the manifest's ``config``: physics, policy, ranges, seed,
 episodes, splits), which decides the corpus bytes. The next lease trains this checkout's configuration (the key of
 the ``paper`` map's corpus as this checkout would generate it): its runs that any allocation of the same key
-finished are skipped, those with a returned checkpoint come first, then :func:`.allocation_queue.paper_queue` (the
+finished are skipped, those with a returned checkpoint come first, then :func:`.queue.paper_queue` (the
 factorial at seeds 0 and 1, VFX and VF first, then seed 2, then every other experiment of the paper, finding by
 finding). Runs of other configurations (an earlier environment) are named
 and never queued: they cannot be trained from this checkout.
 
 Every word printed for a shell comes from a closed set or is checked: run tokens are re-made from a known variant
-and an integer seed, or are run names of the map (:func:`.allocation_queue.parse_token`), the commit must be hexadecimal, and each folder to
+and an integer seed, or are run names of the map (:func:`.queue.parse_token`), the commit must be hexadecimal, and each folder to
 resume from is quoted into ALLOC_RESUME's list and the list quoted for the shell (a folder with spaces stays one).
 """
 
@@ -29,10 +29,10 @@ from pathlib import Path
 from ..errors import ConfigError
 from ..io import parse_json
 from ..sim.generate_config import content_config
-from .allocation_queue import folder_list, order_queue, paper_queue, parse_token
-from .config import MapConfig
-from .presets import make_config
-from .stages import corpus_config
+from .queue import folder_list, order_queue, paper_queue, parse_token
+from ..experiments.config import MapConfig
+from ..experiments.presets import make_config
+from ..experiments.stages import corpus_config
 
 Key = str
 """A run's queue token: ``VARIANT@SEED`` for the factorial's, the run name for any other experiment's."""
@@ -102,7 +102,7 @@ def plan(returned: list[Returned], configuration: str) -> dict:
 
 def resume_value(folders: list[str]) -> str:
     """ALLOC_RESUME's value as a shell word: the folders as one list, each quoted for the list
-    (:func:`.allocation_queue.folder_list`, read back by :func:`.allocation_queue.split_folder_list`), the list
+    (:func:`.queue.folder_list`, read back by :func:`.queue.split_folder_list`), the list
     quoted again for the shell; a folder with spaces or quotes stays one folder."""
     return shlex.quote(folder_list(folders))
 

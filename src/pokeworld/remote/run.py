@@ -1,10 +1,10 @@
 """One GPU allocation's training, as ``scripts/gpu_allocation.sh`` runs it after its smoke check: the runs of a
-queue one at a time in one ``pokeworld map`` (:class:`.map.RunHooks`), each started only when its predicted time fits
-what is left, each packed for the trip back as soon as it is measured and while it trains
-(:mod:`.allocation_pack`), checkpoints that earlier allocations returned resumed first.
+queue one at a time in one ``pokeworld map`` (:class:`pokeworld.experiments.map.RunHooks`), each started only when
+its predicted time fits what is left, each packed for the trip back as soon as it is measured and while it trains
+(:mod:`.pack`), checkpoints that earlier allocations returned resumed first.
 
 * The queue: run tokens ``VARIANT`` or ``VARIANT@SEED`` (``VFX``, ``VF@1``) for the factorial, the map's run name
-  for any other experiment's run (:func:`.allocation_queue.paper_queue`), in priority order (default
+  for any other experiment's run (:func:`.queue.paper_queue`), in priority order (default
   :data:`PRIORITY`). A run of another experiment is measured completely where it trains (MLP probes and the
   untrained bound too), so its record needs no weights afterwards. Runs an earlier allocation given with ``--resume`` finished are dropped, runs with a checkpoint
   (returned by an earlier allocation, or left in the work folder) move to the front (:func:`order_queue`);
@@ -32,17 +32,18 @@ from ..config import to_dict
 from ..errors import ConfigError, PokeworldError
 from ..io import read_regular_bytes, save_bytes, write_json
 from ..rundir import last_logged_step, load_resume_checkpoint, read_metrics
-from . import allocations, stages
-from .allocation_pack import Packer, ReturnLimits, Snapshots
-from .allocation_share import SharedRuns, ShareConfig
-from .launch import cores
-from .allocation_queue import PRIORITY, catalog, factorial_key, order_queue, parse_token, split_folder_list, token_of
 from ..models.xjepa import VARIANTS
-from .config import VARIANT_ORDER, MapConfig
-from .map import RunHooks, run as run_map
-from .presets import make_config
-from .registry import EXPERIMENTS
-from .runs import RunSpec, run_dir
+from ..experiments import stages
+from ..experiments.config import VARIANT_ORDER, MapConfig
+from ..experiments.launch import cores
+from ..experiments.map import RunHooks, run as run_map
+from ..experiments.presets import make_config
+from ..experiments.registry import EXPERIMENTS
+from ..experiments.runs import RunSpec, run_dir
+from . import allocations
+from .pack import Packer, ReturnLimits, Snapshots
+from .queue import PRIORITY, catalog, factorial_key, order_queue, parse_token, split_folder_list, token_of
+from .share import SharedRuns, ShareConfig
 
 #: preset -> (s/step, overhead s) a run is predicted with until this allocation has timed one. paper: the aligned
 #: configuration's VFX (the queue's first run, and its slowest variant) as the H200 lease of 2026-11-28 timed it,
@@ -84,7 +85,7 @@ def checkpoint_step(run: Path) -> int:
 
 class AllocationHooks(RunHooks):
     """The map's runs in queue order, each admitted when it fits the time left, snapshotted while it trains and
-    packed once measured; with ``share.most`` > 1 several at once (:mod:`.allocation_share`)."""
+    packed once measured; with ``share.most`` > 1 several at once (:mod:`.share`)."""
 
     def __init__(self, queue: list[str], packer: Packer, deadline: float, pace: Pace, snapshot_s: float,
                  share: ShareConfig = ShareConfig(most=1), complete: set[str] | frozenset[str] = frozenset()):
@@ -287,7 +288,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="measure each finished run on its device (auto: the GPU) or on the machine's CPU cores")
     ap.add_argument("--concurrency", type=int, default=1,
                     help="most runs training at once on the GPU (1: one after another; more: a ramp from one "
-                         "that goes on while the total steps/s grows, pokeworld.experiments.allocation_share)")
+                         "that goes on while the total steps/s grows, pokeworld.remote.share)")
     ap.add_argument("--return-parts", type=int, default=0,
                     help="parts the weights may take in all when several returns carry them (a lease's commands; "
                          "0: what one return folder holds)")

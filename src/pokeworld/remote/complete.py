@@ -40,8 +40,9 @@ from ..data import load, read_manifest, save
 from ..errors import ConfigError, PokeworldError
 from ..evaluate import measure
 from ..io import read_json_if_present, read_regular_bytes, write_json
-from . import allocations, stages
-from .config import MapConfig
+from ..experiments import stages
+from ..experiments.config import MapConfig
+from . import allocations
 
 CPU_SIDE = "cpu_side"
 """The folder of the CPU side's records in its work folder: ``machine.json`` (this machine, the corpus) and one

@@ -26,8 +26,8 @@ from pathlib import Path
 from ..errors import ConfigError, PokeworldError
 from ..io import check_outputs, read_regular_bytes, save_bytes, write_json
 from . import allocations
-from .allocation_pack import INDEX, RECORDS, part_path
-from .allocation_queue import catalog, factorial_key
+from .pack import INDEX, RECORDS, part_path
+from .queue import catalog, factorial_key
 
 LEASE_INDEX = allocations.LEASE_INDEX
 MODELS = allocations.MODELS

@@ -6,9 +6,9 @@ A device machine returns at most 8 files from its output folder, each at most 16
 
 * ``allocation.log`` and ``device.json`` (the script's own), ``.pokeworld-owned`` (:mod:`pokeworld.io`'s record of
   the files it wrote there);
-* ``records.tar.gz`` (:data:`RECORDS`): the map's small records (:data:`.stages.PACK_GLOBS`: map_config, progress
-  and device JSON, the corpus manifest, each run's config, metrics and measurement) and ``returned.json``, the
-  index of what the parts below hold and what was left out;
+* ``records.tar.gz`` (:data:`RECORDS`): the map's small records (:data:`pokeworld.experiments.stages.PACK_GLOBS`:
+  map_config, progress and device JSON, the corpus manifest, each run's config, metrics and measurement) and
+  ``returned.json``, the index of what the parts below hold and what was left out;
 * ``pack.tar.part00``, ``part01``, ... (:data:`PARTS`): one uncompressed tar cut into parts of at most
   ``part_bytes``, holding ``runs/NAME/final.<sha>.pt``, the final weights of every finished run in the order they
   finished, then ``runs/NAME/ckpt.<sha>.pt``, the latest checkpoint (model, optimizer, scheduler, RNG and sampler
@@ -48,9 +48,9 @@ import torch
 from .. import checkpoint
 from ..errors import ConfigError, PokeworldError
 from ..io import read_regular_bytes, remove_own_file, save_bytes, write_json
-from . import stages
-from .config import MapConfig
-from .runs import RunSpec, run_dir
+from ..experiments import stages
+from ..experiments.config import MapConfig
+from ..experiments.runs import RunSpec, run_dir
 
 RECORDS = "records.tar.gz"
 """The map's small records and returned.json, in the output folder."""
@@ -313,7 +313,7 @@ class Packer:
     steps: dict[str, int] = field(default_factory=dict)
     """member name -> the step of the checkpoint it holds."""
     share: dict = field(default_factory=dict)
-    """How the allocation shared its GPU among runs (:meth:`.allocation_share.SharedRuns.record`), if it did."""
+    """How the allocation shared its GPU among runs (:meth:`.share.SharedRuns.record`), if it did."""
     lock: threading.Lock = field(default_factory=threading.Lock)
 
     def pack(self, running: str = "", training: frozenset[str] = frozenset()) -> dict:

@@ -2,10 +2,10 @@
 
 A GPU comes in short allocations (a fresh machine for minutes at a time), so the paper-budget factorial is trained
 in pieces: ``bash scripts/gpu_allocation.sh OUT`` spends one allocation on as many ``paper``-preset runs as fit
-(:mod:`.allocation_run`) and brings back ``device.json`` (:func:`device_record`: which GPU, driver, torch, the date,
+(:mod:`.run`) and brings back ``device.json`` (:func:`device_record`: which GPU, driver, torch, the date,
 the commit passed in as ALLOC_COMMIT), the records (each run's config, metrics and measurement, the corpus manifest,
 progress.json and device.json again) and the finished runs' weights and the unfinished run's checkpoint
-(:mod:`.allocation_pack`). ``scripts/merge_allocations.py`` assembles any number of them into one record
+(:mod:`.pack`). ``scripts/merge_allocations.py`` assembles any number of them into one record
 (:func:`merge_allocations`), and ``--plan`` prints the next allocation's queue (:func:`plan`):
 
 * every allocation must have trained on the same corpus (the seeded paper corpus: its manifest's content hash) with
@@ -17,10 +17,11 @@ progress.json and device.json again) and the finished runs' weights and the unfi
 * each returned weight file and checkpoint is checked (its sha256, a weights-only load, its tensors against the
   model its kwargs declare) and restored in float32 beside the run's records (:func:`restore_returned`), so probes
   can be computed from it on the CPU; a finished run whose weights did not come back says so;
-* each run record is the map's own (:func:`.report.collect`) plus where it was trained (``run["allocation"]``:
-  device, date, torch, steps and s/step);
+* each run record is the map's own (:func:`pokeworld.experiments.report.collect`) plus where it was trained
+  (``run["allocation"]``: device, date, torch, steps and s/step);
 * a run present in two allocations is kept once, the later allocation's (device.json dates), and the largest
-  difference of the two ridge readouts is recorded (:func:`.merge.merge`, :func:`.merge.max_difference`);
+  difference of the two ridge readouts is recorded (:func:`pokeworld.experiments.merge.merge`,
+  :func:`pokeworld.experiments.merge.max_difference`);
 * certificates come from a certify JSON computed elsewhere (``--certificates``; the allocations compute none),
   refused when it certifies another corpus.
 """
@@ -43,7 +44,7 @@ from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 
-from .. import __version__, certify, checkpoint, paper_values as P
+from .. import __version__, certify, checkpoint
 from ..bounded_tar import TarBounds, extract
 from ..config import from_dict
 from ..errors import ConfigError, PokeworldError
@@ -60,17 +61,18 @@ from ..io import (
     write_json,
 )
 from ..model_folder import folder_config, read_weights
+from ..published import paper as P
 from ..rundir import model_from_checkpoint
 from ..train.optimizer_state import check_optimizer_fits
-from . import merge, report, stages
-from .allocation_cpu import attach_cpu_side, record_lines
-from .allocation_pack import COMPACT_MIN_ELEMENTS, INDEX, RECORDS, ReturnLimits, load_member, part_path, read_stream
-from . import allocation_plan
-from .allocation_plan import Returned, configuration_key, plan_lines
-from .allocation_queue import catalog, factorial_key, word_of
-from .config import VARIANT_ORDER, MapConfig, recorded_map_config
-from .factorial import FACTORIAL
-from .runs import spec_measure_path
+from ..experiments import merge, report, stages
+from ..experiments.config import VARIANT_ORDER, MapConfig, recorded_map_config
+from ..experiments.factorial import FACTORIAL
+from ..experiments.runs import spec_measure_path
+from . import plan as lease_plan
+from .cpu_side import attach_cpu_side, record_lines
+from .pack import COMPACT_MIN_ELEMENTS, INDEX, RECORDS, ReturnLimits, load_member, part_path, read_stream
+from .plan import Returned, configuration_key, plan_lines
+from .queue import catalog, factorial_key, word_of
 
 DEVICE_FILE = "device.json"
 """Where an allocation records its machine (:func:`device_record`), in its output folder and inside its pack."""
@@ -152,7 +154,7 @@ class Allocation:
     checkpoints: dict[str, int] = field(default_factory=dict)
     """Unfinished run -> the step of its returned checkpoint (restored as runs/NAME/ckpt.pt)."""
     configuration: str = ""
-    """The configuration key of its corpus (:func:`.allocation_plan.configuration_key` of the manifest's config)."""
+    """The configuration key of its corpus (:func:`.plan.configuration_key` of the manifest's config)."""
 
 
 def read_json(path: Path, what: str) -> dict:
@@ -283,13 +285,13 @@ def open_lease(folders: list[Path], scratch: Path) -> Allocation:
 
 
 LEASE_INDEX = "lease.json"
-"""A landed lease's index of the model folders that hold its runs' weights (:mod:`.allocation_land`)."""
+"""A landed lease's index of the model folders that hold its runs' weights (:mod:`.land`)."""
 MODELS = Path("models")
 """Where a landed lease's model folders are looked for by default: the repository's models/."""
 
 
 def open_landed(folder: Path, scratch: Path, models: Path = MODELS) -> Allocation:
-    """A lease landed in the repository (:mod:`.allocation_land`): its records, the parts it kept, and each run's
+    """A lease landed in the repository (:mod:`.land`): its records, the parts it kept, and each run's
     final weights from the model folder its :data:`LEASE_INDEX` names under ``models`` (the weights file checked
     against the digest landed, read weights-only, its tensors against the model its kwargs declare), restored as
     runs/NAME/final.pt in float32 beside the run's records."""
@@ -368,7 +370,7 @@ def check_step(step: object, where: str) -> int:
 
 
 def restore_returned(a: Allocation, folder: Path, scratch: Path) -> None:
-    """The weights and checkpoints in ``folder``'s parts (:func:`.allocation_pack.read_stream`: each member's bytes
+    """The weights and checkpoints in ``folder``'s parts (:func:`.pack.read_stream`: each member's bytes
     checked against the sha256 its name carries), each loaded weights-only, checked against the model its kwargs
     declare and restored in float32 into ``a``'s run folders (final.pt, ckpt.pt); ``a.weights`` then says for each
     finished run whether its weights came back, ``a.checkpoints`` which unfinished runs can resume. A member that
@@ -432,7 +434,8 @@ def training_facts(a: Allocation, name: str) -> dict:
 
 
 def allocation_record(a: Allocation, certificates: dict) -> dict:
-    """The finished runs of ``a`` as a map record (:func:`.report.collect`), each naming where it was trained."""
+    """The finished runs of ``a`` as a map record (:func:`pokeworld.experiments.report.collect`), each naming where
+    it was trained."""
     c = from_dict(MapConfig, {**recorded_map_config(a.map_config), "out": str(a.root)})
     finished = set(a.progress.get("finished", []))
     specs = [s for s in stages.all_specs(c) if s.name in finished]
@@ -724,7 +727,7 @@ def carry_earlier_runs(merged: dict, previous: dict | None) -> dict:
 
 
 def run_key(a: Allocation, name: str, other_names: set[str]) -> str:
-    """The queue token of run ``name`` of ``a`` (:func:`.allocation_queue.word_of`: its name for a run of another
+    """The queue token of run ``name`` of ``a`` (:func:`.queue.word_of`: its name for a run of another
     experiment than the factorial, else ``VARIANT@SEED``), from its config.json: a known variant and an integer seed,
     else one ConfigError line naming the file (the words go into a printed command)."""
     path = a.root / "runs" / name / "config.json"
@@ -745,19 +748,19 @@ def returned_of(a: Allocation) -> Returned:
 
 def plan(allocs: list[Allocation], configuration: str | None = None) -> dict:
     """The next lease for ``configuration`` (default: this checkout's at the preset the allocations ran,
-    :func:`.allocation_plan.checkout_configuration`) from what ``allocs`` returned (:func:`.allocation_plan.plan`).
+    :func:`.plan.checkout_configuration`) from what ``allocs`` returned (:func:`.plan.plan`).
     Every returned run's words are checked first; ConfigError when the allocations of this configuration disagree
     (:func:`check_agreement`) or trained another objective or model than the preset trains now (:func:`check_model_form`: the configuration key names
     the environment, not the model, and a plan built on another model's runs would skip runs never trained)."""
     returned = [returned_of(a) for a in allocs]
     if configuration is None:
         presets = {str(a.map_config.get("preset", "paper")) for a in allocs}
-        configuration = allocation_plan.checkout_configuration(presets.pop() if len(presets) == 1 else "paper")
+        configuration = lease_plan.checkout_configuration(presets.pop() if len(presets) == 1 else "paper")
     same = [a for a in allocs if a.configuration == configuration]
     if same:
         check_agreement(same)
         check_model_form(same)
-    return allocation_plan.plan(returned, configuration)
+    return lease_plan.plan(returned, configuration)
 
 
 EXPORTED = ("config.json", "metrics.jsonl", "final.pt", "measure.json")

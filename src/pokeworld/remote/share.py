@@ -32,7 +32,7 @@ from typing import Callable
 from .. import clock
 from ..errors import PokeworldError
 from ..rundir import read_metrics
-from . import stages
+from ..experiments import stages
 
 
 @dataclass(frozen=True)
@@ -204,8 +204,8 @@ def finish_times(work: list[tuple[int, float]], tp: Throughput, most: int) -> li
 
 
 def work(job: dict, conn) -> None:
-    """A run's process: train and measure ``job`` (:func:`.stages.execute`) and send back its result; any error
-    is sent as the run's, so that it ends this run only."""
+    """A run's process: train and measure ``job`` (:func:`pokeworld.experiments.stages.execute`) and send back its
+    result; any error is sent as the run's, so that it ends this run only."""
     try:
         result = stages.execute(job)
     except BaseException as e:  # noqa: BLE001  (a CUDA error, a full memory: this run's end, not the allocation's)

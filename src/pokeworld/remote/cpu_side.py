@@ -1,7 +1,7 @@
 """The CPU side's numbers in the merged record of GPU allocations, and the paper-budget table that puts every
 number of a run beside the paper's and the authors' released run.
 
-``scripts/complete_allocations.py`` (:mod:`.allocation_complete`) computes, from what allocations returned, what the
+``scripts/complete_allocations.py`` (:mod:`.complete`) computes, from what allocations returned, what the
 device did not: MLP probes, the untrained bound, the certificates and planning. :func:`attach_cpu_side` reads its
 work folder into the merged record (each number with the machine and date that computed it); :func:`record_lines`
 writes the per-run table. A run's ridge probes, prediction errors and glide test stay the device's own; the CPU's
@@ -13,13 +13,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .. import paper_values as P
 from ..certify import gate_of
 from ..errors import ConfigError, PokeworldError
 from ..evaluate.tables import LABELS, fmt
+from ..experiments.factorial import FACTORIAL, FACTORIAL_MLP
 from ..io import read_json
-from ..released_values import MULTI_HORIZON, SINGLE_HORIZON, SOURCE_COMMIT, SOURCE_REPO, released
-from .factorial import FACTORIAL, FACTORIAL_MLP
+from ..published import paper as P
+from ..published.release import MULTI_HORIZON, RESULTS_COMMIT, SINGLE_HORIZON, SOURCE_REPO, released
 
 CPU_SIDE = "cpu_side"
 MAX_JSON_BYTES = 4 << 20
@@ -96,7 +96,7 @@ def attach_planning(merged: dict, work: Path, side: dict) -> bool:
 
 
 def read_side(work: Path) -> dict:
-    """The CPU side's records under ``work`` (:mod:`.allocation_complete`): ``{"device", "corpus", "stages"}``."""
+    """The CPU side's records under ``work`` (:mod:`.complete`): ``{"device", "corpus", "stages"}``."""
     folder = work / CPU_SIDE
     machine = read_side_json(folder / "machine.json", "the CPU side's machine record")
     if not isinstance(machine.get("device"), dict) or not isinstance(machine.get("corpus"), dict):
@@ -114,8 +114,8 @@ def read_side(work: Path) -> dict:
 
 
 def attach_cpu_side(merged: dict, work: Path) -> dict:
-    """``merged`` completed with the CPU side computed under ``work`` (:mod:`.allocation_complete`) and each run's
-    released values (:mod:`pokeworld.released_values`); returns what was attached."""
+    """``merged`` completed with the CPU side computed under ``work`` (:mod:`.complete`) and each run's
+    released values (:mod:`pokeworld.published.release`); returns what was attached."""
     side = read_side(work)
     if side.get("corpus", {}).get("content_sha256") != merged["provenance"]["corpus_sha256"]:
         raise ConfigError(f"{work} holds the CPU side of another corpus than the allocations trained on")
@@ -196,7 +196,7 @@ def record_lines(merged: dict) -> list[str]:
     with the machine and date that computed ours."""
     lines = ["## Every number of each run, beside the paper's and the authors' released run", "",
              f"Released: the authors' per-run JSON of the same variant and seed ({SOURCE_REPO} at "
-             f"{SOURCE_COMMIT[:7]}, exp/e003_motion/results, λ 0.02, 20,000 steps); paper: its tables (mean of two "
+             f"{RESULTS_COMMIT[:7]}, exp/e003_motion/results, λ 0.02, 20,000 steps); paper: its tables (mean of two "
              "seeds). Ridge, prediction and glide numbers are the device's measurement; MLP probes, the untrained "
              "bound and planning were computed on the CPU from the returned weights (float32 tensors of at least "
              "4,096 elements rounded to bfloat16 for the trip).", ""]

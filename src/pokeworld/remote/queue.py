@@ -1,6 +1,6 @@
 """The paper-budget queue of GPU allocations: which runs come first, and how a run is named on the command line
 (``VARIANT@SEED`` for a run of the factorial, the map's run name for any other experiment's run). Shared by the
-allocation driver (:mod:`.allocation_run`) and the plan of the next allocation (:func:`.allocations.plan`); and
+allocation driver (:mod:`.run`) and the plan of the next allocation (:func:`.allocations.plan`); and
 the one place a word taken from a returned record becomes part of a command line a
 user pastes into a shell (:func:`run_word`, :func:`shell_line`): each word is first checked against what it can be
 (a known variant, a seed that is a small non-negative integer, an environment variable's name), then quoted with
@@ -16,7 +16,7 @@ from ..errors import ConfigError
 from ..models.xjepa import VARIANTS
 
 if TYPE_CHECKING:
-    from .runs import RunSpec
+    from ..experiments.runs import RunSpec
 
 PRIORITY = ("VFX@0", "VF@0", "V@0", "VX_t@0", "VX_p@0", "VX@0", "VFX@1", "VF@1", "V@1", "VX_t@1", "VX_p@1", "VX@1")
 """The factorial at the paper's budget: every variant at seed 0 (the central comparison VFX against VF first), then
@@ -74,9 +74,9 @@ def token_of(s: RunSpec) -> str:
 def catalog(preset: str = "paper", seeds: tuple[int, ...] = (0, 1, 2)) -> dict[str, RunSpec]:
     """Every experiment's runs at ``preset`` and ``seeds`` with every variant, by queue token (a run two experiments
     list is the first's, as the map trains it once)."""
-    from . import stages
-    from .presets import make_config
-    from .registry import EXPERIMENTS
+    from ..experiments import stages
+    from ..experiments.presets import make_config
+    from ..experiments.registry import EXPERIMENTS
 
     c = make_config(preset, experiments=tuple(EXPERIMENTS), seeds=tuple(sorted(set(seeds))), variants=tuple(VARIANTS))
     return {token_of(s): s for s in stages.all_specs(c)}
