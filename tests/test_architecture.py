@@ -150,7 +150,6 @@ READ_ALLOWED = {
     ("pokeworld.real.rh20t.scene", "*"): "RH20T files read through rh20t.files' bounded regular-file readers",
     ("pokeworld.swm.dataset", "*"): "an swm HDF5 root attribute, bounded by its declared size",
     ("pokeworld.real.fixtures", "*"): "test fixtures damaging files they wrote",
-    ("pokeworld.remote.land", "land"): "a weights part it joined itself in its own scratch folder, copied as bytes",
 }
 
 

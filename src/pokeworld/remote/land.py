@@ -99,7 +99,7 @@ def land(returns: list[Path], record: Path, models: Path, lease: str, data_comma
             allocations.join_lease_parts(group[0], index, joined)
             for i in range(len(index.get("part_sha256", []))):
                 if part_path(joined, i).exists():
-                    save_bytes(part_path(record, i), part_path(joined, i).read_bytes())
+                    save_bytes(part_path(record, i), read_regular_bytes(part_path(joined, i), "a part of the weights", 1 << 30))
                     parts.append(part_path(record, i).name)
         lease_index = {"format": 1, "lease": lease, "returns": [f.name for f in group[0]], "runs": rows,
                        "parts": parts, "finished": a.progress.get("finished", []),
