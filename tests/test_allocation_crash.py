@@ -84,8 +84,8 @@ def test_the_next_allocation_resumes_the_cut_run_and_the_plan_puts_it_first(kill
     out, base = killed
     allocations.main(["--plan", str(out), "--commit", "feed123"])
     plan = capsys.readouterr().out.splitlines()
-    assert plan[1].startswith("[plan] next lease, in this order: VFX@0 VF@0 VX_t@0 VX_p@0 VX@0 VFX@1 VF@1 V@1 "
-                              "VX_t@1 VX_p@1 VX@1 VFX@2 ")
+    assert plan[1].startswith("[plan] the queue, in this order (") and (
+        "): VFX@0 VF@0 VX_t@0 VX_p@0 VX@0 VFX@1 VF@1 V@1 VX_t@1 VX_p@1 VX@1 VFX@2 " in plan[1])
     # the returned folder lies outside the checkout: the plan copies its contents in (never into an earlier copy),
     # and the device reads that copy
     assert plan[4] == f"cp -r -- {shlex.quote(str(out) + '/.')} .resume/{out.name}"

@@ -58,7 +58,7 @@ def test_only_this_configurations_runs_count_and_others_are_named(tmp_path):
     start, collect, final = lines[-5], lines[-3], lines[-1]
     words = shlex.split(start.split(" && ")[-1])
     assert words[:5] == ["ALLOC_COMMIT=c0ffee1", "ALLOC_RESUME=.resume/new", "bash", "scripts/gpu_lease.sh", "start"]
-    assert words[6:] == p["queue"]
+    assert words[6:] == p["queue"][:ap.LEASE_SHARE] and len(start) <= ap.MAX_COMMAND  # the lease's share
     assert start.startswith(ap.SETUP)
     assert (collect, final) == ('bash scripts/gpu_lease.sh collect "$OUT"', 'bash scripts/gpu_lease.sh final "$OUT"')
 
@@ -211,3 +211,12 @@ def test_a_planted_folder_under_the_resume_name_is_never_copied_into(tmp_path):
     paths, _ = _copied(root, [str(returned)])
     assert paths == [".resume/returned-3"] and _files(root / ".resume" / "returned-3") == _files(returned)
     assert _files(root / ".resume" / "returned") == {"mine": b"mine"}
+
+
+def test_a_leases_share_of_the_queue_fits_a_device_command():
+    names = [f"VFX-h1-4-16-lam0.02-standard-{'x' * 150}-s{i}" for i in range(20)]
+    head = "x" * 300
+    share = ap.lease_share(names, head)
+    assert 0 < len(share) < ap.LEASE_SHARE and share == names[:len(share)]
+    assert len(" ".join([head, *share])) <= ap.MAX_COMMAND < len(" ".join([head, *names[:len(share) + 1]]))
+    assert ap.lease_share(["VFX@0"] * 40, head) == ["VFX@0"] * ap.LEASE_SHARE

@@ -180,14 +180,34 @@ def device_folders(folders: list[str], root: Path | None = None) -> tuple[list[s
     return paths, copies
 
 
+LEASE_SHARE = 16
+"""Most runs a lease's start command names: more than a 15-minute lease trains (about five `paper` runs, at most a
+dozen at the stacked rate hoped for), so that none of its time goes unused, and few enough for a device command."""
+MAX_COMMAND = 2000
+"""A device command's length limit (characters)."""
+
+
+def lease_share(queue: list[str], head: str) -> list[str]:
+    """The next lease's share of ``queue``: its first :data:`LEASE_SHARE` runs, fewer when the start command
+    (``head`` and the runs) would pass :data:`MAX_COMMAND` characters."""
+    share: list[str] = []
+    for t in queue[:LEASE_SHARE]:
+        if len(head) + sum(len(w) + 1 for w in share) + len(t) + 1 > MAX_COMMAND:
+            break
+        share.append(t)
+    return share
+
+
 def lease_commands(p: dict, commit: str) -> list[str]:
-    """The three device commands of the next lease (docs/model.md "GPU allocations: a lease"), each a line."""
+    """The three device commands of the next lease (docs/model.md "GPU allocations: a lease"), each a line; the
+    start command names the lease's share of the queue (:func:`lease_share`)."""
     if not COMMIT.fullmatch(commit):
         raise ConfigError(f"the commit must be hexadecimal (4 to 40 digits), got {commit!r}; pass --commit SHA")
     runs = [shlex.quote(parse_token(t)) for t in p["queue"]]  # a known variant at an integer seed, or a run name
     folders = device_folders(p["resume_from"])[0]
     env = f"ALLOC_COMMIT={commit}" + (f" ALLOC_RESUME={resume_value(folders)}" if folders else "")
-    return [f'{SETUP} && {env} bash scripts/gpu_lease.sh start "$OUT" {" ".join(runs)}',
+    head = f'{SETUP} && {env} bash scripts/gpu_lease.sh start "$OUT"'
+    return [" ".join([head, *lease_share(runs, head)]),
             'bash scripts/gpu_lease.sh collect "$OUT"',
             'bash scripts/gpu_lease.sh final "$OUT"']
 
@@ -202,7 +222,8 @@ def plan_lines(p: dict, commit: str) -> list[str]:
         lines.append(f"[plan] configuration {key} (another environment than this checkout's; not queued): corpora "
                      f"{', '.join(o['corpora'])}, commits {', '.join(o['commits'])}, "
                      f"finished {' '.join(o['finished'])}")
-    lines.append(f"[plan] next lease, in this order: {' '.join(p['queue']) or 'nothing left'}")
+    lines.append(f"[plan] the queue, in this order ({len(p['queue'])} runs; the next lease takes the first ones the "
+                 f"start command names): {' '.join(p['queue']) or 'nothing left'}")
     if not p["queue"]:
         return lines
     cmds = lease_commands(p, commit)
