@@ -20,6 +20,7 @@ from pokeworld.errors import ConfigError
 from pokeworld.experiments.record import record_problem
 from pokeworld.remote import allocations
 from pokeworld.remote.pack import check_return_folder, read_stream
+from pokeworld.record_paths import placeholder
 from pokeworld.rundir import load_model
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -134,7 +135,9 @@ def test_the_merge_names_each_runs_device_and_date_and_keeps_a_run_trained_twice
         assert merged["runs"][name]["allocation"]["date"].startswith("2099-01-02")
         assert merged["runs"][name]["allocation"]["steps_trained"] == 10
     [dup] = merged["provenance"]["duplicates"]
-    assert dup["run"] == VFX and dup["kept"] == str(allocation_b) and dup["dropped"] == str(out)
+    # the record names no machine's paths: each allocation's folder as a placeholder
+    assert dup["run"] == VFX and dup["kept"] == placeholder(str(allocation_b)) and dup["dropped"] == placeholder(str(out))
+    assert str(tmp_path) not in json.dumps(merged) and "/tmp/" not in md
     assert isinstance(dup["largest_ridge_difference"], float)
     assert [a["device"] for a in merged["provenance"]["allocations"]] == [a_device["device"], "NVIDIA H200"]
     assert len(merged["provenance"]["corpus_sha256"]) == 64

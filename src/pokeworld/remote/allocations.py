@@ -61,6 +61,7 @@ from ..io import (
     write_json,
 )
 from ..model_folder import folder_config, read_weights
+from ..record_paths import without_machine_paths
 from ..published import paper as P
 from ..rundir import model_from_checkpoint
 from ..train.optimizer_state import check_optimizer_fits
@@ -824,21 +825,22 @@ def write_merged(a: argparse.Namespace, allocs: list[Allocation], words: list[st
         attach_cpu_side(merged, a.cpu_side)
     previous = read_json(a.out, "an earlier merged record") if a.out.exists() else None
     merged = carry_other_corpora(carry_earlier_runs(merged, previous), previous)
+    record = without_machine_paths(merged)  # a record names no machine's paths (the runs' own stay in the packs)
     files = [p for p in output_paths(a) if p != a.runs_out]
     if a.runs_out:
         files += export_targets(export_plan(allocs, merged, a.runs_out), a.runs_out)
     for path in files:
         check_replaceable(path)
-    write_json(a.out, merged)
+    write_json(a.out, record)
     if a.markdown:
-        save_text(a.markdown, markdown(merged))
+        save_text(a.markdown, markdown(record))
     if not a.no_figure:
         fig = a.figure or a.out.with_suffix(".png")
-        report.figure(merged, fig.parent, stem=fig.stem)
+        report.figure(record, fig.parent, stem=fig.stem)
     if a.runs_out:
         names = export_runs(allocs, merged, a.runs_out)
         print(f"[merge_allocations] {len(names)} runs with their weights -> {a.runs_out}")
-    return merged
+    return record
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,0 +1,29 @@
+"""The committed records name no machine's paths (scripts/record_paths.py), and the rewriting keeps every number."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_no_record_holds_a_machines_path():
+    proc = subprocess.run([sys.executable, "scripts/record_paths.py", "--check"], cwd=ROOT, capture_output=True,
+                          text=True, timeout=120)
+    assert proc.returncode == 0, proc.stdout
+
+
+def test_paths_become_placeholders_and_nothing_else_changes(tmp_path):
+    import json
+
+    record = tmp_path / "r.json"
+    record.write_text(json.dumps({"command": "pokeworld map --out /work/scratch/s8/map --data /tmp/x/data/standard",
+                                  "runs": ["/home/u/out/runs/VFX-h1-4-16-lam0.02-standard-s0"], "r2": 0.123456789,
+                                  "note": "a ratio 3/4 and docs/results/x.md stay"}))
+    proc = subprocess.run([sys.executable, "scripts/record_paths.py", str(record)], cwd=ROOT, capture_output=True,
+                          text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    out = json.loads(record.read_text())
+    assert out == {"command": "pokeworld map --out <machine>/map --data <machine>/data/standard",
+                   "runs": ["<machine>/runs/VFX-h1-4-16-lam0.02-standard-s0"], "r2": 0.123456789,
+                   "note": "a ratio 3/4 and docs/results/x.md stay"}
