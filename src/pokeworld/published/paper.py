@@ -20,6 +20,9 @@ CERTIFICATES = {  # App. A "instrument hierarchy", App. C "pixel-derived certifi
 PREDICTION = {"direct16": 0.10, "rollout16": 0.19, "static16": 0.21}  # §4.2, arena units
 
 GLIDE_TEST = {"true_gamma": 0.0002, "median_gamma": 0.049, "static": 0.144}
+"""The glide test's references in true positions (App. C, γ ledger)."""
+GLIDE_TEST_DECODED = {"median_gamma": 0.054}
+"""The functional glide test's median-γ reference, decoded as the model's predictions are (Table "dose1")."""
 
 CORPUS_STATS = {  # observables of the paper's default corpus (the calibration targets; pokeworld.sim.stats)
     "static16": ((0.205, 0.21), "λ-table caption; §4.2 (static 0.21)"),

@@ -169,9 +169,15 @@ def run_rows(run: dict) -> list[tuple[str, object, object, object, str, int]]:
              ("direct-16 (arena units)", pred.get("direct16"), P.PREDICTION["direct16"], rel.get("direct16"), gpu, 3),
              ("rollout-16", pred.get("rollout16"), P.PREDICTION["rollout16"], rel.get("rollout16"), gpu, 3),
              ("static-16", pred.get("static16"), P.PREDICTION["static16"], rel.get("static16"), gpu, 3),
-             ("glide test: model", glide.get("model"), None, None, gpu, 3),
-             ("glide test: median-γ reference", glide.get("median_gamma"), P.GLIDE_TEST["median_gamma"], None, gpu, 3),
-             ("glide test: static", glide.get("static"), P.GLIDE_TEST["static"], None, gpu, 3)]
+             # like for like: decoded references beside the paper's decoded one, true-position ones beside its own
+             ("glide test, decoded: model", glide.get("model"), None, None, gpu, 3),
+             ("glide test, decoded: median-γ reference", glide.get("median_gamma"),
+              P.GLIDE_TEST_DECODED["median_gamma"], None, gpu, 3),
+             ("glide test, decoded: static", glide.get("static"), None, None, gpu, 3)]
+    true = glide.get("undecoded", {}) if isinstance(glide.get("undecoded"), dict) else {}
+    rows += [(f"glide test, true positions: {label}", true.get(q), P.GLIDE_TEST[q], None, gpu, 4 if q == "true_gamma"
+              else 3) for q, label in (("true_gamma", "true-γ reference"), ("median_gamma", "median-γ reference"),
+                                       ("static", "static"))]
     return rows
 
 
