@@ -309,3 +309,28 @@ def test_a_probe_subset_names_its_corpus_and_keeps_only_probe_episodes(tiny_data
     too_many = len(tiny_dataset.episodes("probe_fit")) + 1
     with pytest.raises(ConfigError, match="probe_fit episodes"):
         probe_subset(corpus, too_many, tmp_path / "other")
+
+
+def test_an_earlier_records_runs_of_the_same_corpus_are_carried_once_and_say_so():
+    sha = "c" * 64
+    alloc = lambda src, date: {"source": src, "device": "NVIDIA H200", "date": date}  # noqa: E731
+    run = lambda v: {"train": {"variant": v, "seed": 0}}  # noqa: E731
+    earlier = {"provenance": {"corpus_sha256": sha, "command": "merge A", "git": "aaa",
+                              "allocations": [alloc("/work/x/lease-a", "d1")]},
+               "runs": {"V-s0": run("V"), "VX-s0": run("VX")}, "experiments": {"factorial": ["V-s0", "VX-s0"]},
+               "map_config": {}, "certificates": {"standard": {"gate": 1}}}
+    new = {"provenance": {"corpus_sha256": sha, "command": "merge B", "git": "bbb",
+                          "allocations": [alloc("leases/b", "d2")]},
+           "runs": {"VX-s0": run("VX")}, "experiments": {"factorial": ["VX-s0"]}, "map_config": {}, "certificates": {}}
+    once = allocations.carry_earlier_runs(new, earlier)
+    assert set(once["runs"]) == {"V-s0", "VX-s0"} and once["runs"]["VX-s0"] is new["runs"]["VX-s0"]
+    assert once["provenance"]["carried"] == {"runs": ["V-s0"], "command": "merge A", "git": "aaa"}
+    assert [a["source"] for a in once["provenance"]["allocations"]] == ["lease-a (not given to this merge)", "leases/b"]
+    assert once["certificates"] == earlier["certificates"] and once["map_config"]["variants"] == ["V", "VX"]
+    # merged again from the same allocation: nothing twice, the first measuring command kept
+    again = allocations.carry_earlier_runs(new, once)
+    assert again["provenance"]["allocations"] == once["provenance"]["allocations"]
+    assert again["provenance"]["carried"] == once["provenance"]["carried"]
+    # another corpus's record is not carried here (carry_other_corpora keeps it apart)
+    assert allocations.carry_earlier_runs(new, {**earlier, "provenance": {**earlier["provenance"],
+                                                                          "corpus_sha256": "d" * 64}}) == new

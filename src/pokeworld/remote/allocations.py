@@ -680,6 +680,15 @@ def carry_other_corpora(merged: dict, previous: dict | None) -> dict:
     return merged
 
 
+def carried_from(prev: dict, runs: list[str]) -> dict:
+    """Which merge measured the carried ``runs``: the earlier record's own ``carried`` when it carried them too
+    (a record re-merged keeps the command that first measured its runs), else the earlier record's command."""
+    before = prev.get("carried")
+    if isinstance(before, dict) and set(runs) <= set(before.get("runs") or []):
+        return {**before, "runs": runs}
+    return {"runs": runs, "command": prev.get("command", "?"), "git": prev.get("git", "?")}
+
+
 def carry_earlier_runs(merged: dict, previous: dict | None) -> dict:
     """``merged`` with the runs of the same corpus that ``previous`` (the file at --out) holds and this merge does
     not: an earlier lease's runs, whose folders are not given again, keep their records (each unchanged, its
@@ -715,12 +724,15 @@ def carry_earlier_runs(merged: dict, previous: dict | None) -> dict:
     prev = previous["provenance"]
     # an earlier allocation named by a path of the machine that merged it: its folder name alone (records name no
     # machine's paths), marked as not given to this merge
-    earlier = [{**a, "source": f"{Path(str(a.get('source', '?'))).name} (not given to this merge)"}
-               for a in prev.get("allocations", []) if isinstance(a, dict)]
+    now = {(a.get("device"), a.get("date")) for a in merged["provenance"].get("allocations", [])}
+    suffix = " (not given to this merge)"
+    earlier = [{**a, "source": (str(a.get("source", "?")) if str(a.get("source", "")).endswith(suffix)
+                                else f"{Path(str(a.get('source', '?'))).name}{suffix}")}
+               for a in prev.get("allocations", [])
+               if isinstance(a, dict) and (a.get("device"), a.get("date")) not in now]  # this merge's own: not twice
     out["provenance"] = {**merged["provenance"],
                          "allocations": earlier + list(merged["provenance"].get("allocations", [])),
-                         "carried": {"runs": sorted(runs), "command": prev.get("command", "?"),
-                                     "git": prev.get("git", "?")}}
+                         "carried": carried_from(prev, sorted(runs))}
     return out
 
 
