@@ -16,6 +16,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from allocation_planting import FINISHED, PARTIAL, member, plant, tiny_checkpoint, with_partial
+from json_damage import paths_of, replaced
 from pokeworld.errors import PokeworldError
 from pokeworld.remote import allocations
 from pokeworld.remote.queue import parse_token
@@ -29,24 +30,6 @@ JSON = st.recursive(st.none() | st.booleans() | st.integers(-10**30, 10**30) | s
                     | st.dictionaries(st.text(max_size=6), inner, max_size=3), max_leaves=6)
 RECORDS = ("progress.json", "device.json", "map_config.json", f"runs/{FINISHED}/config.json",
            "data/standard/manifest.json", "returned.json")
-
-
-def paths_of(obj, prefix=()):
-    """Every key path into a JSON value (the value itself first)."""
-    yield prefix
-    if isinstance(obj, dict):
-        for k, v in obj.items():
-            yield from paths_of(v, (*prefix, k))
-    elif isinstance(obj, list):
-        for i, v in enumerate(obj):
-            yield from paths_of(v, (*prefix, i))
-
-
-def replaced(obj, path, value):
-    if not path:
-        return value
-    obj[path[0]] = replaced(obj[path[0]], path[1:], value)
-    return obj
 
 
 def plan_or_refuse(folder: Path) -> None:

@@ -14,6 +14,7 @@ import pytest
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
+from json_damage import paths_of, replaced
 from model_folder_planting import (
     CARD,
     CONFIG,
@@ -38,24 +39,6 @@ JSON = st.recursive(st.none() | st.booleans() | st.integers(-10**30, 10**30) | s
 @pytest.fixture(scope="module")
 def w(tmp_path_factory):
     return world(tmp_path_factory.mktemp("folderfuzz"))
-
-
-def paths_of(obj, prefix=()):
-    """Every key path into a JSON value (the value itself first)."""
-    yield prefix
-    if isinstance(obj, dict):
-        for k, v in obj.items():
-            yield from paths_of(v, (*prefix, k))
-    elif isinstance(obj, list):
-        for i, v in enumerate(obj):
-            yield from paths_of(v, (*prefix, i))
-
-
-def replaced(obj, path, value):
-    if not path:
-        return value
-    obj[path[0]] = replaced(obj[path[0]], path[1:], value)
-    return obj
 
 
 #: Fields the readers take, drawn as often as all the others together: the JSON's root and top-level entries, the

@@ -329,6 +329,22 @@ def _size(nbytes: int) -> str:
     return f"{nbytes} bytes"
 
 
+@contextlib.contextmanager
+def checked_nodes(path: Path, manifest: dict[str, Any]) -> Iterator[dict[str, h5py.Dataset]]:
+    """The store's datasets, open, each checked against ``manifest`` before any array is read (see the module
+    docstring); an unreadable file is one DataError line."""
+    h5 = path / "data.h5"
+    try:
+        with h5py.File(h5, "r") as f:
+            nodes = _stored_nodes(f, h5)
+            _check_declared(nodes, manifest, h5)
+            yield nodes
+    except DataError:
+        raise
+    except (OSError, KeyError, ValueError, TypeError, RuntimeError) as e:
+        raise DataError(f"cannot read {h5}: {e}. The file is truncated or corrupt; regenerate it") from None
+
+
 def load(path: str | os.PathLike, verify: bool = True) -> Dataset:
     """Load a dataset directory, checking presence, structure and (by default) the content hash.
 
@@ -336,17 +352,9 @@ def load(path: str | os.PathLike, verify: bool = True) -> Dataset:
     is read (see the module docstring).
     """
     path = Path(path)
-    h5 = path / "data.h5"
     manifest = read_manifest(path)
-    try:
-        with h5py.File(h5, "r") as f:
-            nodes = _stored_nodes(f, h5)
-            _check_declared(nodes, manifest, h5)
-            arrays = {n: node[()] for n, node in nodes.items()}
-    except DataError:
-        raise
-    except (OSError, KeyError, ValueError, TypeError, RuntimeError) as e:
-        raise DataError(f"cannot read {h5}: {e}. The file is truncated or corrupt; regenerate it") from None
+    with checked_nodes(path, manifest) as nodes:
+        arrays = {n: node[()] for n, node in nodes.items()}
     labels = {n.removeprefix("labels/"): a for n, a in arrays.items() if n.startswith("labels/")}
     params = {n.removeprefix("params/"): a for n, a in arrays.items() if n.startswith("params/")}
     ds = Dataset(labels=labels, params=params, manifest=manifest, **{n: arrays[n] for n in (*STREAMS, "split")})
@@ -362,18 +370,8 @@ def stream_shapes(path: str | os.PathLike) -> dict[str, tuple[int, ...]]:
     """The shapes of a store's streams (frames (E, T+1, H, W), proprio, touch (E, T+1, D), actions (E, T, Da)) from
     its file's header, checked as :func:`load` checks them, without reading any array: what a command compares a
     model's inputs with before it loads the store or does any work."""
-    path = Path(path)
-    h5 = path / "data.h5"
-    manifest = read_manifest(path)
-    try:
-        with h5py.File(h5, "r") as f:
-            nodes = _stored_nodes(f, h5)
-            _check_declared(nodes, manifest, h5)
-            return {n: tuple(nodes[n].shape) for n in STREAMS}
-    except DataError:
-        raise
-    except (OSError, KeyError, ValueError, TypeError, RuntimeError) as e:
-        raise DataError(f"cannot read {h5}: {e}. The file is truncated or corrupt; regenerate it") from None
+    with checked_nodes(Path(path), read_manifest(path)) as nodes:
+        return {n: tuple(nodes[n].shape) for n in STREAMS}
 
 
 def is_complete(path: str | os.PathLike) -> bool:
