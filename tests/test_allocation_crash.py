@@ -19,6 +19,7 @@ import torch
 
 from pokeworld import checkpoint, experiments as experiment
 from pokeworld.errors import ConfigError, PokeworldError
+from pokeworld.record_paths import placeholder
 from pokeworld.io import atomic_path
 from pokeworld.remote import allocations, pack as ap
 from pokeworld.remote.queue import order_queue, parse_token
@@ -110,7 +111,8 @@ def test_the_next_allocation_resumes_the_cut_run_and_the_plan_puts_it_first(kill
     # the first allocation's rows are kept, unless the kill fell between its parts and its records (then said)
     kept = resumed.get("metrics_before_resume") == "returned"
     assert (rows[0]["step"] == 0 if kept else rows[0]["step"] >= step) and rows[-1]["step"] == STEPS
-    assert resumed["step"] == step and resumed["from"] == str(carried) and resumed["git"] == "abc1234"
+    # the record names no machine's paths: the folder resumed from by its placeholder
+    assert resumed["step"] == step and resumed["from"] == placeholder(str(carried)) and resumed["git"] == "abc1234"
     assert "bfloat16" in resumed["checkpoint"]
 
 
