@@ -253,6 +253,10 @@ def test_the_figure_s_legend_hides_no_point_and_a_bare_panel_warns_nothing(tmp_p
         warnings.simplefilter("error")
         figure({"environment": "planted", "runs": [bare]}, tmp_path / "bare.png")
     assert drawn[1].legends == []
+    import matplotlib.pyplot as plt
+
+    for fig in drawn:  # save_figure, which closes them, was replaced: no figure outlives the test
+        plt.close(fig)
 
 
 def test_the_record_names_the_environment_its_store_was_made_in(tiny_dataset):
