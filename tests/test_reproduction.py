@@ -183,3 +183,20 @@ def test_readmes_counts_are_the_ledgers():
     assert (ok, cpu, bad, not_run) == (counts["reproduced"], counts["reproduced at cpu only"],
                                        counts["not reproduced"], counts["not run"])
     assert total == sum(counts.values())
+
+
+def test_at_cpu_the_reference_environments_record_comes_before_the_retired_one(tmp_path):
+    """A cpu cell reads the reference environment's record of every experiment when it holds the run, else the
+    calibrated one's, which the row then names as the retired environment's."""
+    from pokeworld.reproduction import at_cpu
+
+    rows = lambda: (Row("X2", "targets", "planted", "VFX log k",  # noqa: E731
+                        (Cell("VFX log k", 0.50, R2, None, at_cpu("old.json", K)),)),)
+    plant(tmp_path, "old.json", {0: 0.48}, preset="cpu", environment=None)  # the retired calibrated environment's
+    row = verdict_of(tmp_path, rows())
+    assert row["verdict"] == REPRODUCED_AT_CPU and row["environment"] == "calibrated (retired)"
+    assert row["cells"][0]["cpu"]["read"] == [{"record": "old.json", "path": K}]
+    plant(tmp_path, "findings_cpu_reference.json", {0: 0.20}, preset="cpu")
+    row = verdict_of(tmp_path, rows())
+    assert row["verdict"] == NOT_REPRODUCED and row["cells"][0]["cpu"]["environment"] == "reference"
+    assert row["cells"][0]["cpu"]["read"] == [{"record": "findings_cpu_reference.json", "path": K}]

@@ -147,8 +147,9 @@ class Read:
 
 @dataclass(frozen=True)
 class Derived:
-    """A number of ours computed from others: "difference" (a − b), "ratio" (a / b), "mean" (all needed) or "max"
-    (the best of those present)."""
+    """A number of ours computed from others: "difference" (a − b), "ratio" (a / b), "mean" (all needed), "max"
+    (the best of those present) or "first" (the first present, as it is: a record of the default environment before
+    the retired one's)."""
 
     op: str
     parts: tuple
@@ -299,6 +300,8 @@ def measure(expr, records: Records) -> Measured | None:
         if short:  # a run stopped before its schedule's end is not at the budget its record's preset names
             budget = f"{budget}, cut short: {'; '.join(short)}"
         return Measured(value, seeds, ((expr.record, expr.path),), budget, environment, whence)
+    if expr.op == "first":  # the first record that holds it: the default environment's before a retired one's
+        return next((m for m in (measure(p, records) for p in expr.parts) if m is not None), None)
     parts = [measure(p, records) for p in expr.parts]
     present = [m for m in parts if m is not None]
     if not present or (expr.op != "max" and len(present) < len(parts)):
@@ -479,6 +482,13 @@ MCR = "map_cpu_reference.json"  # the cpu factorial on the reference environment
 FC = "frontier_cpu.json"  # the frontier at cpu (calibrated environment)
 LC = "ledger_cpu.json"  # the γ ledger and the coordinate test at cpu (calibrated environment)
 LZ = "lazy_cpu.json"  # single- vs multi-horizon heads at cpu (calibrated environment)
+FR = "findings_cpu_reference.json"  # every experiment's runs at cpu on the reference environment (when recorded)
+
+
+def at_cpu(record: str, path: str) -> Derived:
+    """Ours at ``cpu``: the reference environment's record of every experiment (:data:`FR`) when it holds the run,
+    else ``record``, an earlier record of the retired calibrated environment (named so in the row)."""
+    return Derived("first", (Read(FR, path), Read(record, path)))
 PPR = "planning_paper_reference.json"
 RFM = "reference_fidelity_model.json"
 
@@ -525,8 +535,10 @@ def cert(estimator: str, q: str, corpus: str = "standard", kind: str = "contact"
 
 
 def both(path: str, cpu_record: str = MCR) -> dict:
-    """Ours at the paper's budget (map_paper_reference.json) and at cpu (``cpu_record``), the same path in each."""
-    return {"paper_budget": Read(MPR, path), "cpu": Read(cpu_record, path)}
+    """Ours at the paper's budget (map_paper_reference.json) and at cpu (``cpu_record``), the same path in each (a
+    calibrated environment's record after the reference environment's, :func:`at_cpu`)."""
+    return {"paper_budget": Read(MPR, path),
+            "cpu": at_cpu(cpu_record, path) if cpu_record in (FC, LC, LZ) else Read(cpu_record, path)}
 
 
 def released(variant: str, pick, table: dict = MULTI_HORIZON) -> dict | None:
@@ -643,9 +655,9 @@ def composition_rows() -> tuple[Row, ...]:
     return (
         Row("B20", "targets", "§4.1 (iii); App. C", "token encoder VFX: log k and position",
             (Cell("VFX tokens log k", TOKENS["VFX"]["log_k"], R2, Read(MPR, f"{tokens}/{ridge('log_k')}"),
-                  Read(FC, f"{tokens}/{ridge('log_k')}")),
+                  at_cpu(FC, f"{tokens}/{ridge('log_k')}")),
              Cell("VFX tokens position", TOKENS["VFX"]["object_pos"], R2, Read(MPR, f"{tokens}/{ridge('object_pos')}"),
-                  Read(FC, f"{tokens}/{ridge('object_pos')}"))),
+                  at_cpu(FC, f"{tokens}/{ridge('object_pos')}"))),
             cause="VFX with tokens reads log k 0.23 at cpu, below the global embedding's 0.35 of the same seed; "
                   "32-px frames give a 2 × 2 token map (the paper's 64 px give 16); the ordering holds (VF with "
                   "tokens 0.01)"),
@@ -664,7 +676,7 @@ def composition_rows() -> tuple[Row, ...]:
 def lazy_rows() -> tuple[Row, ...]:
     single = tuple(Cell(f"{v} single-horizon position", FACTORIAL[v]["object_pos_h1"], R2,
                         Read(MPR, f"{run(v, horizons='1')}/{ridge('object_pos')}"),
-                        Read(LZ, f"{run(v, horizons='1')}/{ridge('object_pos')}"),
+                        at_cpu(LZ, f"{run(v, horizons='1')}/{ridge('object_pos')}"),
                         released=released(v, lambda r: r["object_pos_frame"], SINGLE_HORIZON))
                    for v in TABLE_VARIANTS)
     multi = (Cell("V multi-horizon position", LAZY["V-h3"], R2, **both(f"{run('V')}/{ridge('object_pos')}"),
@@ -727,7 +739,7 @@ def lever_rows() -> tuple[Row, ...]:
     coverage = tuple(Cell(f"standard {LABEL[q]}", COVERAGE["standard"][q], R2, **both(f"{run('VFX')}/{ridge(q)}", FC))
                      for q in ("log_k", "log_m", "object_pos", "object_vel"))
     coverage += tuple(Cell(f"contact-poor {LABEL[q]}", COVERAGE["contact_poor"][q], R2,
-                           Read(MPR, f"{poor}/{ridge(q)}"), Read(FC, f"{poor}/{ridge(q)}"))
+                           Read(MPR, f"{poor}/{ridge(q)}"), at_cpu(FC, f"{poor}/{ridge(q)}"))
                       for q in ("log_k", "log_m", "object_pos", "object_vel"))
     return (
         Row("A8", "levers", "§4.4 \"Information bandwidth\"",
@@ -743,9 +755,9 @@ def lever_rows() -> tuple[Row, ...]:
         Row("D1", "levers", "§4.4 \"Computation\"; App. C γ ledger",
             "a frozen flow sensor raises velocity readout 0.79 → 0.88",
             (Cell("velocity, VFX", COORDINATE["object_vel"][0], R2, Read(MPR, f"{std}/{ridge('object_vel')}"),
-                  Read(LC, f"{std}/{ridge('object_vel')}")),
+                  at_cpu(LC, f"{std}/{ridge('object_vel')}")),
              Cell("velocity, VFX with the flow sensor", COORDINATE["object_vel"][1], R2,
-                  Read(MPR, f"{flow}/{ridge('object_vel')}"), Read(LC, f"{flow}/{ridge('object_vel')}"))),
+                  Read(MPR, f"{flow}/{ridge('object_vel')}"), at_cpu(LC, f"{flow}/{ridge('object_vel')}"))),
             cause="at cpu VFX reads velocity 0.58 without the sensor (the paper's 0.79; the paper-budget VFX reads "
                   "0.82) and 0.87 with it (paper 0.88): the endpoint reproduces, the baseline is the cpu budget's"),
         Row("D2", "levers", "§4.4 \"Data coverage\"; App. C",
@@ -796,7 +808,7 @@ def readout_rows() -> tuple[Row, ...]:
 def control_row(rid: str, key: str, path: str, cause: str) -> Row:
     """A row of Table "controls": ridge and MLP readouts, position, velocity, direct-16 where the paper has it."""
     def at(tail):
-        return {"paper_budget": Read(MPR, f"{path}/{tail}"), "cpu": Read(FC, f"{path}/{tail}")}
+        return {"paper_budget": Read(MPR, f"{path}/{tail}"), "cpu": at_cpu(FC, f"{path}/{tail}")}
     cells = tuple(Cell(f"{LABEL[q]} ridge", CONTROLS[key][q], R2, **at(ridge(q))) for q in ("log_m", "gamma", "log_k"))
     cells += tuple(Cell(f"{LABEL[q]} MLP", P.CONTROLS_MLP[key][q], R2, **at(mlp(q)))
                    for q in ("log_m", "gamma", "log_k"))
@@ -834,7 +846,7 @@ def matrix_rows() -> tuple[Row, ...]:
         return Derived("mean", tuple(Read(record, f"{run('VFX', corpus=corpus)}/{family(q)}") for q in qs))
 
     def at(build):
-        return {"paper_budget": build(MPR), "cpu": build(FC)}
+        return {"paper_budget": build(MPR), "cpu": Derived("first", (build(FR), build(FC)))}
     k = ATTRIBUTES["stiffness"]
     stiffness = (Cell("linear certificate", k["linear"], R2, **at(lambda r: cert_of(r, ("linear",), ("log_k",)))),
                  Cell("recurrent certificate", k["recurrent"], R2, **at(lambda r: cert_of(r, recurrent, ("log_k",)))),
@@ -876,7 +888,7 @@ def matrix_rows() -> tuple[Row, ...]:
              Cell("model ridge", g["ridge"], R2, **at(lambda r: model_of(r, ("gain",), "gain"))),
              Cell("model MLP", g["mlp"], R2, **at(lambda r: model_of(r, ("gain",), "gain", mlp))))
             + tuple(Cell(f"gain run {LABEL[q]}", g[q], R2, paper_budget=Read(MPR, f"{gain_run}/{ridge(q)}"),
-                         cpu=Read(FC, f"{gain_run}/{ridge(q)}")) for q in ("log_k", "log_m", "object_pos")),
+                         cpu=at_cpu(FC, f"{gain_run}/{ridge(q)}")) for q in ("log_k", "log_m", "object_pos")),
             cause="the gain's GRU certificate reads 0.45 at cpu (paper 0.69) and the gain run's log m 0.07 (paper "
                   "0.20, the cpu budget's mass level)"),
         Row("E14", "frontier", "App. C \"Constructing the cells\" (i), (ii)",
@@ -897,7 +909,7 @@ def dose_rows() -> tuple[Row, ...]:
 
     def cells(weights, runs, table, q, path, tol, label):
         return tuple(Cell(f"{label} {w:g}", table[w][q], tol, Read(MPR, f"{runs[w]}/{path}"),
-                          Read(FC, f"{runs[w]}/{path}")) for w in weights)
+                          at_cpu(FC, f"{runs[w]}/{path}")) for w in weights)
     share = tuple(Cell(f"glide loss share at weight {w:g}", DOSE_GLIDE[w]["share"], POINTS) for w in DOSE_GLIDE)
     d1, d2 = "App. C Table \"dose1\"", "App. C Table \"dose2\""
     return (
@@ -952,7 +964,8 @@ def ledger_rows() -> tuple[Row, ...]:
     section = "App. C \"The coordinate test\""
     return (
         Row("E21", "frontier", "App. C Fig. \"ledger\"", "best γ readout under every prediction-side mechanism (VFX)",
-            tuple(Cell(label, paper, R2, best(path)(MPR), best(path)(LC)) for label, paper, path in stages),
+            tuple(Cell(label, paper, R2, best(path)(MPR), Derived("first", (best(path)(FR), best(path)(LC))))
+                  for label, paper, path in stages),
             cause="at cpu the default VFX's best γ is 0.01 (paper 0.12; the paper-budget VFX reads 0.15): the "
                   "plateau is flat as in the paper, at the cpu budget's level",
             note="best γ = the largest ridge / MLP readout on contact and glide windows; our default trunk has the "
@@ -968,17 +981,17 @@ def ledger_rows() -> tuple[Row, ...]:
                   "the record holds them on contact windows"),
         Row("E23", "frontier", section, "model γ readout on glide windows: 0.08 → 0.33 with the log-speed channel",
             (Cell("before", COORDINATE["gamma_glide_readout"][0], R2, Read(MPR, f"{std}/{ridge('gamma', 'glide')}"),
-                  Read(LC, f"{std}/{ridge('gamma', 'glide')}")),
+                  at_cpu(LC, f"{std}/{ridge('gamma', 'glide')}")),
              Cell("with the log-speed channel", COORDINATE["gamma_glide_readout"][1], R2,
-                  Read(MPR, f"{flow}/{ridge('gamma', 'glide')}"), Read(LC, f"{flow}/{ridge('gamma', 'glide')}"))),
+                  Read(MPR, f"{flow}/{ridge('gamma', 'glide')}"), at_cpu(LC, f"{flow}/{ridge('gamma', 'glide')}"))),
             cause="γ on glide windows reads −0.02 → −0.05 at cpu: 152 test windows (the paper's 351) cannot resolve "
                   "it (glide_probe_sensitivity.json)"),
         Row("E24", "frontier", section, "functional glide test with the log-speed channel: 0.114 vs median-γ 0.054",
             (Cell("model", COORDINATE["glide_test_model_after"], ERROR,
-                  Read(MPR, f"{flow}/prediction/glide_test/model"), Read(LC, f"{flow}/prediction/glide_test/model")),
+                  Read(MPR, f"{flow}/prediction/glide_test/model"), at_cpu(LC, f"{flow}/prediction/glide_test/model")),
              Cell("median-γ reference", COORDINATE["glide_test_median_gamma"], ERROR,
                   Read(MPR, f"{flow}/prediction/glide_test/median_gamma"),
-                  Read(LC, f"{flow}/prediction/glide_test/median_gamma"))),
+                  at_cpu(LC, f"{flow}/prediction/glide_test/median_gamma"))),
             note="both decoded"),
     )
 
