@@ -184,6 +184,33 @@ def test_a_record_measured_with_other_settings_is_not_merged(tmp_path):
         merged_records(make_config("cpu", merge=(str(earlier),), eval_episodes=1200))
 
 
+def test_a_committed_record_merges_by_its_store_s_content_hash_not_its_path(tmp_path):
+    """A record whose store is a placeholder (as committed) joins a measurement on a store of the same content
+    hash, and is refused for a store of another content."""
+    import json
+
+    from pokeworld.data import read_manifest, save
+    from pokeworld.evaluate.dependence_runs import make_config, merged_records
+    from pokeworld.sim.generate import make_config as generate_config, simulate
+
+    store = tmp_path / "store"
+    save(simulate(generate_config("tiny", num_episodes=8, batch_envs=8), progress=False), store)
+    sha = read_manifest(store)["content_sha256"]
+    settings = {"eval_episodes": 2400, "eval_seed": 1000, "bootstrap": 1000, "max_windows": 3000, "seed": 0}
+    earlier = tmp_path / "earlier.json"
+
+    def record(**config):
+        earlier.write_text(json.dumps({"config": {"store": "<machine>/data/standard", **settings, **config},
+                                       "runs": []}))
+        return make_config("cpu", store=str(store), merge=(str(earlier),))
+
+    assert merged_records(record(store_sha256=sha)) != []
+    with pytest.raises(ConfigError, match="other settings"):
+        merged_records(record(store_sha256="b" * 64))
+    with pytest.raises(ConfigError, match="other settings"):  # without a hash the path as given decides, as before
+        merged_records(record())
+
+
 @pytest.mark.slow
 def test_the_command_says_its_plan_first_and_writes_a_record_per_run(tmp_path, capsys):
     """`pokeworld forecast-dependence` end to end on a tiny trained run: a plan line before the long first stage,

@@ -272,10 +272,28 @@ class PlantedFit:
             self.on_epoch(epoch, max(0, epoch - self.best))
 
 
-def run_planted_job(clock: SteppingClock, stalled: str, stall_s: float) -> float:
-    """The demo's stages on ``clock``, ``stalled`` stopping for ``stall_s`` seconds half-way; its true total."""
+class FakeCPU:
+    """This process's CPU seconds on a fake clock: ``share`` CPU seconds per wall second from now on."""
+
+    def __init__(self, clock, share: float = 1.0):
+        self.clock, self.share, self.used, self.at = clock, share, 0.0, clock.t
+
+    def __call__(self) -> float:
+        self.used += self.share * (self.clock.t - self.at)
+        self.at = self.clock.t
+        return self.used
+
+    def set(self, share: float) -> None:
+        self()
+        self.share = share
+
+
+def run_planted_job(clock: SteppingClock, stalled: str, stall_s: float, cpu: FakeCPU | None = None) -> float:
+    """The demo's stages on ``clock``, ``stalled`` stopping for ``stall_s`` seconds half-way; its true total. With
+    ``cpu`` the estimate also measures the CPU share (at the timing's share: nobody else came)."""
     cfg = certify.make_config("cpu", epochs=60, separate_targets=False)
-    job = clock.job = progress.JobEstimate(PLANTED_COSTS, now=clock)
+    contention = progress.Contention(1.0, elsewhere=(TRAINING,), cpu=cpu, now=clock, threads=lambda: 1) if cpu else None
+    job = clock.job = progress.JobEstimate(PLANTED_COSTS, now=clock, contention=contention)
     job.covers[TRAINING] = 0.85
     pause = {name: stall_s if name == stalled else 0.0 for name in PLANTED_COSTS}
     with progress.whole_job(job):
@@ -299,10 +317,13 @@ def run_planted_job(clock: SteppingClock, stalled: str, stall_s: float) -> float
     return clock.t - job.started
 
 
+@pytest.mark.parametrize("measured_share", [False, True])
 @pytest.mark.parametrize("stalled", [GRU, TRAINING, "corpus standard"])
-def test_a_planted_job_whose_stage_stalls_stays_within_twice_its_true_total(stalled, capsys):
+def test_a_planted_job_whose_stage_stalls_stays_within_twice_its_true_total(stalled, measured_share, capsys):
+    """A stage that stalls (its process waiting, or working longer than predicted at a full core) lengthens the
+    estimate by its own overrun only, with or without the CPU share measured."""
     clock = SteppingClock()
-    true_total = run_planted_job(clock, stalled, stall_s=300.0)
+    true_total = run_planted_job(clock, stalled, stall_s=300.0, cpu=FakeCPU(clock) if measured_share else None)
     estimates = [total for _, total, _ in clock.seen]
     assert true_total / 2 <= min(estimates) and max(estimates) <= 2 * true_total, (true_total, min(estimates),
                                                                                  max(estimates))
@@ -333,3 +354,50 @@ def test_a_certificate_fit_reports_its_epochs():
                    on_epoch=lambda e, stale: seen.append((e, stale))).fit(X, X[:, -1, :1], groups)
     assert [e for e, _ in seen] == list(range(1, len(seen) + 1))
     assert seen[-1][0] == 6 or seen[-1][1] == 2  # the cap or early stopping ended it
+
+
+def test_a_machine_that_others_come_to_share_after_the_timing_lengthens_every_stage_ahead():
+    """Timed at a full core, then other work takes three quarters of the CPU: every stage takes 4× its prediction.
+    Once the stage running here has run 10 s at a quarter share, the estimate holds the stages ahead at 4× and stays
+    within twice the true total from there on; without the share measured it reads a quarter of it."""
+    for measured in (True, False):
+        clock = SteppingClock()
+        cpu = FakeCPU(clock, share=0.25)  # the others arrived just after the timing
+        contention = progress.Contention(1.0, elsewhere=("train",), cpu=cpu, now=clock, threads=lambda: 1)
+        job = clock.job = progress.JobEstimate({"certify": 100.0, "train": 600.0, "report": 10.0}, now=clock,
+                                               contention=contention if measured else None)
+        with progress.whole_job(job):
+            with progress.stage("certify", "map"):
+                clock.advance(400.0)
+            with progress.stage("train", "map"):
+                for beat in range(1, 81):  # 2,400 s of training, its steps read every 30 s
+                    clock.advance(30.0)
+                    progress.report("train", beat / 80)
+            with progress.stage("report", "map"):
+                clock.advance(40.0)
+        true_total = clock.t - job.started
+        late = [total for elapsed, total, _ in clock.seen if elapsed >= 15]
+        if measured:
+            assert all(true_total / 2 <= t <= 2 * true_total for t in late), (true_total, min(late), max(late))
+            assert contention.slowdown() == pytest.approx(4.0)
+        else:
+            assert min(late) < true_total / 2
+
+
+def test_a_machine_that_others_leave_after_the_timing_shortens_the_estimate():
+    clock = FakeClock()
+    cpu = FakeCPU(clock, share=0.5)
+    contention = progress.Contention(0.5, cpu=cpu, now=clock, threads=lambda: 2)
+    contention.begin("a")
+    clock.t += 20
+    assert contention.slowdown() == pytest.approx(2.0)  # two threads at half a core each: half the timing's share
+    contention.end("a")
+    cpu.set(2.0)
+    contention.begin("b")
+    clock.t += 5
+    assert contention.slowdown() == pytest.approx(2.0)  # too short to read: the last stage's share holds
+    clock.t += 20
+    assert contention.slowdown() == pytest.approx(0.5)
+    contention.end("b")
+    contention.begin("elsewhere")
+    assert contention.slowdown() == pytest.approx(0.5)

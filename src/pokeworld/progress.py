@@ -182,12 +182,16 @@ class JobEstimate:
     share done is the job's elapsed time over its estimated total (stages found done already counted at their
     predicted cost), so it advances within a stage, and it never goes back when the estimate grows
     (:meth:`fraction`). Stages found done already (a resumed job) cost nothing here. ``now`` is the clock (a test
-    passes a fake one).
+    passes a fake one). With a ``contention`` (:class:`Contention`) every prediction is scaled by how much less of
+    the CPU this process gets than when the costs were timed: a machine that other work came to share after the
+    timing lengthens the stages ahead, a stall does not.
     """
 
-    def __init__(self, costs: dict[str, float], now: Callable[[], float] = time.monotonic):
+    def __init__(self, costs: dict[str, float], now: Callable[[], float] = time.monotonic,
+                 contention: "Contention | None" = None):
         self.costs = {k: max(0.0, float(v)) for k, v in costs.items()}
         self.now = now
+        self.contention = contention  # how much of the CPU this process gets now against the timing's share
         self.started = now()
         self.initial = sum(self.costs.values())
         self.taken: dict[str, float] = {}
@@ -207,12 +211,16 @@ class JobEstimate:
     def begin(self, stage: str) -> None:
         self.running = (stage, self.now())
         self.rate = StageRate(self.running[1])
+        if self.contention is not None:
+            self.contention.begin(stage)
 
     def end(self, stage: str) -> str:
         """Close ``stage`` (begun with :meth:`begin`); the line saying what it took and the re-estimate."""
         begun = self.running[1] if self.running and self.running[0] == stage else self.now()
         self.taken[stage] = self.now() - begun
         self.running, self.rate = None, None
+        if self.contention is not None:
+            self.contention.end(stage)
         return (f"{stage} took {duration(self.taken[stage])} (predicted {duration(self.costs.get(stage, 0))}); "
                 + self.status())
 
@@ -232,11 +240,16 @@ class JobEstimate:
             return 0.0
         name, begun = self.running
         own = self.rate.left(self.now()) if self.rate is not None else None
-        return own if own is not None else predicted_left(self.costs.get(name, 0.0), self.now() - begun)
+        return own if own is not None else predicted_left(self.costs.get(name, 0.0) * self.slowdown(),
+                                                          self.now() - begun)
 
     def left(self) -> float:
-        """Seconds still to go: the stages ahead at their predictions, and what remains of the running one."""
-        return sum(self.costs[s] for s in self._ahead()) + self.running_left()
+        """Seconds still to go: the stages ahead at their predictions and what remains of the running one; every
+        prediction times the machine's slowdown since the timing, when one is measured (:class:`Contention`)."""
+        return sum(self.costs[s] for s in self._ahead()) * self.slowdown() + self.running_left()
+
+    def slowdown(self) -> float:
+        return self.contention.slowdown() if self.contention is not None else 1.0
 
     def fraction(self) -> float:
         """The share of the job done: its elapsed time (and the predicted cost of stages found done) over its
@@ -261,6 +274,58 @@ class JobEstimate:
     def total(self) -> str:
         """``in 43 min 10 s (estimated at the start: 21 min 05 s)``, for the job's closing line."""
         return f"in {duration(self.now() - self.started)} (estimated at the start: {duration(self.initial)})"
+
+
+class Contention:
+    """How much slower the machine runs now than when a job's costs were timed, from the share of the CPU this
+    process gets: its CPU seconds per wall second per thread it runs (``threads()``), over the stage running here
+    (once it has run ``min_seconds``) or else the last one that ran here, against ``timed_share``, the same share
+    while the costs were timed. Work that takes a core's whole time runs at that share, so the ratio is the
+    slowdown of every stage ahead when other processes came to share the cores after the timing (or the speed-up
+    when they left), and 1 when the machine is as it was: a stage slow for its own reasons (more epochs, a stall)
+    keeps its share and scales nothing. Stages in ``elsewhere`` run in other processes (training in workers) and are
+    not sampled. Clamped to [1/4, 4]: a multi-threaded fit's share under load can fall further than the
+    single-threaded training ahead slows, and the training corrects itself by its own rate once it runs."""
+
+    def __init__(self, timed_share: float, elsewhere: tuple[str, ...] = (), cpu: Callable[[], float] = time.process_time,
+                 now: Callable[[], float] = time.monotonic, threads: Callable[[], int] | None = None,
+                 min_seconds: float = 10.0):
+        self.timed_share, self.elsewhere = max(1e-3, float(timed_share)), set(elsewhere)
+        self.cpu, self.now, self.min_seconds = cpu, now, min_seconds
+        self.threads = threads or _torch_threads
+        self.mark: tuple[float, float, int] | None = None  # (wall, cpu, threads) when the running stage began here
+        self.share: float | None = None  # the last stage's that ran here
+
+    @staticmethod
+    def share_between(wall: float, cpu: float, threads: int) -> float | None:
+        return cpu / wall / max(1, threads) if wall > 0 else None
+
+    def begin(self, stage: str) -> None:
+        self.mark = None if stage in self.elsewhere else (self.now(), self.cpu(), self.threads())
+
+    def end(self, stage: str) -> None:
+        if self.mark is not None and self.now() - self.mark[0] >= self.min_seconds:
+            self.share = self.running_share()
+        self.mark = None
+
+    def running_share(self) -> float | None:
+        if self.mark is None:
+            return None
+        wall0, cpu0, threads = self.mark
+        return self.share_between(self.now() - wall0, self.cpu() - cpu0, threads)
+
+    def slowdown(self) -> float:
+        running = self.running_share() if self.mark and self.now() - self.mark[0] >= self.min_seconds else None
+        share = running if running is not None else self.share
+        if share is None:
+            return 1.0
+        return min(4.0, max(0.25, self.timed_share / max(share, 1e-3)))
+
+
+def _torch_threads() -> int:
+    import torch  # the threads a stage here computes on; torch is what runs its work
+
+    return torch.get_num_threads()
 
 
 _JOB: list[JobEstimate] = []
@@ -294,5 +359,5 @@ def stage(name: str, tag: str) -> Iterator[None]:
 
 
 __all__ = ["HEARTBEAT_S", "quiet", "duration", "heartbeat", "run_progress", "runs_progress", "runs_fraction",
-           "report", "RATE_WINDOW", "StageRate", "predicted_left", "JobEstimate",
+           "report", "RATE_WINDOW", "StageRate", "predicted_left", "JobEstimate", "Contention",
            "whole_job", "stage"]

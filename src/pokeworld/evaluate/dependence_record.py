@@ -93,14 +93,25 @@ class Fields:
                     self.cell(params.get(p), f"planted.{store}.{plant}.{p}")
 
 
-def read_record(path: str | os.PathLike, settings: dict[str, Any]) -> dict:
+def same_store(got: dict, store: Any, store_sha256: str | None) -> bool:
+    """Whether a record's ``config`` names the store of this measurement: by the store's content hash when both
+    carry one (a committed record names its store by a placeholder, not by a path of the machine it was made on),
+    else by the path as given."""
+    if store_sha256 and isinstance(got.get("store_sha256"), str):
+        return got["store_sha256"] == store_sha256
+    return got.get("store") == store
+
+
+def read_record(path: str | os.PathLike, settings: dict[str, Any], store_sha256: str | None = None) -> dict:
     """The record at ``path``, every field its merge reads checked (DataError naming the field), measured with
-    ``settings`` (ConfigError otherwise: its numbers are not comparable with this measurement's)."""
+    ``settings`` (ConfigError otherwise: its numbers are not comparable with this measurement's); ``settings``'
+    ``store`` is matched by ``store_sha256`` where the record carries one (:func:`same_store`)."""
     path = Path(path)
     rec = read_json(path, "a forecast-dependence record", dict)
     check = Fields(path)
     got = check.table(rec.get("config"), "config")
-    if any(got.get(k) != v for k, v in settings.items()):
+    if any(got.get(k) != v for k, v in settings.items() if k != "store") or (
+            "store" in settings and not same_store(got, settings["store"], store_sha256)):
         raise ConfigError(f"{path} was measured with other settings ({str(got)[:200]}); merge only records of the "
                           f"same settings ({settings})")
     runs = rec.get("runs")
@@ -112,4 +123,4 @@ def read_record(path: str | os.PathLike, settings: dict[str, Any]) -> dict:
     return rec
 
 
-__all__ = ["CELL_NUMBERS", "READOUT_KINDS", "read_record"]
+__all__ = ["CELL_NUMBERS", "READOUT_KINDS", "read_record", "same_store"]

@@ -18,7 +18,7 @@ import numpy as np
 
 from .. import __version__
 from ..config import SEED, Limit, check_fields, from_preset
-from ..data import load
+from ..data import load, read_manifest
 from ..errors import ConfigError
 from ..io import check_outputs, check_writable_dir, save_text, write_json
 from ..model_inputs import checked_model
@@ -149,10 +149,16 @@ SETTINGS = ("store", "eval_episodes", "eval_seed", "bootstrap", "max_windows", "
 """The config fields a record's numbers depend on (besides its runs): records merge only when these agree."""
 
 
+def store_sha256(cfg: DependenceRunsConfig) -> str | None:
+    """The content hash of ``cfg.store`` (its manifest's), which names the store in the record; None without one."""
+    return read_manifest(cfg.store).get("content_sha256") if cfg.store else None
+
+
 def merged_records(cfg: DependenceRunsConfig) -> list[dict]:
     """The ``merge`` records, every field read and checked (:func:`~.dependence_record.read_record`, same settings
-    as ``cfg``) before anything is measured."""
-    return [read_record(path, {k: getattr(cfg, k) for k in SETTINGS}) for path in cfg.merge]
+    as ``cfg``, the same store by content hash) before anything is measured."""
+    sha = store_sha256(cfg)
+    return [read_record(path, {k: getattr(cfg, k) for k in SETTINGS}, sha) for path in cfg.merge]
 
 
 def run(cfg: DependenceRunsConfig) -> Path:
@@ -195,7 +201,8 @@ def run(cfg: DependenceRunsConfig) -> Path:
     rows = [{**row, "readout": readouts.get(row["run"], row["readout"])} for row in joined] + rows
     environment = cfg.environment or stores_environment({path: store for path, (store, _) in loaded.items()},
                                                         earlier)
-    result = {"environment": environment, "config": {k: getattr(cfg, k) for k in SETTINGS}, "responses": RESPONSE,
+    config = {k: getattr(cfg, k) for k in SETTINGS} | {"store_sha256": store_sha256(cfg)}
+    result = {"environment": environment, "config": config, "responses": RESPONSE,
               "regressors": REGRESSOR, "runs": rows, "planted": refs, "revision": REVISION,
               "provenance": {"pokeworld": __version__, "git": R.git_commit()}}
     out.mkdir(parents=True, exist_ok=True)
@@ -296,4 +303,4 @@ def figure(result: dict, path: Path) -> Path:
 
 
 __all__ = ["DependenceRunsConfig", "PRESETS", "REVISION", "SETTINGS", "make_config", "markdown", "measure_run",
-           "merged_records", "planted_rows", "run", "stores_environment", "figure"]
+           "merged_records", "store_sha256", "planted_rows", "run", "stores_environment", "figure"]

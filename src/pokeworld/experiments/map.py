@@ -14,6 +14,7 @@ for the trip back as soon as it is measured.
 from __future__ import annotations
 
 import concurrent.futures as cf
+import time
 from pathlib import Path
 
 from .. import clock, progress
@@ -201,11 +202,14 @@ def whole_job(c: MapConfig, specs: list, corpora: list[str], certify_order: list
     run is trained already (what is left is the report)."""
     if not c.whole_job_estimate:
         return None
+    wall, cpu = time.monotonic(), time.process_time()
     timed = stages.timed_training(c, specs, workers, threads)
     if timed is None:
         return None
+    # the share of a core the timing got: a later stage here that gets less runs on a machine others came to share
+    share = progress.Contention.share_between(time.monotonic() - wall, time.process_time() - cpu, timed["threads"])
     costs, slow = stages.whole_job_costs(c, corpora, certify_order, timed)
-    job = progress.JobEstimate(costs)
+    job = progress.JobEstimate(costs, contention=progress.Contention(share or 1.0, elsewhere=(stages.TRAINING_STAGE,)))
     job.covers[stages.TRAINING_STAGE] = timed["seconds"] / costs[stages.TRAINING_STAGE]  # training, then measuring
     print(stages.whole_job_line(job, timed, slow), flush=True)
     return job

@@ -1,0 +1,112 @@
+"""Our MLP probe beside the released one, on model folders: does the paper's "MLP at chance" come from the probe?
+
+For each model (an exported folder or a finished run) and one store, the contact-window predictor states of the
+main probe are read once and four readouts of log m, γ and log k fitted on them
+(:mod:`pokeworld.evaluate.mlp_protocols`): ridge, our per-parameter early-stopped MLP, and the released joint MLP
+under its own selection rule (best validation R² averaged over the three) and under a per-parameter rule (the
+same network and trajectory). The record puts the paper's Table "mlp" and the released run's numbers beside them.
+
+    python scripts/mlp_probe_protocols.py models/xjepa-VX_p-paper-s0 models/xjepa-VX_t-paper-s0 \\
+        --data DIR --preset paper --out docs/results/mlp_probe_protocols.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from pokeworld.data import load, read_manifest
+from pokeworld.errors import PokeworldError
+from pokeworld.evaluate.measure import HORIZON, make_config
+from pokeworld.evaluate.mlp_protocols import JOINT_TARGETS, PROTOCOLS, compare
+from pokeworld.experiments.factorial import FACTORIAL_MLP
+from pokeworld.io import check_outputs, read_json, write_json
+from pokeworld.model_inputs import checked_model
+from pokeworld.published.release import RUNS as RELEASED
+from pokeworld.rundir import read_run_config
+
+LABELS = {"ridge": "ridge", "mlp_per_parameter": "our MLP (one per parameter, own early stop)",
+          "mlp_joint_mean": "released MLP (joint; best mean validation R²)",
+          "mlp_joint_each": "released MLP's run, each parameter at its own best step"}
+WINDOW_SETS = {"ours": "ours: every 4th start, ≥ 1 contact frame", "release": "released: starts 8 apart, ≥ 2 contact frames"}
+
+
+def variant_of(model_dir: Path) -> str:
+    cfg = read_run_config(model_dir)
+    return str(cfg.get("variant", model_dir.name))
+
+
+def measure_one(model_dir: Path, data: str, preset: str) -> dict:
+    cfg = make_config(preset, data=data)
+    model = checked_model(model_dir, data, max(cfg.window, cfg.context + HORIZON), "the probe windows")
+    t0 = time.time()
+    res = compare(model, load(data), cfg)
+    res.update(model=model_dir.name, variant=variant_of(model_dir), seconds=round(time.time() - t0, 1))
+    return res
+
+
+def table(records: list[dict]) -> str:
+    lines = ["| model | windows (fit / test) | readout | log m | γ | log k | kept at step |",
+             "|---|---|---|---|---|---|---|"]
+    for r in records:
+        for name in WINDOW_SETS:
+            res = r[name]
+            where = f"{WINDOW_SETS[name]} ({res['counts']['fit']:,} / {res['counts']['test']:,})"
+            for p in PROTOCOLS:
+                cells = " | ".join(f"{res['r2'][p].get(t, float('nan')):.2f}" for t in JOINT_TARGETS)
+                step = {"mlp_joint_mean": str(res["joint_steps"]["mean"]),
+                        "mlp_joint_each": " / ".join(str(res["joint_steps"]["each"].get(t, "—")) for t in JOINT_TARGETS)
+                        }.get(p, "")
+                lines.append(f"| {r['model']} | {where} | {LABELS[p]} | {cells} | {step} |")
+        v = r["variant"]
+        paper, rel = FACTORIAL_MLP.get(v), RELEASED.get(v, {}).get("mlp")
+        if paper:
+            lines.append("| | | *paper, Table \"mlp\"* | " + " | ".join(f"{paper[t]:.2f}" for t in JOINT_TARGETS) + " | |")
+        if rel:
+            lines.append(f"| | | *released {v} seed 0, MLP* | " + " | ".join(f"{rel[t]:.2f}" for t in JOINT_TARGETS)
+                         + " | |")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("models", nargs="+", type=Path, help="model folders or finished runs")
+    ap.add_argument("--data", required=True, help="the PokeWorld store the models are probed on")
+    ap.add_argument("--preset", default="paper", help="measurement preset (window counts): tiny, cpu or paper")
+    ap.add_argument("--out", type=Path, default=Path("out/mlp_probe_protocols.json"),
+                    help="the record (JSON; a Markdown table beside it)")
+    args = ap.parse_args(argv)
+    try:
+        md = args.out.with_suffix(".md")
+        check_outputs(args.out.parent, args.out.name, md.name)
+        # a re-run keeps what an earlier one measured (one model at a time is minutes at the paper's window counts)
+        done = {r["model"]: r for r in read_json(args.out, "an mlp_probe_protocols record").get("models", [])} \
+            if args.out.exists() else {}
+        for i, m in enumerate(args.models, 1):
+            if m.name in done:
+                print(f"[protocols] {m.name}: in {args.out} already; kept")
+                continue
+            print(f"[protocols] {i}/{len(args.models)} {m.name}: reading states, fitting four readouts ...", flush=True)
+            done[m.name] = rec = measure_one(m, args.data, args.preset)
+            for name in WINDOW_SETS:
+                r = rec[name]["r2"]
+                print(f"[protocols] {m.name}, {name} windows: log m ridge {r['ridge']['log_m']:.2f} · our MLP "
+                      f"{r['mlp_per_parameter']['log_m']:.2f} · released rule {r['mlp_joint_mean']['log_m']:.2f} "
+                      f"(kept at step {rec[name]['joint_steps']['mean']})")
+            write_json(args.out, {"data": {"name": Path(args.data).name,
+                                           "content_sha256": read_manifest(args.data).get("content_sha256")},
+                                  "preset": args.preset,
+                                  "command": f"python scripts/mlp_probe_protocols.py MODEL ... --data DIR --preset {args.preset}",
+                                  "models": list(done.values())})
+        md.write_text("# MLP probe protocols\n\n" + table(list(done.values())) + "\n")
+    except PokeworldError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    print(f"[protocols] wrote {args.out} and {md}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
