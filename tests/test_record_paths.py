@@ -19,11 +19,22 @@ def test_paths_become_placeholders_and_nothing_else_changes(tmp_path):
     record = tmp_path / "r.json"
     record.write_text(json.dumps({"command": "pokeworld map --out /work/scratch/s8/map --data /tmp/x/data/standard",
                                   "runs": ["/home/u/out/runs/VFX-h1-4-16-lam0.02-standard-s0"], "r2": 0.123456789,
-                                  "note": "a ratio 3/4 and docs/results/x.md stay"}))
+                                  "note": "a ratio 3/4 and docs/results/x.md stay",
+                                  "planted": {"/work/scratch/s8/map/data/standard": {"S": 1.0}}}))
     proc = subprocess.run([sys.executable, "scripts/record_paths.py", str(record)], cwd=ROOT, capture_output=True,
                           text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
     out = json.loads(record.read_text())
     assert out == {"command": "pokeworld map --out <machine>/map --data <machine>/data/standard",
                    "runs": ["<machine>/runs/VFX-h1-4-16-lam0.02-standard-s0"], "r2": 0.123456789,
-                   "note": "a ratio 3/4 and docs/results/x.md stay"}
+                   "note": "a ratio 3/4 and docs/results/x.md stay",
+                   "planted": {"<machine>/data/standard": {"S": 1.0}}}
+
+
+def test_two_keys_that_would_become_one_are_refused():
+    import pytest
+
+    from pokeworld.record_paths import without_machine_paths
+
+    with pytest.raises(ValueError, match="two keys"):
+        without_machine_paths({"/work/a/data/standard": 1, "/tmp/b/data/standard": 2})

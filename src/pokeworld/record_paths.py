@@ -27,9 +27,16 @@ def placeholder(path: str) -> str:
 
 
 def without_machine_paths(value: Any) -> Any:
-    """``value`` (a parsed record) with every absolute path in its strings replaced by :func:`placeholder`."""
+    """``value`` (a parsed record) with every absolute path in its strings, keys included, replaced by
+    :func:`placeholder`; two keys of one table that would become one are a ValueError (nothing is dropped)."""
     if isinstance(value, dict):
-        return {k: without_machine_paths(v) for k, v in value.items()}
+        out: dict = {}
+        for k, v in value.items():
+            key = without_machine_paths(k) if isinstance(k, str) else k
+            if key in out:
+                raise ValueError(f"two keys become {key!r} without their machine paths; rename one by hand")
+            out[key] = without_machine_paths(v)
+        return out
     if isinstance(value, list):
         return [without_machine_paths(v) for v in value]
     if isinstance(value, str):

@@ -161,11 +161,23 @@ def merged_records(cfg: DependenceRunsConfig) -> list[dict]:
     return [read_record(path, {k: getattr(cfg, k) for k in SETTINGS}, sha) for path in cfg.merge]
 
 
+def same_store_named(rec: dict, store: str) -> dict:
+    """A merged record (of this measurement's store: :func:`merged_records`) with that store named as this
+    measurement names it, in its rows and its planted rows: a committed record names it by a placeholder (or by the
+    path of the machine it was made on), and one store must not read as two. A record of one store (its config
+    names it) holds only that store's rows and planted rows, so every one of them is renamed."""
+    if not store or rec["config"].get("store") == store:
+        return rec
+    planted = {store: v for v in (rec.get("planted") or {}).values()}
+    rows = [{**row, "store": store} for row in rec["runs"]]
+    return {**rec, "planted": planted, "runs": rows, "config": {**rec["config"], "store": store}}
+
+
 def run(cfg: DependenceRunsConfig) -> Path:
     if not cfg.runs and not cfg.merge:
         raise ConfigError("give at least one trained run directory with --runs (or records to join with --merge)")
     # every input first: the earlier records, each run's store, model and readout; then the outputs
-    earlier = merged_records(cfg)
+    earlier = [same_store_named(rec, cfg.store) for rec in merged_records(cfg)]
     stores = {str(r): cfg.store or trained_store(r, "[forecast-dependence]") for r in cfg.runs}
     dep = DependenceConfig(bootstrap=cfg.bootstrap, max_windows=cfg.max_windows, seed=cfg.seed)
     models = {str(r): checked_forecaster_model(r, stores[str(r)], dep) for r in cfg.runs}
@@ -303,4 +315,4 @@ def figure(result: dict, path: Path) -> Path:
 
 
 __all__ = ["DependenceRunsConfig", "PRESETS", "REVISION", "SETTINGS", "make_config", "markdown", "measure_run",
-           "merged_records", "store_sha256", "planted_rows", "run", "stores_environment", "figure"]
+           "merged_records", "same_store_named", "store_sha256", "planted_rows", "run", "stores_environment", "figure"]
