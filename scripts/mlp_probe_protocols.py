@@ -22,7 +22,7 @@ from pokeworld.errors import PokeworldError
 from pokeworld.evaluate.measure import HORIZON, make_config
 from pokeworld.evaluate.mlp_protocols import JOINT_TARGETS, PROTOCOLS, compare
 from pokeworld.experiments.factorial import FACTORIAL_MLP
-from pokeworld.io import check_outputs, read_json, write_json
+from pokeworld.io import check_outputs, read_json, save_text, write_json
 from pokeworld.model_inputs import checked_model
 from pokeworld.published.release import RUNS as RELEASED
 from pokeworld.rundir import read_run_config
@@ -31,6 +31,21 @@ LABELS = {"ridge": "ridge", "mlp_per_parameter": "our MLP (one per parameter, ow
           "mlp_joint_mean": "released MLP (joint; best mean validation R²)",
           "mlp_joint_each": "released MLP's run, each parameter at its own best step"}
 WINDOW_SETS = {"ours": "ours: every 4th start, ≥ 1 contact frame", "release": "released: starts 8 apart, ≥ 2 contact frames"}
+
+
+HEADER = """# MLP probe protocols: ours beside the released one
+
+R² on held-out contact windows of log m, γ and log k from each model's predictor state (the leak-free readout of
+`pokeworld probe`), four readouts on the same states (`pokeworld.evaluate.mlp_protocols`): ridge; our MLP, one
+network per parameter early-stopped on its own validation loss; the released MLP probe (exp/e003_motion/train.py of
+the authors' release), one 256-128 network for the three parameters, kept at the evaluation step (every 200 of
+4,001) whose validation R² averaged over the three is best; and that same run with each parameter kept at its own
+best step. Two window sets: ours, and the released probe's (starts 8 apart, ≥ 2 contact frames). Preset `{preset}`
+window counts, store `{data}` (content hash {sha}…). Command: `python scripts/mlp_probe_protocols.py MODEL ...
+--data DIR --preset {preset} --out docs/results/mlp_probe_protocols.json`. The paper's and the released run's
+values are theirs, shown for comparison.
+
+"""
 
 
 def variant_of(model_dir: Path) -> str:
@@ -100,7 +115,9 @@ def main(argv=None) -> int:
                                   "preset": args.preset,
                                   "command": f"python scripts/mlp_probe_protocols.py MODEL ... --data DIR --preset {args.preset}",
                                   "models": list(done.values())})
-        md.write_text("# MLP probe protocols\n\n" + table(list(done.values())) + "\n")
+        save_text(md, HEADER.format(preset=args.preset, data=Path(args.data).name,
+                                    sha=str(read_manifest(args.data).get("content_sha256"))[:12])
+                      + table(list(done.values())) + "\n")
     except PokeworldError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
