@@ -256,7 +256,7 @@ def figure_png(summary: dict) -> tuple[bytes, int]:
     fig.tight_layout()
     buf = io.BytesIO()
     try:
-        fig.savefig(buf, dpi=150, format="png")
+        fig.savefig(buf, dpi=150, format="png")  # into memory; the caller writes it through io
     finally:
         plt.close(fig)
     return buf.getvalue(), left_out
