@@ -23,10 +23,10 @@ import torch
 
 from ..data import Dataset
 from ..errors import DataError
-from ..regressors import RidgeCV, Standardizer, TorchRegressor, r2_scores
+from ..regressors import Standardizer, r2_scores
 from ..sim.fidelity import STARTS, WINDOW
 from ..windows import Windows, make_windows
-from .probes import KINDS, probe_latents, probe_targets
+from .probes import KINDS, fit_predict, probe_latents, probe_targets
 from .state import padded_actions, window_states
 
 #: The parameters the released probe fits jointly, in its column order.
@@ -110,11 +110,10 @@ def protocol_scores(Xf, gf, Tf: dict, Xt, Tt: dict, seed: int = 0, joint: JointM
     if not names:
         raise DataError(f"none of {', '.join(JOINT_TARGETS)} varies in this store; nothing to compare")
     r2: dict = {p: {} for p in PROTOCOLS}
-    for name in names:
-        ridge = RidgeCV().fit(Xf, Tf[name], gf)
-        r2["ridge"][name] = float(r2_scores(Tt[name], ridge.predict(Xt)).mean())
-        per = TorchRegressor("mlp", hidden=256, layers=2, epochs=200, patience=10, seed=seed).fit(Xf, Tf[name], gf)
-        r2["mlp_per_parameter"][name] = float(r2_scores(Tt[name], per.predict(Xt)).mean())
+    # ridge and our MLP exactly as the main probe fits them (one of each per parameter)
+    ours = fit_predict(Xf, gf, {n: Tf[n] for n in names}, {"test": Xt}, mlp=True, seed=seed)
+    for family, protocol in (("ridge", "ridge"), ("mlp", "mlp_per_parameter")):
+        r2[protocol] = {n: float(r2_scores(Tt[n], ours[family][n]["test"]).mean()) for n in names}
     Yf = np.concatenate([Tf[n] for n in names], 1)
     Yt = np.concatenate([Tt[n] for n in names], 1)
     res = (joint or JointMLPProbe(seed=seed)).fit_predict(Xf, Yf, gf, Xt)
