@@ -38,3 +38,17 @@ def test_two_keys_that_would_become_one_are_refused():
 
     with pytest.raises(ValueError, match="two keys"):
         without_machine_paths({"/work/a/data/standard": 1, "/tmp/b/data/standard": 2})
+
+
+def test_a_markdown_report_is_rewritten_in_place_and_keeps_its_table(tmp_path):
+    report = tmp_path / "r.md"
+    report.write_text("| run | R² |\n|---|---|\n| /work/scratch/s8/map/runs/VFX-s0 | 0.51 |\n\n"
+                      "Produced by `pokeworld map --out /tmp/x/map` (a ratio 3/4 stays).\n")
+    proc = subprocess.run([sys.executable, "scripts/record_paths.py", "--check", str(report)], cwd=ROOT,
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 1 and "1 of 1" in proc.stdout
+    proc = subprocess.run([sys.executable, "scripts/record_paths.py", str(report)], cwd=ROOT, capture_output=True,
+                          text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert report.read_text() == ("| run | R² |\n|---|---|\n| <machine>/runs/VFX-s0 | 0.51 |\n\n"
+                                  "Produced by `pokeworld map --out <machine>/map` (a ratio 3/4 stays).\n")
