@@ -8,6 +8,9 @@ same network and trajectory). The record puts the paper's Table "mlp" and the re
 
     python scripts/mlp_probe_protocols.py models/xjepa-VX_p-paper-s0 models/xjepa-VX_t-paper-s0 \\
         --data DIR --preset paper --out docs/results/mlp_probe_protocols.json
+
+``--probe-seeds K`` also refits the released rule with probe seeds 0 … K − 1 on the released windows' states
+(:func:`~pokeworld.evaluate.mlp_protocols.selection_stability`): the step each seed keeps and what it then reads.
 """
 
 from __future__ import annotations
@@ -18,9 +21,9 @@ import time
 from pathlib import Path
 
 from pokeworld.data import load, read_manifest
-from pokeworld.errors import PokeworldError
+from pokeworld.errors import DataError, PokeworldError
 from pokeworld.evaluate.measure import HORIZON, make_config
-from pokeworld.evaluate.mlp_protocols import JOINT_TARGETS, PROTOCOLS, compare
+from pokeworld.evaluate.mlp_protocols import JOINT_TARGETS, PROTOCOLS, compare, selection_stability
 from pokeworld.experiments.factorial import FACTORIAL_MLP
 from pokeworld.io import check_outputs, read_json, save_text, write_json
 from pokeworld.model_inputs import checked_model
@@ -62,6 +65,36 @@ def measure_one(model_dir: Path, data: str, preset: str) -> dict:
     return res
 
 
+def add_selection(rec: dict, model_dir: Path, data: str, preset: str, seeds: int) -> None:
+    """``rec["selection"]``: the released rule under ``seeds`` probe seeds (kept when an earlier run did as many)."""
+    if rec.get("selection", {}).get("seeds") == seeds:
+        return
+    cfg = make_config(preset, data=data)
+    model = checked_model(model_dir, data, max(cfg.window, cfg.context + HORIZON), "the probe windows")
+    t0 = time.time()
+    rec["selection"] = {**selection_stability(model, load(data), cfg, seeds), "seconds": round(time.time() - t0, 1)}
+
+
+def selection_table(records: list[dict]) -> str:
+    rows = [r for r in records if "selection" in r]
+    if not rows:
+        return ""
+    lines = ["", "", "## The released rule under probe seeds", "",
+             "The released probe fixes `torch.manual_seed(0)`. Here the same rule (joint network, best mean validation "
+             "R²) is refit on the same states, released windows, with probe seeds 0 … K − 1: how many seeds keep step "
+             "0 (every output near the training mean), the range of what the rule then reports, and ridge on the same "
+             "states.", "",
+             "| model | seeds | kept at step 0 | log m | γ | log k | validation margin over step 0 | ridge log m / γ / log k |",
+             "|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        s = r["selection"]
+        rng = " | ".join(f"{s['r2_range'][t][0]:.2f} … {s['r2_range'][t][1]:.2f}" for t in JOINT_TARGETS)
+        margins = [x["val_margin_over_step0"] for x in s["runs"]]
+        lines.append(f"| {r['model']} | {s['seeds']} | {s['kept_step_0']} | {rng} | {min(margins):.3f} … "
+                     f"{max(margins):.3f} | " + " / ".join(f"{s['ridge'][t]:.2f}" for t in JOINT_TARGETS) + " |")
+    return "\n".join(lines)
+
+
 def table(records: list[dict]) -> str:
     lines = ["| model | windows (fit / test) | readout | log m | γ | log k | kept at step |",
              "|---|---|---|---|---|---|---|"]
@@ -85,6 +118,14 @@ def table(records: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def report_one(rec: dict) -> None:
+    for name in WINDOW_SETS:
+        r = rec[name]["r2"]
+        print(f"[protocols] {rec['model']}, {name} windows: log m ridge {r['ridge']['log_m']:.2f} · our MLP "
+              f"{r['mlp_per_parameter']['log_m']:.2f} · released rule {r['mlp_joint_mean']['log_m']:.2f} "
+              f"(kept at step {rec[name]['joint_steps']['mean']})")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("models", nargs="+", type=Path, help="model folders or finished runs")
@@ -92,32 +133,47 @@ def main(argv=None) -> int:
     ap.add_argument("--preset", default="paper", help="measurement preset (window counts): tiny, cpu or paper")
     ap.add_argument("--out", type=Path, default=Path("out/mlp_probe_protocols.json"),
                     help="the record (JSON; a Markdown table beside it)")
+    ap.add_argument("--probe-seeds", type=int, default=0,
+                    help="also refit the released rule with this many probe seeds on the released windows (0: no)")
     args = ap.parse_args(argv)
+    if args.probe_seeds < 0:
+        print(f"error: --probe-seeds must be 0 or more, got {args.probe_seeds}", file=sys.stderr)
+        return 2
     try:
         md = args.out.with_suffix(".md")
         check_outputs(args.out.parent, args.out.name, md.name)
         # a re-run keeps what an earlier one measured (one model at a time is minutes at the paper's window counts)
-        done = {r["model"]: r for r in read_json(args.out, "an mlp_probe_protocols record").get("models", [])} \
-            if args.out.exists() else {}
+        earlier = read_json(args.out, "an mlp_probe_protocols record") if args.out.exists() else {}
+        sha = read_manifest(args.data).get("content_sha256")
+        if earlier and earlier.get("data", {}).get("content_sha256") != sha:
+            raise DataError(f"{args.out} was measured on another store (content hash "
+                            f"{str(earlier.get('data', {}).get('content_sha256'))[:12]}…, this one {str(sha)[:12]}…); "
+                            "give --out a new record or --data that store")
+        done = {r["model"]: r for r in earlier.get("models", [])}
         for i, m in enumerate(args.models, 1):
             if m.name in done:
                 print(f"[protocols] {m.name}: in {args.out} already; kept")
-                continue
-            print(f"[protocols] {i}/{len(args.models)} {m.name}: reading states, fitting four readouts ...", flush=True)
-            done[m.name] = rec = measure_one(m, args.data, args.preset)
-            for name in WINDOW_SETS:
-                r = rec[name]["r2"]
-                print(f"[protocols] {m.name}, {name} windows: log m ridge {r['ridge']['log_m']:.2f} · our MLP "
-                      f"{r['mlp_per_parameter']['log_m']:.2f} · released rule {r['mlp_joint_mean']['log_m']:.2f} "
-                      f"(kept at step {rec[name]['joint_steps']['mean']})")
+            else:
+                print(f"[protocols] {i}/{len(args.models)} {m.name}: reading states, fitting four readouts ...",
+                      flush=True)
+                done[m.name] = measure_one(m, args.data, args.preset)
+                report_one(done[m.name])
+            if args.probe_seeds:
+                print(f"[protocols] {m.name}: the released rule under {args.probe_seeds} probe seeds ...", flush=True)
+                add_selection(done[m.name], m, args.data, args.preset, args.probe_seeds)
+                s = done[m.name]["selection"]
+                print(f"[protocols] {m.name}: {s['kept_step_0']} of {s['seeds']} seeds keep step 0; log m "
+                      f"{s['r2_range']['log_m'][0]:.2f} … {s['r2_range']['log_m'][1]:.2f}")
             write_json(args.out, {"data": {"name": Path(args.data).name,
-                                           "content_sha256": read_manifest(args.data).get("content_sha256")},
+                                           "content_sha256": sha},
                                   "preset": args.preset,
-                                  "command": f"python scripts/mlp_probe_protocols.py MODEL ... --data DIR --preset {args.preset}",
+                                  "command": "python scripts/mlp_probe_protocols.py MODEL ... --data DIR --preset "
+                                             f"{args.preset}" + (f" --probe-seeds {args.probe_seeds}"
+                                                                 if args.probe_seeds else ""),
                                   "models": list(done.values())})
         save_text(md, HEADER.format(preset=args.preset, data=Path(args.data).name,
-                                    sha=str(read_manifest(args.data).get("content_sha256"))[:12])
-                      + table(list(done.values())) + "\n")
+                                    sha=str(sha)[:12])
+                      + table(list(done.values())) + selection_table(list(done.values())) + "\n")
     except PokeworldError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from pokeworld.errors import DataError
-from pokeworld.evaluate.mlp_protocols import JointMLPProbe, protocol_scores
+from pokeworld.evaluate.mlp_protocols import JointMLPProbe, protocol_scores, selection_runs
 from pokeworld.regressors import r2_scores
 
 
@@ -58,3 +58,56 @@ def test_bad_input_is_one_clear_error():
     Y[0, 0] = np.nan
     with pytest.raises(DataError, match="finite"):
         JointMLPProbe(steps=1).fit_predict(X, Y, np.arange(100), X)
+
+
+def test_the_curve_is_what_the_mean_rule_chose_from():
+    X, Y = planted(3000, 4, (0.5, 0.2, 0.0), 6)
+    Xt, _ = planted(300, 4, (0.5, 0.2, 0.0), 7)
+    out = JointMLPProbe(steps=401, every=100, seed=0).fit_predict(X, Y, np.arange(3000) // 3, Xt)
+    assert [c["step"] for c in out["curve"]] == [0, 100, 200, 300, 400]
+    means = [np.mean(c["val_r2"]) for c in out["curve"]]
+    assert out["curve"][int(np.argmax(means))]["step"] == out["mean_step"]
+
+
+def test_seed_sweep_separates_a_learnable_signal_from_a_selection_draw():
+    names = ("log_m", "gamma", "log_k")
+    # three learnable signals: no probe seed keeps step 0, every seed reads them
+    X, Y = planted(4000, 4, (0.6, 0.5, 0.4), 8)
+    Xt, Yt = planted(1000, 4, (0.6, 0.5, 0.4), 9)
+    easy = selection_runs(X, np.arange(4000) // 4, Y, Xt, Yt, seeds=3, names=names, steps=401)
+    assert easy["kept_step_0"] == 0 and easy["r2_range"]["log_m"][0] > 0.5
+    assert all(r["val_margin_over_step0"] > 0 for r in easy["runs"])
+    # one weak signal beside two empty targets and few windows per dimension: the rule keeps step 0 (margin 0) and
+    # reads log m at chance, the case the release's single seed cannot tell from an unreadable parameter
+    X, Y = planted(1500, 64, (0.3, 0.0, 0.0), 2)
+    Xt, Yt = planted(800, 64, (0.3, 0.0, 0.0), 3)
+    hard = selection_runs(X, np.arange(1500) // 5, Y, Xt, Yt, seeds=3, names=names, steps=801)
+    assert hard["kept_step_0"] >= 1
+    for r in hard["runs"]:
+        assert (r["kept_step"] == 0) == (r["val_margin_over_step0"] == 0)
+        if r["kept_step"] == 0:
+            assert abs(r["r2"]["log_m"]) < 0.05
+    with pytest.raises(DataError, match="probe seed"):
+        selection_runs(X, np.arange(1500) // 5, Y, Xt, Yt, seeds=0, names=names)
+
+
+def test_the_script_refuses_to_merge_into_a_record_of_another_store(tmp_path):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from pokeworld.cli import main
+    from pokeworld.io import write_json
+
+    store = tmp_path / "store"
+    assert main(["generate", "--preset", "tiny", str(store)]) == 0
+    record = tmp_path / "rec.json"  # an earlier record of this script, written as the script writes it
+    write_json(record, {"data": {"name": "standard", "content_sha256": "45f50da1" + "0" * 56}, "models": []})
+    root = Path(__file__).resolve().parents[1]
+    proc = subprocess.run([sys.executable, "scripts/mlp_probe_protocols.py", str(tmp_path / "no-model"), "--data",
+                           str(store), "--preset", "tiny", "--out", str(record)], cwd=root, capture_output=True,
+                          text=True, timeout=300)
+    assert proc.returncode == 2 and "another store" in proc.stderr and proc.stderr.count("\n") == 1
+    proc = subprocess.run([sys.executable, "scripts/mlp_probe_protocols.py", "m", "--data", str(store),
+                           "--probe-seeds", "-1"], cwd=root, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 2 and "--probe-seeds" in proc.stderr

@@ -66,8 +66,9 @@ class JointMLPProbe:
         return np.isin(groups, order[-n_val:])
 
     def fit_predict(self, X: np.ndarray, Y: np.ndarray, groups: np.ndarray, X_test: np.ndarray) -> dict:
-        """``{"mean": (N_test, k), "each": (N_test, k), "mean_step": int, "each_step": [int] * k}``: the test
-        predictions kept under each selection rule and the step each was taken at."""
+        """``{"mean": (N_test, k), "each": (N_test, k), "mean_step": int, "each_step": [int] * k, "curve": [...]}``:
+        the test predictions kept under each selection rule, the step each was taken at, and every evaluation's
+        ``{"step", "val_r2": [k]}`` (what the rules chose from)."""
         X, Y = np.asarray(X, np.float64).reshape(len(X), -1), np.asarray(Y, np.float64).reshape(len(Y), -1)
         if len(X) != len(Y) or len(X) != len(groups) or not (np.isfinite(X).all() and np.isfinite(Y).all()):
             raise DataError("JointMLPProbe: X, Y and groups must be finite and of one length")
@@ -84,7 +85,7 @@ class JointMLPProbe:
         gen = torch.Generator().manual_seed(self.seed)
         k = Y.shape[1]
         best_mean, best_each = -np.inf, np.full(k, -np.inf)
-        out = {"mean": None, "each": np.zeros((len(xe), k)), "mean_step": -1, "each_step": [-1] * k}
+        out = {"mean": None, "each": np.zeros((len(xe), k)), "mean_step": -1, "each_step": [-1] * k, "curve": []}
         for step in range(self.steps):
             idx = torch.randint(0, len(xt), (self.batch_size,), generator=gen)
             loss = (net(xt[idx]) - yt[idx]).pow(2).mean()
@@ -96,6 +97,7 @@ class JointMLPProbe:
             with torch.no_grad():
                 r2v = r2_scores(Y[va], net(xv).double().numpy() * sy.std + sy.mean)
                 pred = net(xe).double().numpy() * sy.std + sy.mean
+            out["curve"].append({"step": step, "val_r2": [float(v) for v in r2v]})
             if r2v.mean() > best_mean:
                 best_mean, out["mean"], out["mean_step"] = float(r2v.mean()), pred, step
             for j in np.flatnonzero(r2v > best_each):
@@ -134,6 +136,47 @@ def release_windows(ds: Dataset, episodes: np.ndarray) -> Windows:
         raise DataError(f"the released probe's windows need labels/contact; this store has {sorted(ds.labels)}")
     w.contact = (w.gather(ds.labels["contact"]) > 0).reshape(len(w), WINDOW, -1).any(2).sum(1) >= 2
     return w.kind("contact")
+
+
+def selection_runs(Xf, gf, Yf, Xt, Yt, seeds: int, names: tuple[str, ...] = JOINT_TARGETS,
+                   steps: int = 4001) -> dict:
+    """The released rule (:class:`JointMLPProbe`, best mean validation R²) refit with probe seeds 0 … ``seeds`` − 1
+    on one set of states: which step each seed keeps, the test R² it then reports, and the validation margin the
+    choice rested on (best mean validation R² minus step 0's). The release fixes one seed (0); a rule whose reading
+    moves between "at chance" and "reads the parameter" with the seed alone makes that one reading a draw.
+    ``steps`` is the release's 4,001 unless a test shortens it."""
+    if seeds < 1:
+        raise DataError(f"selection_runs needs at least one probe seed, got {seeds}")
+    runs = []
+    for seed in range(seeds):
+        res = JointMLPProbe(steps=steps, seed=seed).fit_predict(Xf, Yf, gf, Xt)
+        val = {c["step"]: float(np.mean(c["val_r2"])) for c in res["curve"]}
+        runs.append({"seed": seed, "kept_step": res["mean_step"],
+                     "r2": dict(zip(names, map(float, r2_scores(Yt, res["mean"])))),
+                     "val_margin_over_step0": val[res["mean_step"]] - val[0],
+                     "val_curve": [{"step": c["step"], "val_r2": dict(zip(names, c["val_r2"]))}
+                                   for c in res["curve"]]})
+    at_zero = [r for r in runs if r["kept_step"] == 0]
+    return {"seeds": seeds, "runs": runs, "kept_step_0": len(at_zero),
+            "r2_range": {n: [min(r["r2"][n] for r in runs), max(r["r2"][n] for r in runs)] for n in names}}
+
+
+def selection_stability(model, ds: Dataset, cfg, seeds: int) -> dict:
+    """:func:`selection_runs` on ``model``'s predictor states of the released probe's windows
+    (:func:`release_windows`), with ridge on the same states beside it: the release's reading of one model under
+    every probe seed."""
+    lat_fit, lat_test = probe_latents(model, ds, cfg)
+    acts = padded_actions(ds)
+    wf, wt = release_windows(ds, ds.episodes("probe_fit")), release_windows(ds, ds.episodes("probe_test"))
+    Xf, Xt = window_states(model, ds, lat_fit, wf, acts), window_states(model, ds, lat_test, wt, acts)
+    Tf, Tt = probe_targets(ds, wf), probe_targets(ds, wt)
+    names = tuple(t for t in JOINT_TARGETS if t in Tf)
+    Yf, Yt = (np.concatenate([T[n] for n in names], 1) for T in (Tf, Tt))
+    ridge = fit_predict(Xf, wf.episode, {n: Tf[n] for n in names}, {"test": Xt}, mlp=False, seed=cfg.seed)["ridge"]
+    out = selection_runs(Xf, wf.episode, Yf, Xt, Yt, seeds, names)
+    out.update(ridge={n: float(r2_scores(Tt[n], ridge[n]["test"]).mean()) for n in names},
+               counts={"fit": len(wf), "test": len(wt)})
+    return out
 
 
 def compare(model, ds: Dataset, cfg, joint: JointMLPProbe | None = None) -> dict:
