@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from pokeworld.errors import DataError
-from pokeworld.evaluate.mlp_protocols import JointMLPProbe, protocol_scores, selection_runs
+from pokeworld.evaluate.mlp_protocols import JointMLPProbe, protocol_scores, selection_runs, selection_stability
 from pokeworld.regressors import r2_scores
 
 
@@ -89,6 +89,31 @@ def test_seed_sweep_separates_a_learnable_signal_from_a_selection_draw():
             assert abs(r["r2"]["log_m"]) < 0.05
     with pytest.raises(DataError, match="probe seed"):
         selection_runs(X, np.arange(1500) // 5, Y, Xt, Yt, seeds=0, names=names)
+
+
+def test_validation_blocks_move_back_from_the_release_split_and_stop_at_the_first_episode():
+    g = np.repeat(np.arange(20), 3)
+    last = JointMLPProbe(val_fraction=0.25).split(g)
+    assert set(g[last]) == {15, 16, 17, 18, 19}  # the release's: the last quarter of the episodes
+    assert set(g[JointMLPProbe(val_fraction=0.25, val_block=3).split(g)]) == {0, 1, 2, 3, 4}
+    with pytest.raises(DataError, match="validation block 4"):
+        JointMLPProbe(val_fraction=0.25, val_block=4).split(g)
+
+
+def test_stability_reads_ridge_beside_both_draws_on_one_set_of_states(monkeypatch):
+    names = ("log_m", "gamma", "log_k")
+    X, Y = planted(2000, 4, (0.6, 0.5, 0.4), 10)
+    Xt, Yt = planted(500, 4, (0.6, 0.5, 0.4), 11)
+    states = {"Xf": X, "gf": np.arange(2000) // 4, "Yf": Y, "Xt": Xt, "Yt": Yt, "names": names,
+              "counts": {"fit": 2000, "test": 500}}
+    import pokeworld.evaluate.mlp_protocols as mp
+
+    real = mp.selection_runs
+    monkeypatch.setattr(mp, "selection_runs", lambda *a, **k: real(*a, **{**k, "steps": 201}))  # 4,001: minutes
+    out = selection_stability(states, seeds=2, blocks=2)
+    assert out["seeds"] == 2 and out["vary"] == "seed" and out["validation"]["vary"] == "validation"
+    assert [r["seed"] for r in out["validation"]["runs"]] == [0, 1]
+    assert out["ridge"]["log_m"] == pytest.approx(0.6, abs=0.06) and out["counts"]["test"] == 500
 
 
 def test_the_script_refuses_to_merge_into_a_record_of_another_store(tmp_path):

@@ -48,22 +48,28 @@ class JointMLPProbe:
 
     def __init__(self, hidden: tuple[int, int] = (256, 128), lr: float = 1e-3, weight_decay: float = 1e-3,
                  steps: int = 4001, batch_size: int = 256, every: int = 200, val_fraction: float = 0.15,
-                 seed: int = 0):
+                 seed: int = 0, val_block: int = 0):
         if steps < 1 or every < 1 or not 0 < val_fraction < 1:
             raise DataError(f"JointMLPProbe needs steps ≥ 1, every ≥ 1 and 0 < val_fraction < 1; got {steps}, "
                             f"{every}, {val_fraction}")
         self.hidden, self.lr, self.weight_decay = hidden, lr, weight_decay
         self.steps, self.batch_size, self.every = steps, batch_size, every
-        self.val_fraction, self.seed = val_fraction, seed
+        self.val_fraction, self.seed, self.val_block = val_fraction, seed, val_block
 
     def split(self, groups: np.ndarray) -> np.ndarray:
-        """The validation mask: the last ``val_fraction`` of the episodes, in their order of first appearance."""
+        """The validation mask: the last ``val_fraction`` of the episodes in their order of first appearance (the
+        release's), or with ``val_block`` b > 0 the b-th such block counted back from the end (other episodes
+        validate, the rule unchanged)."""
         _, first = np.unique(groups, return_index=True)
         order = groups[np.sort(first)]
         n_val = max(1, int(round(self.val_fraction * order.size)))
         if order.size - n_val < 1:
             raise DataError(f"JointMLPProbe needs at least two episodes, got {order.size}")
-        return np.isin(groups, order[-n_val:])
+        end = order.size - self.val_block * n_val
+        if self.val_block < 0 or end - n_val < 0:
+            raise DataError(f"JointMLPProbe: validation block {self.val_block} is outside {order.size} episodes "
+                            f"({order.size // n_val} blocks of {n_val})")
+        return np.isin(groups, order[end - n_val:end])
 
     def fit_predict(self, X: np.ndarray, Y: np.ndarray, groups: np.ndarray, X_test: np.ndarray) -> dict:
         """``{"mean": (N_test, k), "each": (N_test, k), "mean_step": int, "each_step": [int] * k, "curve": [...]}``:
@@ -139,17 +145,22 @@ def release_windows(ds: Dataset, episodes: np.ndarray) -> Windows:
 
 
 def selection_runs(Xf, gf, Yf, Xt, Yt, seeds: int, names: tuple[str, ...] = JOINT_TARGETS,
-                   steps: int = 4001) -> dict:
+                   steps: int = 4001, vary: str = "seed") -> dict:
     """The released rule (:class:`JointMLPProbe`, best mean validation R²) refit with probe seeds 0 … ``seeds`` − 1
     on one set of states: which step each seed keeps, the test R² it then reports, and the validation margin the
     choice rested on (best mean validation R² minus step 0's). The release fixes one seed (0); a rule whose reading
     moves between "at chance" and "reads the parameter" with the seed alone makes that one reading a draw.
-    ``steps`` is the release's 4,001 unless a test shortens it."""
-    if seeds < 1:
-        raise DataError(f"selection_runs needs at least one probe seed, got {seeds}")
+    With ``vary="validation"`` run i keeps probe seed 0 and validates on the i-th block of episodes instead
+    (:meth:`JointMLPProbe.split`): which episodes happen to validate, the draw a corpus of its own makes. ``steps``
+    is the release's 4,001 unless a test shortens it."""
+    if seeds < 1 or vary not in ("seed", "validation"):
+        raise DataError(f"selection_runs needs at least one probe seed and vary 'seed' or 'validation', got {seeds}, "
+                        f"{vary!r}")
     runs = []
     for seed in range(seeds):
-        res = JointMLPProbe(steps=steps, seed=seed).fit_predict(Xf, Yf, gf, Xt)
+        probe = JointMLPProbe(steps=steps, seed=seed) if vary == "seed" else \
+            JointMLPProbe(steps=steps, seed=0, val_block=seed)
+        res = probe.fit_predict(Xf, Yf, gf, Xt)
         val = {c["step"]: float(np.mean(c["val_r2"])) for c in res["curve"]}
         runs.append({"seed": seed, "kept_step": res["mean_step"],
                      "r2": dict(zip(names, map(float, r2_scores(Yt, res["mean"])))),
@@ -157,25 +168,39 @@ def selection_runs(Xf, gf, Yf, Xt, Yt, seeds: int, names: tuple[str, ...] = JOIN
                      "val_curve": [{"step": c["step"], "val_r2": dict(zip(names, c["val_r2"]))}
                                    for c in res["curve"]]})
     at_zero = [r for r in runs if r["kept_step"] == 0]
-    return {"seeds": seeds, "runs": runs, "kept_step_0": len(at_zero),
+    return {"seeds": seeds, "vary": vary, "runs": runs, "kept_step_0": len(at_zero),
             "r2_range": {n: [min(r["r2"][n] for r in runs), max(r["r2"][n] for r in runs)] for n in names}}
 
 
-def selection_stability(model, ds: Dataset, cfg, seeds: int) -> dict:
-    """:func:`selection_runs` on ``model``'s predictor states of the released probe's windows
-    (:func:`release_windows`), with ridge on the same states beside it: the release's reading of one model under
-    every probe seed."""
+def release_states(model, ds: Dataset, cfg) -> dict:
+    """``model``'s predictor states of the released probe's windows (:func:`release_windows`) and their targets:
+    ``{"Xf", "gf", "Yf", "Xt", "Yt", "names", "counts"}``, what :func:`selection_stability` refits on."""
     lat_fit, lat_test = probe_latents(model, ds, cfg)
     acts = padded_actions(ds)
     wf, wt = release_windows(ds, ds.episodes("probe_fit")), release_windows(ds, ds.episodes("probe_test"))
-    Xf, Xt = window_states(model, ds, lat_fit, wf, acts), window_states(model, ds, lat_test, wt, acts)
     Tf, Tt = probe_targets(ds, wf), probe_targets(ds, wt)
     names = tuple(t for t in JOINT_TARGETS if t in Tf)
-    Yf, Yt = (np.concatenate([T[n] for n in names], 1) for T in (Tf, Tt))
-    ridge = fit_predict(Xf, wf.episode, {n: Tf[n] for n in names}, {"test": Xt}, mlp=False, seed=cfg.seed)["ridge"]
-    out = selection_runs(Xf, wf.episode, Yf, Xt, Yt, seeds, names)
-    out.update(ridge={n: float(r2_scores(Tt[n], ridge[n]["test"]).mean()) for n in names},
-               counts={"fit": len(wf), "test": len(wt)})
+    if not names:
+        raise DataError(f"none of {', '.join(JOINT_TARGETS)} varies in this store; nothing to refit")
+    return {"Xf": window_states(model, ds, lat_fit, wf, acts), "gf": wf.episode,
+            "Yf": np.concatenate([Tf[n] for n in names], 1), "Xt": window_states(model, ds, lat_test, wt, acts),
+            "Yt": np.concatenate([Tt[n] for n in names], 1), "names": names,
+            "counts": {"fit": len(wf), "test": len(wt)}}
+
+
+def selection_stability(states: dict, seeds: int, blocks: int = 0, seed: int = 0) -> dict:
+    """:func:`selection_runs` on :func:`release_states`, with ridge on the same states beside it: the release's
+    reading of one model under ``seeds`` probe seeds and, with ``blocks`` > 0, under that many validation blocks
+    (key ``"validation"``). ``seed`` is the ridge's (the main probe's) seed."""
+    st, names = states, states["names"]
+    ridge = fit_predict(st["Xf"], st["gf"], {n: st["Yf"][:, [j]] for j, n in enumerate(names)}, {"test": st["Xt"]},
+                        mlp=False, seed=seed)["ridge"]
+    out = selection_runs(st["Xf"], st["gf"], st["Yf"], st["Xt"], st["Yt"], seeds, names) if seeds else {}
+    if blocks:
+        out["validation"] = selection_runs(st["Xf"], st["gf"], st["Yf"], st["Xt"], st["Yt"], blocks, names,
+                                           vary="validation")
+    out.update(ridge={n: float(r2_scores(st["Yt"][:, [j]], ridge[n]["test"]).mean()) for j, n in enumerate(names)},
+               counts=st["counts"])
     return out
 
 
