@@ -20,9 +20,11 @@ import sys
 import time
 from pathlib import Path
 
+from pokeworld import __version__
 from pokeworld.data import load, read_manifest
 from pokeworld.errors import DataError, PokeworldError
 from pokeworld.evaluate.measure import HORIZON, make_config
+from pokeworld.evaluate.tables import git_commit
 from pokeworld.evaluate.mlp_protocols import (JOINT_TARGETS, PROTOCOLS, compare, release_states,
                                               selection_stability)
 from pokeworld.experiments.factorial import FACTORIAL_MLP
@@ -45,9 +47,8 @@ network per parameter early-stopped on its own validation loss; the released MLP
 the authors' release), one 256-128 network for the three parameters, kept at the evaluation step (every 200 of
 4,001) whose validation R² averaged over the three is best; and that same run with each parameter kept at its own
 best step. Two window sets: ours, and the released probe's (starts 8 apart, ≥ 2 contact frames). Preset `{preset}`
-window counts, store `{data}` (content hash {sha}…). Command: `python scripts/mlp_probe_protocols.py MODEL ...
---data DIR --preset {preset} --out docs/results/mlp_probe_protocols.json`. The paper's and the released run's
-values are theirs, shown for comparison.
+window counts, store `{data}` (content hash {sha}…). Command: `{command} --out docs/results/mlp_probe_protocols.json`.
+The paper's and the released run's values are theirs, shown for comparison.
 
 """
 
@@ -83,7 +84,8 @@ def add_selection(rec: dict, model_dir: Path, data: str, preset: str, seeds: int
 
 
 DRAWS = {"seed": "probe seed 0 … K − 1 (release's validation episodes)",
-         "validation": "validation block 1 … K of episodes (probe seed 0)"}
+         "validation": "the last K blocks of 15 % of the episodes validating in turn, the first the release's (probe "
+                       "seed 0)"}
 
 
 def selection_table(records: list[dict]) -> str:
@@ -131,6 +133,20 @@ def table(records: list[dict]) -> str:
             lines.append(f"| | | *released {v} seed 0, MLP* | " + " | ".join(f"{rel[t]:.2f}" for t in JOINT_TARGETS)
                          + " | |")
     return "\n".join(lines)
+
+
+def record(done: dict, args, sha: str) -> dict:
+    """The record: every model measured so far, and the one command that reproduces all of it (the most probe
+    seeds and validation blocks any model holds)."""
+    models = list(done.values())
+    seeds = max((r.get("selection", {}).get("seeds", 0) for r in models), default=0)
+    blocks = max((r.get("selection", {}).get("validation", {}).get("seeds", 0) for r in models), default=0)
+    command = f"python scripts/mlp_probe_protocols.py MODEL ... --data DIR --preset {args.preset}" \
+        + (f" --probe-seeds {seeds}" if seeds else "") + (f" --validation-blocks {blocks}" if blocks else "")
+    return {"data": {"name": Path(args.data).name, "content_sha256": sha}, "preset": args.preset,
+            "command": command, "models": models,
+            "provenance": {"pokeworld": __version__, "git": git_commit(),
+                           "wall": "seconds per model (and per refit part, under selection) in each model's record"}}
 
 
 def report_one(rec: dict) -> None:
@@ -186,17 +202,9 @@ def main(argv=None) -> int:
                         print(f"[protocols] {m.name}: {part['kept_step_0']} of {part['seeds']} "
                               f"{part.get('vary', 'seed')} draws keep step 0; log m "
                               f"{part['r2_range']['log_m'][0]:.2f} … {part['r2_range']['log_m'][1]:.2f}")
-            write_json(args.out, {"data": {"name": Path(args.data).name,
-                                           "content_sha256": sha},
-                                  "preset": args.preset,
-                                  "command": "python scripts/mlp_probe_protocols.py MODEL ... --data DIR --preset "
-                                             f"{args.preset}" + (f" --probe-seeds {args.probe_seeds}"
-                                                                 if args.probe_seeds else "")
-                                             + (f" --validation-blocks {args.validation_blocks}"
-                                                if args.validation_blocks else ""),
-                                  "models": list(done.values())})
-        save_text(md, HEADER.format(preset=args.preset, data=Path(args.data).name,
-                                    sha=str(sha)[:12])
+            write_json(args.out, record(done, args, sha))
+        save_text(md, HEADER.format(preset=args.preset, data=Path(args.data).name, sha=str(sha)[:12],
+                                    command=record(done, args, sha)["command"])
                       + table(list(done.values())) + selection_table(list(done.values())) + "\n")
     except PokeworldError as e:
         print(f"error: {e}", file=sys.stderr)

@@ -658,9 +658,11 @@ def mlp_rows() -> tuple[Row, ...]:
     mlp_probe = ("the released MLP protocol (one network for the three parameters, kept at its best mean validation "
                  "step, on the released windows) run on our paper-budget states reads VX_t 0.17 / 0.09 / 0.46 and VX "
                  "0.18 / 0.11 / 0.49 (log m / γ / log k; paper 0.20 / 0.06 / 0.40 and 0.21 / 0.05 / 0.44) but VX_p "
-                 "0.12 / 0.10, not the paper's −0.01 / −0.01: it keeps the network at step 200 of 4,001, below ridge, "
-                 "and the at-chance mass and drag are not the protocol's (mlp_probe_protocols.md); our own MLP reads "
-                 "what ridge reads")
+                 "0.12 / 0.10, not the paper's −0.01 / −0.01: it keeps the network at step 200 of 4,001, below ridge; "
+                 "on VX_p no draw of the rule reaches chance (10 probe seeds: log m 0.10–0.15; 6 validation blocks: "
+                 "0.12–0.17; step 200 above step 0 by 0.02–0.10 mean validation R²), so the release's at-chance "
+                 "VX_p is its states', not the rule's or a draw's (mlp_probe_protocols.md); our own MLP reads what "
+                 "ridge reads")
     return (
         Row("B14", "targets", section, "MLP log k, V and VFX", cells("log_k", ("V", "VFX")),
             release="e003 runs, per seed"),
