@@ -200,3 +200,24 @@ def test_at_cpu_the_reference_environments_record_comes_before_the_retired_one(t
     row = verdict_of(tmp_path, rows())
     assert row["verdict"] == NOT_REPRODUCED and row["cells"][0]["cpu"]["environment"] == "reference"
     assert row["cells"][0]["cpu"]["read"] == [{"record": "findings_cpu_reference.json", "path": K}]
+
+
+def test_a_row_reads_one_environment_at_cpu_until_the_default_record_holds_all_its_runs(tmp_path):
+    """A dose–response whose default run is in the reference environment's record and whose other weights are only
+    in the retired one's reads the retired record for every cell; once the reference record holds them all, it
+    reads that one for every cell."""
+    from pokeworld.reproduction import at_cpu
+
+    cells = (Cell("VFX log k", 0.50, R2, None, at_cpu("old.json", K)),
+             Cell("VF log k", 0.00, R2, None, at_cpu("old.json", VF_K)))
+    rows = (Row("X3", "frontier", "planted", "two runs", cells),)
+    plant(tmp_path, "old.json", {0: 0.48}, preset="cpu", environment=None)
+    plant(tmp_path, "old.json", {0: 0.02}, preset="cpu", environment=None, variant="VF")
+    plant(tmp_path, "findings_cpu_reference.json", {0: 0.20}, preset="cpu")  # VFX only: VF not yet re-run
+    row = verdict_of(tmp_path, rows)
+    assert [c["cpu"]["read"][0]["record"] for c in row["cells"]] == ["old.json", "old.json"]
+    assert row["verdict"] == REPRODUCED_AT_CPU and row["environment"] == "calibrated (retired)"
+    plant(tmp_path, "findings_cpu_reference.json", {0: 0.05}, preset="cpu", variant="VF")
+    row = verdict_of(tmp_path, rows)
+    assert [c["cpu"]["read"][0]["record"] for c in row["cells"]] == ["findings_cpu_reference.json"] * 2
+    assert row["verdict"] == NOT_REPRODUCED  # the reference record's VFX (0.20) is outside 0.50 ± 0.1
