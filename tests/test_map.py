@@ -71,6 +71,7 @@ def test_tiny_map_writes_every_artifact_and_skips_on_rerun(tmp_path, capsys):
     for r in res["runs"].values():
         assert "contact" in r["probes"]["ridge"] and "log_k" in r["probes"]["ridge"]["contact"]
         assert r["prediction"]["static16"] > 0
+        assert r["trained"]["last_logged_step"] > 0 and 0 <= r["trained"]["glide_loss_share"] <= 1  # metrics.jsonl
     for run in (out / "runs").iterdir():
         for f in ("config.json", "metrics.jsonl", "DONE", "measure.json"):
             assert (run / f).exists(), (run, f)

@@ -331,3 +331,15 @@ def test_a_run_folders_own_config_still_resumes_and_records_json(finished):
     cfg = rundir.read_run_config(finished)
     assert cfg["variant"] == "VX_t" and json.loads((finished / "config.json").read_text()) == cfg
     assert rundir.read_run_config(finished.parent / "absent") is None
+
+
+def test_training_summary_means_the_logged_glide_share_and_skips_what_is_not_a_number(tmp_path):
+    run = tmp_path / "r"
+    run.mkdir()
+    rows = [{"step": 0, "glide_loss_share": 0.2}, {"step": 50, "glide_loss_share": 0.4}, {"step": 100, "loss": 1.0},
+            {"step": 150, "glide_loss_share": True}, {"step": 200, "glide_loss_share": "0.9"}]
+    (run / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    assert rundir.training_summary(run) == pytest.approx({"last_logged_step": 200, "glide_loss_share": 0.3})
+    (run / "metrics.jsonl").write_text('{"step": 0, "loss": 1.0}\n')
+    assert rundir.training_summary(run) == {"last_logged_step": 0}  # an objective that logs no share
+    assert rundir.training_summary(tmp_path / "absent") == {}

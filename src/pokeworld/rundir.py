@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import os
 import shutil
 import stat
@@ -239,6 +240,20 @@ def read_metrics(run_dir: str | os.PathLike) -> list[dict[str, Any]]:
     return rows
 
 
+def training_summary(run_dir: str | os.PathLike) -> dict[str, Any]:
+    """What a run's ``metrics.jsonl`` says about its training as a whole: the last logged step and, for a run whose
+    objective logs it, the mean glide loss share over every logged row (the dose–response's realised share). {} when
+    the folder holds no metrics (a run measured from a model folder)."""
+    rows = read_metrics(run_dir) if Path(run_dir).is_dir() else []
+    if not rows:
+        return {}
+    shares = [r["glide_loss_share"] for r in rows
+              if isinstance(r.get("glide_loss_share"), (int, float)) and not isinstance(r["glide_loss_share"], bool)
+              and math.isfinite(r["glide_loss_share"])]
+    return {"last_logged_step": max(r["step"] for r in rows),
+            **({"glide_loss_share": sum(shares) / len(shares)} if shares else {})}
+
+
 def last_logged_step(run_dir: str | os.PathLike) -> int:
     """Last logged training step of a run directory (0 when it has none)."""
     return max((r["step"] for r in read_metrics(run_dir)), default=0)
@@ -351,4 +366,4 @@ def load_model(run_dir: str | os.PathLike, map_location: str | torch.device = "c
 __all__ = ["RUN_FILES", "adopt_legacy_run", "MAX_MODEL_ELEMENTS", "RESUME_ENTRIES", "MetricsLog", "check_run_files",
            "check_run_dir_writable", "read_run_config", "write_final", "restart_metrics", "finished_run_config",
            "load_model", "model_from_checkpoint", "check_state_fits", "load_resume_checkpoint", "restoring",
-           "read_metrics", "last_logged_step", "finished_marker", "has_final_weights"]
+           "read_metrics", "training_summary", "last_logged_step", "finished_marker", "has_final_weights"]

@@ -26,11 +26,13 @@ from ..evaluate.tables import (
     run_gate_failed,
     variant_runs,
 )
+from ..errors import DataError
 from ..io import read_json_if_present, save_figure, save_text
 from ..published import paper as P
+from ..rundir import training_summary
 from .config import recorded_map_config
 from .registry import REPORT_ORDER
-from .runs import spec_measure_path
+from .runs import run_dir, spec_measure_path
 from .stages import spec_experiments
 
 
@@ -39,10 +41,15 @@ def collect(c, specs, certificates: dict) -> dict:
     config and where the record came from."""
     runs = {}
     for s in specs:
+        try:
+            trained = training_summary(run_dir(c, s.name))
+        except DataError as e:  # a damaged metrics.jsonl costs its summary, not the report
+            trained = {"unreadable": str(e)}
         path = spec_measure_path(c, s)
         m = read_json_if_present(path, "a run's measure.json") or {}
         runs[s.name] = {"experiment": s.experiment, "corpus": s.corpus, "measure_corpus": s.measure_corpus,
-                        "train": s.train, "probes": m.get("probes", {}), "prediction": m.get("prediction", {}),
+                        "train": s.train, "trained": trained,
+                        "probes": m.get("probes", {}), "prediction": m.get("prediction", {}),
                         "untrained": m.get("untrained", {}),
                         "probes_action_conditioned": m.get("probes_action_conditioned", {}),
                         "probes_belief": m.get("probes_belief", {}), "measure": dict(s.measure)}
