@@ -22,8 +22,9 @@ RUN_KEYS = {"experiment": str, "corpus": str, "train": dict, "probes": dict, "pr
 """Keys every run record holds, with their types (the report reads each)."""
 MAX_RECORD_BYTES = 256 << 20
 """Largest results.json read back (the 38-run frontier record is about 0.3 MB)."""
-MEASURED = ("probes", "prediction", "untrained", "probes_action_conditioned", "probes_belief")
-"""A run record's measured sections: every leaf a finite number or a string (notes), never null or NaN."""
+MEASURED = ("probes", "prediction", "untrained", "probes_action_conditioned", "probes_belief", "trained")
+"""A run record's measured sections (and its training summary): every leaf a finite number or a string (notes), never
+null or NaN."""
 
 
 def leaf_problem(value: Any, where: str, finite: bool = True) -> str | None:
