@@ -138,3 +138,37 @@ def test_a_users_folder_named_like_a_temporary_is_left(tmp_path):
         assert remove_stale_temporaries(tmp_path) == 1
     assert (user / "draft.txt").read_text() == "mine" and not ours.exists()
     assert any("not a private (0700) folder" in str(w.message) for w in caught)
+
+
+def test_create_new_refuses_an_existing_name_and_a_link(tmp_path):
+    from pokeworld.io import create_new
+
+    create_new(tmp_path / "a.npy", b"abc")
+    assert (tmp_path / "a.npy").read_bytes() == b"abc" and (tmp_path / "a.npy").stat().st_mode & 0o777 == 0o600
+    with pytest.raises(FileExistsError):
+        create_new(tmp_path / "a.npy", b"planted over")
+    target = tmp_path / "user.txt"
+    target.write_text("the user's")
+    (tmp_path / "link.npy").symlink_to(target)
+    with pytest.raises(OSError):
+        create_new(tmp_path / "link.npy", b"through the link")
+    assert target.read_text() == "the user's"
+
+
+@pytest.mark.skipif(os.getuid() != 0, reason="giving a file to another user needs root")
+def test_another_users_file_is_never_deleted(tmp_path):
+    from pokeworld.io import remove_temporary
+
+    theirs = tmp_path / "listed.json"
+    theirs.write_text("{}")
+    record_owned(theirs)  # even listed as ours, a file of another user was not written by this user's pokeworld
+    os.chown(theirs, 12345, 12345)
+    with pytest.raises(ConfigError, match="another user"):
+        remove_own_file(theirs)
+    assert theirs.exists()
+    tmp = tmp_path / ".out.json.tmp-12345"  # an older temporary file's name
+    tmp.write_text("half")
+    os.chown(tmp, 12345, 12345)
+    with pytest.warns(UserWarning, match="another user"):
+        assert not remove_temporary(tmp)
+    assert tmp.exists()

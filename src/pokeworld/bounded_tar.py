@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .errors import ConfigError
+from .io import create_new
 
 BLOCK = 512
 READ_CHUNK = 1 << 20
@@ -182,12 +183,10 @@ def check_header(block: bytes, path: Path, bounds: TarBounds, index: int, overri
 
 
 def write_new(path: Path, data: bytes) -> None:
-    """Create ``path`` (never an existing name, never through a link) holding ``data``. Not an output, so not through
-    io's output contract: it unpacks an untrusted archive into the caller's fresh scratch folder, where the only
-    safe write is an exclusive create that follows no link (an atomic rename would replace a planted entry)."""
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0), 0o600)
-    with os.fdopen(fd, "wb") as fh:
-        fh.write(data)
+    """Create ``path`` (never an existing name, never through a link) holding ``data``: an untrusted archive unpacks
+    into the caller's fresh scratch folder, where the only safe write is an exclusive create (:func:`io.create_new`;
+    an atomic rename would replace a planted entry)."""
+    create_new(path, data)
 
 
 def extract(path: Path, dest: Path, bounds: TarBounds = TarBounds(), compressed: bool = True,

@@ -159,6 +159,9 @@ def _unlink_regular(path: Path) -> bool:
     if not stat.S_ISREG(mode):
         raise ConfigError(f"{path} is a {_file_kind(mode)} where pokeworld expected a file it wrote; it deletes only "
                           "its own regular files: remove or move it yourself")
+    if os.lstat(path).st_uid != os.getuid():
+        raise ConfigError(f"{path} belongs to another user, so this user's pokeworld did not write it; it deletes "
+                          "only its own files: remove or move it yourself")
     # ownership is proven by the two callers before this: remove_owned_dir (a file of the folder's own OwnedDir
     # layout, in a folder check_owned_dir found holding nothing else) and remove_own_file (listed in the folder's
     # ownership record, or one of our temporary / staging names); a link swapped in after the lstat is itself what
@@ -332,8 +335,11 @@ def _discard(tmp: Path) -> bool:
     if not _TEMPORARY.fullmatch(tmp.name):
         raise ValueError(f"{tmp} is not a pokeworld temporary name; refusing to delete it")
     if tmp.is_symlink() or tmp.is_file():
-        # a name only atomic_path / temporary_folder make (checked above), passed by the code that made it; unlink of
-        # a link removes the link, never its target
+        # a name only atomic_path / temporary_folder make (checked above), passed by the code that made it, and a file
+        # of this user as they make it; unlink of a link removes the link, never its target
+        if os.lstat(tmp).st_uid != os.getuid():
+            warnings.warn(f"left {tmp} in place: named like a pokeworld temporary, but another user's", stacklevel=2)
+            return False
         tmp.unlink()
         return True
     if tmp.is_dir():
@@ -581,6 +587,16 @@ def save_bytes(path: str | os.PathLike, data: bytes) -> None:
     """Atomically write ``data`` to ``path`` under the output contract (:func:`atomic_path`)."""
     with atomic_path(path) as tmp:
         tmp.write_bytes(data)
+
+
+def create_new(path: str | os.PathLike, data: bytes) -> None:
+    """Create the file ``path`` holding ``data``: never an existing name (FileExistsError), never through a link
+    (O_NOFOLLOW), mode 0600. For files inside a folder being built — an untrusted archive unpacked into a fresh
+    scratch folder, a synthetic corpus inside :func:`atomic_path`'s private temporary — where the folder as a whole
+    is the output and an atomic rename per file would replace a planted entry instead of refusing it."""
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0), 0o600)
+    with os.fdopen(fd, "wb") as fh:
+        fh.write(data)
 
 
 def save_text(path: str | os.PathLike, text: str) -> None:

@@ -20,12 +20,14 @@ linear where exactness under linear interpolation matters, so tests can check co
 
 from __future__ import annotations
 
+import io
 import json
 import os
 from pathlib import Path
 
 import numpy as np
 
+from ..io import create_new
 from .rh20t import CAMERA_ROLES
 
 T0_MS = 1_690_000_000_000
@@ -131,18 +133,20 @@ def write_mp4(path: Path, frames: list[np.ndarray], fps: int = 10, options: dict
 def save_dict(path: Path, obj) -> None:
     """Write ``obj`` to the new file ``path`` as RH20T does: python dicts as 0-d object arrays (a write; pokeworld
     reads such files back only through its restricted loader)."""
-    # outside io: a test fixture in RH20T's own pickled-dict format (io writes no pickles); exclusive create, so never
-    # an existing file and never through a link
-    with open(path, "xb") as fh:
-        np.save(fh, obj, allow_pickle=True)
+    # RH20T's own pickled-dict format (io writes no pickles of its own): serialised in memory, then created through
+    # io.create_new (never an existing file, never through a link)
+    buf = io.BytesIO()
+    np.save(buf, obj, allow_pickle=True)
+    create_new(path, buf.getvalue())
 
 
 def save_array(path: Path, array) -> None:
     """Write the plain array ``array`` (no pickle) to the new file ``path`` as RH20T's ``.npy`` files are."""
-    # outside io, as save_dict: a file of RH20T's own layout, written into a folder being built (a test fixture's, or
-    # the synthetic corpus's private temporary under io.atomic_path); exclusive create, never through a link
-    with open(path, "xb") as fh:
-        np.save(fh, np.asarray(array))
+    # a file of RH20T's own layout in a folder being built (a test fixture's, or the synthetic corpus's private
+    # temporary under io.atomic_path): io.create_new, as save_dict
+    buf = io.BytesIO()
+    np.save(buf, np.asarray(array))
+    create_new(path, buf.getvalue())
 
 
 def write_scene(cfg_dir: Path, name: str, k: int, *, cfg: int = 7, duration_s: float = 7.5, video: str = "mp4",
@@ -195,7 +199,7 @@ def write_scene(cfg_dir: Path, name: str, k: int, *, cfg: int = 7, duration_s: f
             save_dict(cam / "timestamps.npy", {"color": [int(x) for x in ts], "depth": [int(x) for x in ts]})
             mp4 = cam / "color.mp4"
             if defect == "empty_video" and role == "far":
-                open(mp4, "xb").close()  # exclusive create, as save_dict
+                create_new(mp4, b"")  # an empty video, created as save_dict creates
             elif defect == "truncated_video" and role == "far":
                 write_mp4(mp4, frames[: n - 10])
             else:
@@ -213,8 +217,7 @@ def write_scene(cfg_dir: Path, name: str, k: int, *, cfg: int = 7, duration_s: f
     calib = -1 if defect == "missing_calib" else T0_MS - 86_400_000
     meta = {"calib": calib, "rating": 1 if defect == "low_rating" else rating, "bad_calib_view": [],
             "start_time": int(all_ts.min()), "finish_time": int(all_ts.max())}
-    with open(d / "metadata.json", "x") as fh:  # exclusive create, as save_dict
-        fh.write(json.dumps(meta))
+    create_new(d / "metadata.json", json.dumps(meta).encode())
     return {"t0_ms": t0, "params": p, "cam_ts": cam_ts, "serials": serials, "video": video}
 
 

@@ -51,6 +51,7 @@ from ..io import (
     OwnedDir,
     atomic_path,
     check_owned_dir,
+    create_new,
     read_json,
     read_json_if_present,
     remove_owned_dir,
@@ -583,8 +584,8 @@ def _write_metadata(d: Path, sc: _SceneDraw, plan: ScenePlan) -> dict:
     meta = {"calib": calib, "rating": 1 if plan.defect == "low_rating" else int(sc.rng.integers(3, 10)),
             "bad_calib_view": [], "start_time": int(sc.start_ms), "finish_time": int(sc.finish_ms)}
     # d is the scene folder being built inside io.atomic_path's private temporary (write_scene): the output contract
-    # covers the folder as a whole; RH20T's layout has no ownership record per file
-    (d / "metadata.json").write_text(json.dumps(meta))
+    # covers the folder as a whole, and each file in it is an exclusive create (RH20T's layout has no ownership record)
+    create_new(d / "metadata.json", json.dumps(meta).encode())
     return meta
 
 
