@@ -43,12 +43,13 @@ from .experiments.dose_glide import DOSE_GLIDE
 from .experiments.dose_touch import DOSE_TOUCH
 from .experiments.factorial import FACTORIAL, FACTORIAL_MLP
 from .experiments.frame_averaged import FRAME_AVERAGED
+from .experiments.lambda_factorial import RELEASED_VARIANTS, TARGETS_ORDER, ordering_holds, released_log_k
 from .experiments.lambda_sweep import LAMBDA
 from .experiments.lazy import LAZY
 from .experiments.tokens import TOKENS
 from .io import read_json
 from .published import paper as P
-from .published.release import MULTI_HORIZON, MULTISCALE, SINGLE_HORIZON
+from .published.release import LAMBDA_0_1, LAMBDA_SWEEP_VFX, MULTI_HORIZON, MULTISCALE, SINGLE_HORIZON
 from .sim.environments import DEFAULT as DEFAULT_ENVIRONMENT
 
 REPRODUCED = "reproduced"
@@ -148,7 +149,9 @@ class Read:
 @dataclass(frozen=True)
 class Derived:
     """A number of ours computed from others: "difference" (a − b), "ratio" (a / b), "mean" (all needed), "max"
-    (the best of those present), "first" (the first present, as it is) or "default_first" (the default
+    (the best of those present), "ordering" (whether log k of the parts, Table "targets"' variants in
+    ``TARGETS_ORDER``, keeps that table's ordering: a pass/fail), "first" (the first present, as it is) or
+    "default_first" (the default
     environment's record, then a retired one's: as "first" alone, but a row reads its retired record for every such
     cell unless the default one holds them all, :func:`one_environment`)."""
 
@@ -316,6 +319,8 @@ def measure(expr, records: Records) -> Measured | None:
         value = sum(vals) / len(vals)
     elif expr.op == "max":
         value = max(vals)
+    elif expr.op == "ordering":  # log k of Table "targets"' variants, read in TARGETS_ORDER
+        value = ordering_holds(dict(zip(TARGETS_ORDER, vals)))
     else:
         raise ValueError(f"unknown operation {expr.op!r}")
     if value is None:
@@ -690,6 +695,12 @@ def mlp_rows() -> tuple[Row, ...]:
     )
 
 
+def ordering_at(lam: str, record: str) -> Derived:
+    """Whether a record's factorial at SIGReg weight ``lam`` (seed 0) keeps Table "targets"' log k ordering."""
+    return Derived("ordering", tuple(Read(record, f"{run(v, seed='0', lam=lam)}/{ridge('log_k')}")
+                                     for v in TARGETS_ORDER))
+
+
 def composition_rows() -> tuple[Row, ...]:
     tokens = run("VFX", "tokensTrue")
     return (
@@ -702,8 +713,17 @@ def composition_rows() -> tuple[Row, ...]:
                   "embedding's 0.54 of the same seed (map_cpu_reference.json): 32-px frames give a 2 × 2 token map "
                   "(the paper's 64 px give 16); position 0.94 (paper 0.98)"),
         Row("B21", "targets", "App. C (after Table \"targets\")", "the factorial's ordering is unchanged at λ = 0.1",
-            (Cell("ordering at λ 0.1", True, HOLDS),),
-            needs="the six-variant factorial at λ = 0.1 (cpu or a GPU lease): the λ sweep trains VFX only"),
+            (Cell("ordering at λ 0.1", True, HOLDS, ordering_at("0.1", MPR), ordering_at("0.1", FR),
+                  released=ordering_holds(released_log_k(), RELEASED_VARIANTS)),)
+            + tuple(Cell(f"{v} log k at λ 0.1", None, R2, Read(MPR, f"{run(v, seed='0', lam='0.1')}/{ridge('log_k')}"),
+                         Read(FR, f"{run(v, seed='0', lam='0.1')}/{ridge('log_k')}"),
+                         released=released(v, ridge_of("log_k"), LAMBDA_0_1)) for v in TARGETS_ORDER),
+            needs="the six-variant factorial at λ = 0.1 (`pokeworld map --experiments lambda_factorial`, cpu or a GPU "
+                  "lease)",
+            note="ordering: every variant with touch more than 0.1 above every variant without, and no pair of Table "
+                 "\"targets\"' order (VFX, VX, VX_t, VX_p, VF, V) reversed by more than 0.1; the release ran V, VX_t, "
+                 "VX and VFX at λ 0.1 (its released column is their seed means' ordering)",
+            release="exp/e003_motion runs at λ 0.1, per seed"),
         Row("B22", "targets", "App. C \"Composition probes\"",
             "finger, object and relative position saturate for every variant (multi-horizon)",
             tuple(Cell(f"{v} {LABEL[q]}", P.COMPOSITION, R2, **both(f"{run(v)}/{ridge(q)}"))
@@ -764,14 +784,21 @@ def lambda_rows() -> tuple[Row, ...]:
             "mass stays at the cpu budget's level (0.11–0.13), velocity rises slightly with λ (0.66 → 0.71; the "
             "paper's falls 0.79 → 0.54) and direct-16 does not halve (0.103–0.120); the paper-budget sweep is not "
             "run (the calibrated environment's per-step SIGReg was flat: frontier_cpu.md)")
-    quantities = (("C1", "log_k", ridge("log_k"), R2), ("C2", "log_m", ridge("log_m"), R2),
-                  ("C3", "object_vel", ridge("object_vel"), R2), ("C4", "direct16", "prediction/direct16", ERROR))
+    quantities = (("C1", "log_k", ridge("log_k"), R2, ridge_of("log_k")),
+                  ("C2", "log_m", ridge("log_m"), R2, ridge_of("log_m")),
+                  ("C3", "object_vel", ridge("object_vel"), R2, lambda r: r["object_vel_moving"]),
+                  ("C4", "direct16", "prediction/direct16", ERROR, lambda r: r["direct16"]))
     rows = []
-    for rid, q, path, tol in quantities:
-        cells = tuple(Cell(f"λ {lam:g}", LAMBDA[lam][q], tol, **both(f"{run('VFX', lam=f'{lam:g}')}/{path}", FC))
+    for rid, q, path, tol, pick in quantities:
+        cells = tuple(Cell(f"λ {lam:g}", LAMBDA[lam][q], tol, **both(f"{run('VFX', lam=f'{lam:g}')}/{path}", FC),
+                           released={s: pick(r) for (w, s), r in LAMBDA_SWEEP_VFX.items() if w == lam} or None)
                       for lam in LAMBDA)
         label = "direct-16 error (\"halves\")" if q == "direct16" else LABEL[q]
-        rows.append(Row(rid, "lambda", section, f"{label} at λ = 0.3 / 0.1 / 0.02 / 0.01 / 0.005", cells, cause=flat))
+        note = ("the paper's velocity column equals the release's moving-window readout (``velocity_r2.moving``; "
+                "0.79 at λ 0.02 is its two seeds' 0.786 / 0.784), though the caption says contact windows; ours "
+                "reads contact windows" if q == "object_vel" else "")
+        rows.append(Row(rid, "lambda", section, f"{label} at λ = 0.3 / 0.1 / 0.02 / 0.01 / 0.005", cells, cause=flat,
+                        note=note, release="exp/e003_motion VFX runs, per seed (λ 0.3 / 0.01 / 0.005: seed 0 only)"))
     return tuple(rows)
 
 

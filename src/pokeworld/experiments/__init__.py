@@ -8,9 +8,9 @@
 * :mod:`.report` — results.json, results.md and the figure; :mod:`.merge` — fold a later map's runs into a
   record (``scripts/merge_map_results.py``);
 * :mod:`.registry` — every experiment, one module each (its run specs, its report section, its paper values):
-  :mod:`.factorial`, :mod:`.lazy`, :mod:`.lambda_sweep`, :mod:`.coverage`, :mod:`.frame_averaged`,
-  :mod:`.controls`, :mod:`.dose_touch`, :mod:`.dose_glide`, :mod:`.attributes`, :mod:`.belief`, :mod:`.planning`,
-  :mod:`.coordinate`, :mod:`.ledger`, :mod:`.tokens`.
+  :mod:`.factorial`, :mod:`.lazy`, :mod:`.lambda_sweep`, :mod:`.lambda_factorial`, :mod:`.coverage`,
+  :mod:`.frame_averaged`, :mod:`.controls`, :mod:`.dose_touch`, :mod:`.dose_glide`, :mod:`.attributes`,
+  :mod:`.belief`, :mod:`.planning`, :mod:`.coordinate`, :mod:`.ledger`, :mod:`.tokens`.
 
 Adding an experiment: a module with ``NAME``, ``specs(c)`` and ``section(results)``, listed in the registry.
 

@@ -64,6 +64,9 @@ class MapConfig(LaunchOptions):
     """Variants trained single-horizon (Δ = 1 only) in the lazy-equilibrium experiment."""
     sigreg_weight: float = 0.02
     """Operating-point SIGReg weight for every other experiment."""
+    ordering_sigreg_weight: float = 0.1
+    """SIGReg weight of ``lambda_factorial``, the factorial's variants (first seed) re-trained to check that Table
+    "targets"' ordering holds at a stronger weight (paper App. C: "unchanged at λ = 0.1")."""
     sigreg_pool: str = "step"
     """SIGReg rows of every global-latent run (``pokeworld train --sigreg-pool``): 'step' or 'pooled'; runs it
     does not apply to (token, reconstruction) keep theirs. A non-default value is part of each run's name."""
@@ -156,6 +159,7 @@ class MapConfig(LaunchOptions):
     progress.json, results.json/.md and the figure; never checkpoints, TensorBoard events or data."""
 
     LIMITS = {"seeds": SEED, "lambdas": Limit(0, 1e6), "sigreg_weight": Limit(0, 1e6),
+              "ordering_sigreg_weight": Limit(0, 1e6),
               "sigreg_reference_rows": Limit(0, 2**31), "train_steps": Limit(0, 10**9),
               "train_batch_size": Limit(0, 65536), "num_episodes": Limit(0, 10**7), "data_seed": SEED,
               "split_fractions": FRACTION, "certify_max_windows": Limit(0, 10**8), "certify_epochs": Limit(0, 10**5),

@@ -13,6 +13,7 @@ from . import (
                dose_touch,
                factorial,
                frame_averaged,
+               lambda_factorial,
                lambda_sweep,
                lazy,
                ledger,
@@ -22,15 +23,15 @@ from . import (
 
 #: Experiment modules in the order the map has always listed them (``--experiments`` names; a run shared by two
 #: experiments is trained once, under the first that lists it).
-MODULES = (factorial, lazy, lambda_sweep, coverage, frame_averaged, controls, dose_touch, dose_glide, attributes,
-           belief, planning, coordinate, ledger, tokens)
+MODULES = (factorial, lazy, lambda_sweep, lambda_factorial, coverage, frame_averaged, controls, dose_touch,
+           dose_glide, attributes, belief, planning, coordinate, ledger, tokens)
 
 #: name -> the function from a map config to the experiment's run specs.
 EXPERIMENTS = {m.NAME: m.specs for m in MODULES}
 
 #: Report sections in results.md order (each returns [] when its experiment did not run).
-REPORT_ORDER = (factorial, tokens, lazy, lambda_sweep, coverage, frame_averaged, controls, dose_glide, dose_touch,
-                attributes, belief, coordinate, ledger, planning)
+REPORT_ORDER = (factorial, tokens, lazy, lambda_sweep, lambda_factorial, coverage, frame_averaged, controls,
+                dose_glide, dose_touch, attributes, belief, coordinate, ledger, planning)
 
 
 __all__ = ["MODULES", "EXPERIMENTS", "REPORT_ORDER"]

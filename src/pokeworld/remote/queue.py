@@ -31,6 +31,7 @@ PAPER_QUEUE: tuple[tuple[str, tuple[int, ...], str], ...] = (
     ("factorial", (2,), "the third seed of the paper's current revision"),
     ("lazy", (0,), "finding 2, the lazy equilibrium: the single-horizon factorial"),
     ("lambda", (0, 1), "finding 3, Table 'lambda': the SIGReg dose-response (two seeds)"),
+    ("lambda_factorial", (0,), "finding 1 at λ 0.1 (App. C): the factorial's ordering is unchanged"),
     ("controls", (0,), "finding 4, objective attribution: system-ID head, Gaussian NLL, reconstruction"),
     ("attributes", (0,), "finding 4, the attribute matrix: biased and gained corpora"),
     ("dose_touch", (0,), "finding 4, dose-response 1: the touch contact weight"),
