@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from pokeworld.errors import ConfigError
-from pokeworld.sim import PhysicsConfig, PokeWorldSim, contact, environments, fidelity
+from pokeworld.sim import ParamRanges, PhysicsConfig, PokeWorldSim, contact, environments, fidelity
 from pokeworld.sim.generate import content_config, generator_config, make_config, simulate
 from pokeworld.sim.policy import PolicyConfig, make_policy
 
@@ -157,3 +157,40 @@ def test_map_records_without_an_environment_read_back_as_calibrated():
     assert MapConfig().environment == "reference" and MapConfig().contact_damping == ""  # the environment's own law
     with pytest.raises(ConfigError, match="environment"):
         MapConfig(environment="gym")
+
+
+def test_a_drift_acceleration_obeys_its_law_and_only_the_reference_kernel_has_one():
+    """v̇ = a_d − γ v on a free object (the paper's rejected drift construction): from rest the velocity approaches
+    a_d / γ as (a_d / γ)(1 − e^{−γ t}), for any mass; no drift, no motion."""
+    a, gamma = np.array([0.12, -0.05]), 1.5
+    for mass in (0.5, 3.0):
+        s = PokeWorldSim(1, LAW_ALONE, seed=0)
+        s.reset(params={"gamma": gamma, "mass": mass, "drift": a}, finger_pos=[0.1, 0.1], object_pos=[0.5, 0.5])
+        v = []
+        for _ in range(20):
+            s.step(np.zeros((1, 2)))
+            v.append(s.state[0, 6:8].copy())
+        t = (np.arange(20) + 1) * LAW_ALONE.dt
+        np.testing.assert_allclose(np.array(v), (a / gamma) * (1 - np.exp(-gamma * t))[:, None], rtol=0.01)
+    still = PokeWorldSim(1, LAW_ALONE, seed=0)
+    still.reset(params={"gamma": gamma}, finger_pos=[0.1, 0.1], object_pos=[0.5, 0.5])
+    still.step(np.zeros((1, 2)))
+    assert np.all(still.state[0, 6:8] == 0.0)
+    with pytest.raises(ConfigError, match="reference environment"):
+        PokeWorldSim(1, CALIBRATED, ParamRanges(drift=0.1))
+    with pytest.raises(ConfigError, match="reference environment"):
+        PokeWorldSim(1, CALIBRATED, seed=0).reset(params={"drift": [0.1, 0.0]})
+
+
+def test_drift_corpora_store_their_drift_and_every_other_store_keeps_its_layout():
+    drift = simulate(make_config("tiny", corpus="drift", seed=3), render=False)
+    fixed = simulate(make_config("tiny", corpus="drift_fixed_gamma", seed=3), render=False)
+    plain = simulate(make_config("tiny", seed=3), render=False)
+    for ds in (drift, fixed):
+        d = np.stack([ds.params["drift_x"], ds.params["drift_y"]])
+        assert np.abs(d).max() <= 0.15 and d.std() > 0.05  # U(-0.15, 0.15) per component, per episode
+    assert drift.params["gamma"].std() > 0.5 and np.all(fixed.params["gamma"] == np.float32(1.5))
+    assert "drift_x" not in plain.params and "drift" not in content_config(make_config("tiny"))["ranges"]
+    # the drift is drawn after every other parameter: the same seed's episodes keep their mass, drag and stiffness
+    for q in ("mass", "gamma", "stiffness"):
+        np.testing.assert_array_equal(drift.params[q], plain.params[q])

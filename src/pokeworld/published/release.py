@@ -122,6 +122,12 @@ LAMBDA_SWEEP_VFX = {
     **{(0.02, s): MULTI_HORIZON[("VFX", s)] for s in (0, 1)},
 }
 
+DRIFT_LINEAR_CERTIFICATE = {"drift_x": 0.038, "drift_y": 0.019}
+"""The release's linear certificate of a drift acceleration of the object on raw 16-step windows, all windows
+(exp/e003_motion/results/drift_probe.json, ``cert_linear_raw``; its review_fixes.py, mode "drift"): its generator
+(exp/e001_xmodal_jepa/pokeworld.py) fixes drag at 1.5 whenever drift is on, so the number is construction (ii)'s of
+App. C "Constructing the cells", though the paper quotes 0.03 for (i)."""
+
 #: variant (our name) -> its released run at the paper's operating point (λ 0.02, seed 0): the seed-0 runs of
 #: :data:`MULTI_HORIZON`, the same dicts.
 RUNS: dict[str, dict] = {v: MULTI_HORIZON[(v, 0)] for v in ("V", "VF", "VX_p", "VX_t", "VX", "VFX")}
@@ -183,4 +189,4 @@ def released(variant: str, seed: int, table: dict = MULTI_HORIZON) -> dict:
 
 
 __all__ = ["SOURCE_REPO", "RESULTS_COMMIT", "MODEL_COMMIT", "MULTI_HORIZON", "LAMBDA_0_1", "LAMBDA_SWEEP_VFX", "RUNS",
-           "CORRECTED_ACTIONS_VFX", "ORACLE_EMBEDDING_PARAMS", "SINGLE_HORIZON", "MULTISCALE", "released"]
+           "CORRECTED_ACTIONS_VFX", "ORACLE_EMBEDDING_PARAMS", "DRIFT_LINEAR_CERTIFICATE", "SINGLE_HORIZON", "MULTISCALE", "released"]

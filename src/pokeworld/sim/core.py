@@ -13,6 +13,11 @@ from ..errors import ConfigError
 from . import physics
 
 PARAM_NAMES = ("mass", "gamma", "stiffness", "bias_x", "bias_y", "gain")
+DRIFT_NAMES = ("drift_x", "drift_y")
+"""The per-episode drift acceleration of the object (the paper's rejected attribute construction, App. C
+"Constructing the cells"): part of the simulator's parameters, stored in a corpus only when its ranges draw it."""
+SIM_PARAM_NAMES = PARAM_NAMES + DRIFT_NAMES
+"""The simulator's parameter layout (``PokeWorldSim.params`` columns, the kernels' ``params``)."""
 
 
 @dataclass(frozen=True)
@@ -158,9 +163,12 @@ class ParamRanges:
     """Half-width B of the per-episode additive finger force bias b ~ U(-B, B)^2 (0 disables it)."""
     gain: tuple[float, float] = (1.0, 1.0)
     """Actuation gain g ~ U(lo, hi) multiplying the commanded force ((1, 1) disables it)."""
+    drift: float = 0.0
+    """Half-width A of the per-episode drift acceleration of the object a_d ~ U(-A, A)^2 (arena units/s², added to
+    its dynamics on every sub-step as a force m a_d; 0 disables it). The reference environment's kernel only."""
 
     LIMITS = {"mass": positive(1e6), "gamma": positive(1e4), "stiffness": positive(1e8), "bias": Limit(0, 1e3),
-              "gain": positive(1e3)}
+              "gain": positive(1e3), "drift": Limit(0, 1e3)}
 
     def __post_init__(self) -> None:
         check_fields(self)
@@ -170,12 +178,14 @@ class ParamRanges:
                 raise ConfigError(f"ParamRanges.{name} must satisfy 0 < lo <= hi, got {(lo, hi)}")
 
     def sample(self, rng: np.random.Generator, n: int) -> np.ndarray:
-        p = np.empty((n, len(PARAM_NAMES)))
+        p = np.zeros((n, len(SIM_PARAM_NAMES)))
         p[:, 0] = np.exp(rng.uniform(np.log(self.mass[0]), np.log(self.mass[1]), n))
         p[:, 1] = rng.uniform(*self.gamma, n)
         p[:, 2] = np.exp(rng.uniform(np.log(self.stiffness[0]), np.log(self.stiffness[1]), n))
         p[:, 3:5] = rng.uniform(-self.bias, self.bias, (n, 2)) if self.bias > 0 else 0.0
         p[:, 5] = rng.uniform(*self.gain, n) if self.gain[1] > self.gain[0] else self.gain[0]
+        if self.drift > 0:  # drawn last and only when on, so every corpus without drift keeps its random stream
+            p[:, 6:8] = rng.uniform(-self.drift, self.drift, (n, 2))
         return p
 
 
@@ -194,10 +204,13 @@ class PokeWorldSim:
         self.n = int(num_envs)
         self.cfg = physics_cfg or PhysicsConfig()
         self.ranges = ranges or ParamRanges()
+        if self.ranges.drift > 0 and self.cfg.calibrated_dynamics:
+            raise ConfigError("a drift acceleration (ParamRanges.drift > 0) needs the reference environment's dynamics; "
+                              "the calibrated environment's kernel is kept bit for bit and has none")
         self.rng = np.random.default_rng(seed)
         self._consts = self.cfg.constants()
         self.state = np.zeros((self.n, 8))
-        self.params = np.zeros((self.n, len(PARAM_NAMES)))
+        self.params = np.zeros((self.n, len(SIM_PARAM_NAMES)))
         self.touch_clean = np.zeros((self.n, physics.TOUCH_DIM))
         self.touch = np.zeros((self.n, physics.TOUCH_DIM), dtype=np.float32)
         s = self.cfg.image_size
@@ -215,8 +228,8 @@ class PokeWorldSim:
               finger_pos=None, object_pos=None, object_vel=None, finger_vel=None) -> dict:
         """Resample episodes where ``mask`` is True (all by default); explicit values override sampling.
 
-        ``params`` maps names in :data:`PARAM_NAMES` (or the paper's ``m`` / ``k`` for mass /
-        stiffness, or ``bias`` for both bias components) to scalars or per-reset arrays. Initial
+        ``params`` maps names in :data:`SIM_PARAM_NAMES` (or the paper's ``m`` / ``k`` for mass /
+        stiffness, ``bias`` / ``drift`` for both components) to scalars or per-reset arrays. Initial
         velocities must lie in ±:attr:`MAX_VEL` per component.
         """
         idx = np.arange(self.n) if mask is None else np.flatnonzero(np.asarray(mask, bool))
@@ -230,9 +243,10 @@ class PokeWorldSim:
             if key in given:
                 raise ConfigError(f"parameter {key!r} given twice (as {given[key]!r} and {alias!r})")
             given[key] = alias
-            cols = {"bias": [3, 4]}.get(key, [PARAM_NAMES.index(key)] if key in PARAM_NAMES else None)
+            cols = {"bias": [3, 4], "drift": [6, 7]}.get(
+                key, [SIM_PARAM_NAMES.index(key)] if key in SIM_PARAM_NAMES else None)
             if cols is None:
-                raise ConfigError(f"unknown parameter {alias!r}; known: {list(PARAM_NAMES) + ['bias']} "
+                raise ConfigError(f"unknown parameter {alias!r}; known: {list(SIM_PARAM_NAMES) + ['bias', 'drift']} "
                                   f"(or the paper's {', '.join(self.PARAM_ALIASES)})")
             v = np.asarray(value, dtype=float)
             if not np.all(np.isfinite(v)):
@@ -241,6 +255,9 @@ class PokeWorldSim:
                 raise ConfigError(f"parameter {key!r} must be > 0, got {value}")
             if key == "gamma" and np.any(v < 0):
                 raise ConfigError(f"parameter 'gamma' must be >= 0, got {value}")
+            if 6 in cols and np.any(v != 0) and self.cfg.calibrated_dynamics:
+                raise ConfigError("a drift acceleration needs the reference environment's dynamics (the calibrated "
+                                  "kernel has none)")
             p[:, cols] = v.reshape(-1, len(cols)) if v.ndim and v.size == n * len(cols) else v
         self.params[idx] = p
         c = self.cfg
@@ -333,7 +350,7 @@ class PokeWorldSim:
         return {"finger_pos": self.state[:, 0:2].copy(), "finger_vel": self.state[:, 2:4].copy(),
                 "object_pos": self.state[:, 4:6].copy(), "object_vel": self.state[:, 6:8].copy(),
                 "contact": self.touch_clean[:, 6].copy(),
-                **{name: self.params[:, i].copy() for i, name in enumerate(PARAM_NAMES)}}
+                **{name: self.params[:, i].copy() for i, name in enumerate(SIM_PARAM_NAMES)}}
 
     def replace_config(self, **changes) -> None:
         self.cfg = dataclasses.replace(self.cfg, **changes)

@@ -10,7 +10,7 @@ from tqdm.auto import tqdm
 from .. import __version__
 from ..data import Dataset, assign_splits, check_store_destination, save, store_is_current, store_lock
 from ..io import check_writable_dir, remove_stale_temporaries
-from .core import PARAM_NAMES, PokeWorldSim
+from .core import PARAM_NAMES, SIM_PARAM_NAMES, PokeWorldSim
 from .generate_config import (  # the settings live there (the store reader checks manifests with them)
     CORPORA,
     LEGACY_PHYSICS,
@@ -40,7 +40,7 @@ def simulate(cfg: GenerateConfig, progress: bool = True, render: bool = True) ->
     actions = np.zeros((E, T, 2), np.float32)
     lab = {k: np.zeros((E, T + 1, 2), np.float32) for k in ("object_pos", "object_vel", "finger_pos", "finger_vel")}
     lab["contact"] = np.zeros((E, T + 1), np.float32)
-    params = np.zeros((E, len(PARAM_NAMES)))
+    params = np.zeros((E, len(SIM_PARAM_NAMES)))
     ss = np.random.SeedSequence(cfg.seed)
     split_rng, *batch_seeds = [np.random.default_rng(s) for s in ss.spawn(1 + -(-E // cfg.batch_envs))]
     bar = tqdm(total=E * T, desc="simulate", unit="step", disable=not progress, unit_scale=True)
@@ -68,7 +68,9 @@ def simulate(cfg: GenerateConfig, progress: bool = True, render: bool = True) ->
             bar.update(n)
     bar.close()
     split = assign_splits(E, cfg.split_fractions, split_rng)
-    par = {name: params[:, i].astype(np.float32) for i, name in enumerate(PARAM_NAMES)}
+    # the drift acceleration is stored only where it is drawn: every other store keeps the layout (and hash) it had
+    stored = SIM_PARAM_NAMES if cfg.ranges.drift > 0 else PARAM_NAMES
+    par = {name: params[:, i].astype(np.float32) for i, name in enumerate(SIM_PARAM_NAMES) if name in stored}
     par["log_m"] = np.log(params[:, 0]).astype(np.float32)
     par["log_k"] = np.log(params[:, 2]).astype(np.float32)
     manifest = {"generator": "pokeworld.sim.generate", "version": __version__, "seed": cfg.seed,

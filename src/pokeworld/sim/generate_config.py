@@ -47,7 +47,7 @@ class GenerateConfig:
     (its 400 validation episodes are never read by its training or probes, so none are generated)."""
     corpus: str = "standard"
     """Named corpus variant applied on top (see CORPORA): standard, contact_poor, frame_averaged, bias0.5, bias1.5,
-    bias2.5, gain, open_loop."""
+    bias2.5, gain, drift, drift_fixed_gamma, open_loop."""
     batch_envs: int = 1024
     """Episodes simulated simultaneously."""
     overwrite: bool = False
@@ -98,6 +98,11 @@ CORPORA: dict[str, dict] = {
     "bias1.5": {"ranges": {"bias": 1.5}},
     "bias2.5": {"ranges": {"bias": 2.5}},
     "gain": {"ranges": {"gain": (0.85, 1.15)}},
+    # the paper's rejected constructions of the slow × linear cell (App. C "Constructing the cells"): a drift
+    # acceleration of the object, a_d ~ U(-0.15, 0.15)^2 as the release draws it, with drag per episode (i) and with
+    # drag fixed at the release's 1.5 (ii)
+    "drift": {"ranges": {"drift": 0.15}},
+    "drift_fixed_gamma": {"ranges": {"drift": 0.15, "gamma": (1.5, 1.5)}},
     # the standard corpus with a fifth of its program slots running the planner's own two-knot programs open-loop
     # (docs/design.md, "Planning: open-loop behaviour data and the rank test")
     "open_loop": {"policy": {"open_loop_share": 0.2}},
@@ -151,6 +156,8 @@ def content_config(cfg: GenerateConfig) -> dict:
             del d["policy"][k]
     if d["environment"] == environments.LEGACY:
         del d["environment"]
+    if d["ranges"].get("drift") == 0:  # no drift is what every store had before the field existed
+        del d["ranges"]["drift"]
     return d
 
 

@@ -2,7 +2,8 @@
 
 State layout, one row per episode (float64):
 ``[finger_x, finger_y, finger_vx, finger_vy, object_x, object_y, object_vx, object_vy]``.
-Parameter layout (float64): ``[mass, gamma, stiffness, bias_x, bias_y, gain]``.
+Parameter layout (float64): ``[mass, gamma, stiffness, bias_x, bias_y, gain, drift_x, drift_y]`` (the drift
+acceleration of the object is read by the reference kernel only; the calibrated one never has it).
 
 Integration is semi-implicit Euler over ``substeps`` sub-steps per control step.
 Linear drag on the object (``-gamma*m*v``) and linear damping on the finger are
@@ -274,6 +275,7 @@ def step_kernel_reference(state, params, actions, consts, touch):
         m, gam, k = params[i, 0], params[i, 1], params[i, 2]
         cmdx = params[i, 5] * fmax * actions[i, 0] + params[i, 3]
         cmdy = params[i, 5] * fmax * actions[i, 1] + params[i, 4]
+        drift_x, drift_y = m * params[i, 6], m * params[i, 7]  # the force of the drift acceleration (0: none)
         mu = mf * m / (mf + m)
         dec_o = 1.0 if explicit else math.exp(-gam * h)
         sx, sy, peak, ncontact, cx, cy = 0.0, 0.0, 0.0, 0, 0.0, 0.0
@@ -291,8 +293,8 @@ def step_kernel_reference(state, params, actions, consts, touch):
                 peak = max(peak, abs(fn))
             ffx = cmdx - cx + _wall_force_on(fx, fvx, rf, arena, mf, consts)
             ffy = cmdy - cy + _wall_force_on(fy, fvy, rf, arena, mf, consts)
-            fox = cx + _wall_force_on(ox, ovx, ro, arena, m, consts)
-            foy = cy + _wall_force_on(oy, ovy, ro, arena, m, consts)
+            fox = cx + _wall_force_on(ox, ovx, ro, arena, m, consts) + drift_x
+            foy = cy + _wall_force_on(oy, ovy, ro, arena, m, consts) + drift_y
             if explicit:
                 ffx -= cf * fvx
                 ffy -= cf * fvy

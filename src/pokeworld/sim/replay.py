@@ -12,7 +12,7 @@ import dataclasses
 import numpy as np
 
 from ..errors import ConfigError
-from .core import PARAM_NAMES, PhysicsConfig, PokeWorldSim
+from .core import DRIFT_NAMES, PARAM_NAMES, SIM_PARAM_NAMES, PhysicsConfig, PokeWorldSim
 from .generate_config import generator_config, resolved
 
 STATE_LABELS = ("finger_pos", "finger_vel", "object_pos", "object_vel")
@@ -32,20 +32,23 @@ def state_at(labels: dict, episodes: np.ndarray, t: np.ndarray) -> np.ndarray:
 
 
 def params_of(params: dict, episodes: np.ndarray) -> np.ndarray:
-    """(N, len(PARAM_NAMES)) hidden parameters of ``episodes`` in the simulator's layout."""
-    return np.stack([np.asarray(params[k], float)[episodes] for k in PARAM_NAMES], -1)
+    """(N, len(SIM_PARAM_NAMES)) hidden parameters of ``episodes`` in the simulator's layout (a store without a drift
+    acceleration, every store but a drift corpus, has none: zeros)."""
+    n = len(np.asarray(params[PARAM_NAMES[0]])[episodes])
+    return np.stack([np.asarray(params[k], float)[episodes] if k in params or k not in DRIFT_NAMES else np.zeros(n)
+                     for k in SIM_PARAM_NAMES], -1)
 
 
 def replay(physics: PhysicsConfig, state: np.ndarray, params: np.ndarray, actions: np.ndarray) -> dict:
-    """Continue N episodes from ``state`` (N, 8) with ``params`` (N, 6) under ``actions`` (N, H, 2).
+    """Continue N episodes from ``state`` (N, 8) with ``params`` (N, 8) under ``actions`` (N, H, 2).
 
     Returns noise-free ``object_pos`` / ``object_vel`` (N, H, 2) and ``touch`` (N, H, 7) after each of the H steps
     (``touch[:, j]`` summarises step j, as the observation after it does). Nothing is rendered.
     """
     state, params, actions = (np.asarray(x, float) for x in (state, params, actions))
     n = len(state)
-    if state.shape != (n, 8) or params.shape != (n, len(PARAM_NAMES)) or actions.ndim != 3 or len(actions) != n:
-        raise ConfigError(f"replay needs state (N, 8), params (N, {len(PARAM_NAMES)}) and actions (N, H, 2), got "
+    if state.shape != (n, 8) or params.shape != (n, len(SIM_PARAM_NAMES)) or actions.ndim != 3 or len(actions) != n:
+        raise ConfigError(f"replay needs state (N, 8), params (N, {len(SIM_PARAM_NAMES)}) and actions (N, H, 2), got "
                           f"{state.shape}, {params.shape} and {actions.shape}")
     sim = PokeWorldSim(n, dataclasses.replace(physics, touch_noise=0.0))
     sim.state[:] = state
