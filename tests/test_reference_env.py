@@ -180,6 +180,8 @@ def test_a_drift_acceleration_obeys_its_law_and_only_the_reference_kernel_has_on
         PokeWorldSim(1, CALIBRATED, ParamRanges(drift=0.1))
     with pytest.raises(ConfigError, match="reference environment"):
         PokeWorldSim(1, CALIBRATED, seed=0).reset(params={"drift": [0.1, 0.0]})
+    with pytest.raises(ConfigError, match="only the reference environment"):  # refused before anything is simulated
+        make_config("tiny", corpus="drift_fixed_gamma", environment="calibrated")
 
 
 def test_drift_corpora_store_their_drift_and_every_other_store_keeps_its_layout():

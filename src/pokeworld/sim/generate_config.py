@@ -72,6 +72,10 @@ class GenerateConfig:
         environments.check(self.environment)
         if self.corpus not in CORPORA:
             raise ConfigError(f"unknown corpus {self.corpus!r}; choose one of {sorted(CORPORA)}")
+        if CORPORA[self.corpus].get("ranges", {}).get("drift", self.ranges.drift) > 0 and \
+                self.physics.calibrated_dynamics:
+            raise ConfigError(f"corpus {self.corpus!r} draws a drift acceleration, which only the reference "
+                              "environment's dynamics have; use --environment reference (the default)")
         size = store_bytes(self.num_episodes, self.episode_steps, self.physics.image_size)
         if size > MAX_STORE_BYTES:
             raise ConfigError(f"{self.num_episodes} episodes of {self.episode_steps} steps at image_size "
