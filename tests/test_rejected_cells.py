@@ -34,6 +34,8 @@ def test_a_drift_certificate_is_the_mean_of_its_two_components_and_fails_below_t
 def test_an_unknown_construction_is_refused_before_anything_is_generated(tmp_path):
     with pytest.raises(ValueError, match="unknown construction"):
         certify_construction("bias0.5", "tiny", tmp_path, ("linear",))
+    with pytest.raises(ValueError, match="recurrent kinds"):
+        certify_construction("drift", "tiny", tmp_path, ("gru",), ("moving",))
     assert not any(tmp_path.iterdir())
 
 
