@@ -1001,6 +1001,8 @@ def matrix_rows() -> tuple[Row, ...]:
              Cell("(ii) linear certificate, all windows", None, R2,
                   cpu=Read(DRIFT, "summary/drift_fixed_gamma/linear_all"),
                   released=sum(RELEASED_DRIFT_LINEAR.values()) / len(RELEASED_DRIFT_LINEAR)),
+             Cell("(i) GRU certificate, all windows", None, R2, cpu=Read(DRIFT, "summary/drift/gru_all")),
+             Cell("(ii) GRU certificate, all windows", None, R2, cpu=Read(DRIFT, "summary/drift_fixed_gamma/gru_all")),
              Cell("(i) linear certificate, glide windows", None, R2, cpu=Read(DRIFT, "summary/drift/linear_glide")),
              Cell("(ii) linear certificate, glide windows", None, R2,
                   cpu=Read(DRIFT, "summary/drift_fixed_gamma/linear_glide"))),
@@ -1049,12 +1051,15 @@ def dose_rows() -> tuple[Row, ...]:
                   "0.65); the paper-budget default VFX reads 0.82"),
         Row("E19", "frontier", d2, "dose 2: log k against the contact-frame touch weight",
             cells(DOSE_TOUCH, touch, DOSE_TOUCH, "log_k", ridge("log_k"), R2, "touch weight"),
-            cause="at cpu the default (weight 4) VFX reads log k 0.35 (paper 0.50); the paper-budget VFX reads 0.55"),
+            cause="at cpu on the reference environment starving touch starves stiffness, as in the paper (0.54 / "
+                  "0.52 / 0.20 / −0.01 at weights 4 / 1 / 0.25 / 0; paper 0.50 / 0.37 / 0.12 / −0.005), but weight 1 "
+                  "keeps nearly all of it (0.52 against the paper's 0.37): the fall comes at a lower dose here"),
         Row("E20", "frontier", d2, "dose 2: log m and γ",
             cells(DOSE_TOUCH, touch, DOSE_TOUCH, "log_m", ridge("log_m"), R2, "log m, touch weight")
             + cells(DOSE_TOUCH, touch, DOSE_TOUCH, "gamma", ridge("gamma"), R2, "γ, touch weight"),
-            cause="at cpu mass reads 0.04–0.09 and γ 0.01–0.03 at every dose: the cpu budget's levels (the "
-                  "paper-budget VFX reads 0.31 / 0.15)"),
+            cause="at cpu on the reference environment mass reads 0.07–0.13 and γ 0.00–0.04 at every dose: the cpu "
+                  "budget's levels (the paper-budget VFX reads 0.31 / 0.15), so the paper's flat mass and γ columns "
+                  "cannot be told from a floor here"),
     )
 
 
