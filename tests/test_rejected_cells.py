@@ -45,10 +45,13 @@ def test_the_script_writes_a_record_the_ledger_can_read(tmp_path):
     script = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(script)
     out = tmp_path / "drift.json"
-    assert script.main(["--preset", "tiny", "--data", str(tmp_path / "data"), "--estimators", "linear",
-                        "--out", str(out)]) == 0
+    args = ["--preset", "tiny", "--data", str(tmp_path / "data"), "--estimators", "linear", "gru",
+            "--recurrent-kinds", "all", "--out", str(out)]
+    assert script.main(args) == 0
+    assert script.main(args) == 0  # a second run finds every corpus and certificate current (and its stores intact)
     record = read_json(out, "the drift record")
     assert record["map_config"] == {"preset": "tiny", "environment": "reference"}
     assert set(record["summary"]) == {"drift", "drift_fixed_gamma"}
     assert isinstance(record["summary"]["drift"]["linear_fails"], bool)
+    assert record["summary"]["drift"]["gru_all"] is not None and record["summary"]["drift"]["gru_contact"] is None
     assert out.with_suffix(".md").read_text().startswith("# The rejected drift constructions")

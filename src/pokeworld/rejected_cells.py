@@ -43,14 +43,16 @@ def certify_construction(corpus: str, preset: str, folder: Path, estimators: tup
     if not set(recurrent_kinds) <= set(KINDS):
         raise ValueError(f"recurrent kinds must be among {KINDS}, got {recurrent_kinds}")
     store = generate.run(generate.make_config(preset, out=str(folder / corpus), corpus=corpus, seed=seed))
-    fits = [(tuple(e for e in estimators if e not in RECURRENT), KINDS, "certificates.json"),
-            (tuple(e for e in estimators if e in RECURRENT), tuple(recurrent_kinds), "certificates-recurrent.json")]
+    # the recurrent fit's record lies beside the store, not in it: a store folder holds only what a store may
+    fits = [(tuple(e for e in estimators if e not in RECURRENT), KINDS, Path(store) / "certificates.json"),
+            (tuple(e for e in estimators if e in RECURRENT), tuple(recurrent_kinds),
+             folder / f"{corpus}-certificates-recurrent.json")]
     merged: dict = {"estimators": {}, "counts": {}}
-    for ests, kinds, name in fits:
+    for ests, kinds, out in fits:
         if not ests or not kinds:
             continue
         path = certify.run(certify.make_config(preset, data=str(store), targets=DRIFT_NAMES, estimators=ests,
-                                               kinds=kinds, out=str(Path(store) / name)))
+                                               kinds=kinds, out=str(out)))
         part = read_json(path, "a certificate record (certificates.json)")
         merged["estimators"].update(part["estimators"])
         merged["counts"] = {**part.get("counts", {}), **merged["counts"]}
@@ -100,6 +102,12 @@ def markdown(record: dict) -> str:
                      f"({fmt(s['linear_all'])}), on contact windows reads {fmt(s['linear_contact'])} and on "
                      f"contact-free glides {fmt(s['linear_glide'])} (test windows: "
                      + ", ".join(f"{k} {n:,}" for k, n in s["test_windows"].items() if n is not None) + ").")
+    gru = {c: s["gru_all"] for c, s in record["summary"].items() if s.get("gru_all") is not None}
+    if gru:
+        lines.append("* A GRU on all windows reads the drift at " + ", ".join(
+            f"{fmt(v)} ({CONSTRUCTIONS[c].split(' ')[0]})" for c, v in gru.items())
+            + f": where it reads above {FAILS_BELOW:g}, the rejection is the linear certificate's, not a property "
+              "of the 16-step windows.")
     return "\n".join(lines) + "\n"
 
 

@@ -1009,7 +1009,8 @@ def matrix_rows() -> tuple[Row, ...]:
             needs="the drift corpora's certificates (`python scripts/drift_certificates.py`, CPU only)",
             note="the paper quotes 0.03 for (i); the release's one drift certificate (linear, all windows, "
                  "0.038 / 0.019 by component) is of its generator's fixed-drag corpus, i.e. (ii); \"fails\" is read "
-                 "as below 0.1 (the accepted force bias passed at 0.13)",
+                 "as below 0.1 (the accepted force bias passed at 0.13); a GRU reads both drifts (0.51, 0.86), so "
+                 "\"unrecoverable\" holds for the linear certificate only",
             release="exp/e003_motion/results/drift_probe.json (construction (ii))"),
     )
 
