@@ -1093,12 +1093,17 @@ def ledger_rows() -> tuple[Row, ...]:
                  "motion channel, so the paper's stages map as labelled"),
         Row("E22", "frontier", section, "linear γ certificate on glide windows: ≈ 0, and 0.52 under log speed",
             (Cell("standard coordinates", COORDINATE["gamma_linear_certificate_standard"], R2, cpu=standard_glide),
-             Cell("log-speed coordinates", COORDINATE["gamma_linear_certificate_logspeed"], R2, cpu=glide_cert(
-                 "linear_logspeed", "flow")),
+             Cell("log-speed coordinates", COORDINATE["gamma_linear_certificate_logspeed"], R2, cpu=Derived("first", (
+                 Read(CCR, cert("linear_logspeed", "gamma", "flow", "glide")), glide_cert("linear_logspeed", "flow")))),
              Cell("log-speed coordinates, contact windows (not the paper's glide windows)", None, R2,
-                  cpu=glide_cert("linear_logspeed", "flow", "contact"))),
+                  cpu=Derived("first", (Read(CCR, cert("linear_logspeed", "gamma", "flow", "contact")),
+                                        glide_cert("linear_logspeed", "flow", "contact"))))),
             needs="the coordinate test's certificates on glide windows (`--certify-kinds contact glide`; CPU only): "
-                  "the record holds them on contact windows"),
+                  "the record holds them on contact windows",
+            cause="on the reference environment at cpu the log-speed coordinate linearizes glide decay further than "
+                  "the paper's: the linear γ certificate on glide windows reads 0.85 (paper 0.52; standard "
+                  "coordinates −0.06, paper ≈ 0), fit on the flow store's 575 probe-fit glide windows (paper 696) "
+                  "and scored on 306 (paper 351)"),
         Row("E23", "frontier", section, "model γ readout on glide windows: 0.08 → 0.33 with the log-speed channel",
             (Cell("before", COORDINATE["gamma_glide_readout"][0], R2, Read(MPR, f"{std}/{ridge('gamma', 'glide')}"),
                   at_cpu(LC, f"{std}/{ridge('gamma', 'glide')}")),
