@@ -29,7 +29,7 @@ of 0.13 (App. C), so a failing one reads less; 0.1 is also the ledger's R² tole
 RELEASED_LINEAR = DRIFT_LINEAR_CERTIFICATE
 
 
-RECURRENT = ("gru",)
+RECURRENT = tuple(e for e in certify.ESTIMATORS if e.startswith("gru"))
 """The recurrent estimators, certified on the window kinds asked for (each fit costs minutes, a linear one seconds)."""
 
 

@@ -136,7 +136,7 @@ def save_dict(path: Path, obj) -> None:
     # RH20T's own pickled-dict format (io writes no pickles of its own): serialised in memory, then created through
     # io.create_new (never an existing file, never through a link)
     buf = io.BytesIO()
-    np.save(buf, obj, allow_pickle=True)
+    np.save(buf, obj, allow_pickle=True)  # into memory; the file is created by io.create_new below
     create_new(path, buf.getvalue())
 
 
@@ -145,7 +145,7 @@ def save_array(path: Path, array) -> None:
     # a file of RH20T's own layout in a folder being built (a test fixture's, or the synthetic corpus's private
     # temporary under io.atomic_path): io.create_new, as save_dict
     buf = io.BytesIO()
-    np.save(buf, np.asarray(array))
+    np.save(buf, np.asarray(array))  # into memory; the file is created by io.create_new below
     create_new(path, buf.getvalue())
 
 

@@ -169,7 +169,7 @@ def tar_bytes(members: list[tuple[str, bytes]]) -> bytes:
     owners or modes of the machine, so appending a member leaves every earlier byte as it was."""
     buf = io.BytesIO()
     # built in memory; the parts reach disk through write_bytes (the output contract)
-    with tarfile.open(fileobj=buf, mode="w", format=tarfile.USTAR_FORMAT) as tar:
+    with tarfile.open(fileobj=buf, mode="w", format=tarfile.USTAR_FORMAT) as tar:  # into memory: write_bytes writes
         for name, data in members:
             info = tarfile.TarInfo(name)
             info.size, info.mode, info.mtime = len(data), 0o644, 0

@@ -34,9 +34,9 @@ def state_at(labels: dict, episodes: np.ndarray, t: np.ndarray) -> np.ndarray:
 def params_of(params: dict, episodes: np.ndarray) -> np.ndarray:
     """(N, len(SIM_PARAM_NAMES)) hidden parameters of ``episodes`` in the simulator's layout (a store without a drift
     acceleration, every store but a drift corpus, has none: zeros)."""
-    n = len(np.asarray(params[PARAM_NAMES[0]])[episodes])
-    return np.stack([np.asarray(params[k], float)[episodes] if k in params or k not in DRIFT_NAMES else np.zeros(n)
-                     for k in SIM_PARAM_NAMES], -1)
+    base = [np.asarray(params[k], float)[episodes] for k in PARAM_NAMES]
+    drift = [np.asarray(params[k], float)[episodes] if k in params else np.zeros(len(base[0])) for k in DRIFT_NAMES]
+    return np.stack(base + drift, -1)
 
 
 def replay(physics: PhysicsConfig, state: np.ndarray, params: np.ndarray, actions: np.ndarray) -> dict:
