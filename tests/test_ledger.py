@@ -94,7 +94,7 @@ def test_ledger_shares_runs_and_labels_every_mechanism(tmp_path):
     specs = exp_ledger(c)
     labels = [ledger_mechanism({"train": s.train, "corpus": s.corpus}) for s in specs]
     assert labels == ["single-horizon head", "multi-horizon heads", "no motion input channel", "spatial tokens",
-                      "magnitude-weighted motion targets", "frozen flow velocity sensor", "glide-enriched loss"]
+                      "magnitude-weighted motion targets", "frozen flow sensor (velocity and log speed)", "glide-enriched loss"]
     names = {s.name for s in all_specs(c)}
     # shared runs train once: the factorial's VFX, the controls' token run and the coordinate run are the ledger's
     assert {specs[1].name, specs[3].name, specs[5].name} <= names

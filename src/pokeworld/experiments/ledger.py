@@ -23,7 +23,7 @@ LEDGER = {  # App. C, the γ intervention ledger (text): mechanism -> the paper'
     "multi-horizon heads": "0.12 (plateau)",
     "spatial tokens": "no gain",
     "magnitude-weighted motion targets": "no gain",
-    "frozen flow velocity sensor": "plateau unchanged",
+    "frozen flow sensor (velocity and log speed)": "plateau unchanged",
     "glide-enriched loss": "no gain",
 }
 
@@ -53,7 +53,7 @@ def ledger_mechanism(run: dict) -> str:
     """Ledger row label of a run (the mechanism it deploys), from its corpus and train overrides."""
     t = run["train"]
     if run.get("corpus") == "flow":
-        return "frozen flow velocity sensor"
+        return "frozen flow sensor (velocity and log speed)"
     if t.get("tokens"):
         return "spatial tokens"
     if t.get("motion_loss_weight", 0.0) > 0:
@@ -134,7 +134,10 @@ def ledger_figure(results: dict, out: Path) -> list[Path]:
     ax.set_xlim(min(-0.05, min((v for v in vals if v is not None), default=0.0)), 1.0)
     ax.set_xlabel("best γ readout (held-out R²)")
     ax.set_title(f"γ intervention ledger (preset {results['provenance']['preset']})", fontsize=10)
-    ax.legend(fontsize=7, loc="lower right")
+    if gamma_certificates(results):
+        ax.legend(fontsize=7, loc="lower right")
+    else:  # a map run with --no-certify: say so rather than draw an empty key
+        ax.text(0.99, 0.02, "no γ certificate in this map", transform=ax.transAxes, ha="right", fontsize=7)
     fig.tight_layout()
     return save_figure(fig, out, "gamma_ledger")
 
