@@ -142,3 +142,17 @@ def test_every_variants_released_seed_0_run_is_beside_ours():
         assert released(variant, 0) is run and run["source"].endswith("_s0_l0.02.json") and run["mlp"]
     assert released("V", 0)["ridge"]["log_k"] == -0.0191 and released("VX", 1) == {}
     assert released("VFX", 1)["source"].endswith("VFX_s1_l0.02.json")
+
+
+def test_the_released_flow_sensor_runs_are_the_papers_coordinate_test_and_ledger_numbers():
+    # the transcription ties to the paper's text: the coordinate test's glide-window γ 0.08 → 0.33 is the pair on the
+    # glide-enriched split without / with log speed, the ledger's velocity 0.88 the velocity-only run's moving windows
+    from pokeworld.experiments.coordinate import COORDINATE
+
+    runs = R.FLOW_SENSOR_VFX
+    assert (round(runs["fl_g"]["gamma_glide"], 2), round(runs["fl_g_ls"]["gamma_glide"], 2)) == \
+        tuple(COORDINATE["gamma_glide_readout"])
+    assert round(runs["fl"]["object_vel_moving"], 2) == COORDINATE["object_vel"][1]
+    assert round(runs["fl"]["gamma_glide"], 2) < 0.05  # velocity alone leaves glide-window γ at the plateau
+    for tag, run in runs.items():
+        assert run["source"].endswith(f"VFX_s0_l0.02_{tag}.json")

@@ -49,7 +49,7 @@ from .experiments.lazy import LAZY
 from .experiments.tokens import TOKENS
 from .io import read_json
 from .published import paper as P
-from .published.release import DRIFT_LINEAR_CERTIFICATE as RELEASED_DRIFT_LINEAR, LAMBDA_0_1, LAMBDA_SWEEP_VFX, MULTI_HORIZON, MULTISCALE, SINGLE_HORIZON
+from .published.release import DRIFT_LINEAR_CERTIFICATE as RELEASED_DRIFT_LINEAR, FLOW_SENSOR_VFX as FLOW_RUNS, LAMBDA_0_1, LAMBDA_SWEEP_VFX, MULTI_HORIZON, MULTISCALE, SINGLE_HORIZON
 from .sim.environments import DEFAULT as DEFAULT_ENVIRONMENT
 
 REPRODUCED = "reproduced"
@@ -840,12 +840,18 @@ def lever_rows() -> tuple[Row, ...]:
         Row("D1", "levers", "§4.4 \"Computation\"; App. C γ ledger",
             "a frozen flow sensor raises velocity readout 0.79 → 0.88",
             (Cell("velocity, VFX", COORDINATE["object_vel"][0], R2, Read(MPR, f"{std}/{ridge('object_vel')}"),
-                  at_cpu(LC, f"{std}/{ridge('object_vel')}")),
+                  at_cpu(LC, f"{std}/{ridge('object_vel')}"),
+                  released=released("VFX", lambda r: r["object_vel_moving"])),
              Cell("velocity, VFX with the flow sensor", COORDINATE["object_vel"][1], R2,
-                  Read(MPR, f"{flow}/{ridge('object_vel')}"), at_cpu(LC, f"{flow}/{ridge('object_vel')}"))),
+                  Read(MPR, f"{flow}/{ridge('object_vel')}"), at_cpu(LC, f"{flow}/{ridge('object_vel')}"),
+                  released={0: FLOW_RUNS["fl"]["object_vel_moving"]})),
             cause="at cpu on the reference environment VFX reads velocity 0.66 without the sensor (the paper's "
                   "0.79; the paper-budget VFX reads 0.82) and 0.93 with it (paper 0.88): the endpoint reproduces, the "
-                  "baseline is the cpu budget's (the retired calibrated environment: 0.58 → 0.87)"),
+                  "baseline is the cpu budget's (the retired calibrated environment: 0.58 → 0.87)",
+            note="the paper's pair equals the release's moving-window velocity readouts (standard VFX 0.786, the "
+                 "velocity-only flow-input VFX 0.880); ours reads contact windows, and our flow run carries the "
+                 "log-speed channel too",
+            release="exp/e003_motion VFX_s0/s1_l0.02 and VFX_s0_l0.02_fl, moving windows"),
         Row("D2", "levers", "§4.4 \"Data coverage\"; App. C",
             "VFX on contact-poor data: log k 0.50 → 0.05, log m 0.29 → 0.11, position 0.98 → 0.87, velocity "
             "0.79 → 0.58", coverage,
@@ -1082,8 +1088,13 @@ def ledger_rows() -> tuple[Row, ...]:
     def best(path):
         return lambda record: Derived("max", tuple(Read(record, f"{path}/probes/{fam}/{kind}/gamma")
                                                    for fam in ("ridge", "mlp") for kind in ("contact", "glide")))
+    def released_best_gamma(flow_stage: bool) -> dict | None:  # the release's flow-sensor run, ``fl``
+        r = FLOW_RUNS["fl"]
+        return {0: max(r["ridge"]["gamma"], r["gamma_glide"], r["mlp"]["gamma"], r["mlp_gamma_glide"])} \
+            if flow_stage else None
     plateau = AtMost(P.GAMMA_LEDGER["motion_channel"])
     L = P.GAMMA_LEDGER
+    flow = run("VFX", corpus="flow", seed="0")
     stages = (("single-horizon head", L["single_horizon"], run("VFX", horizons="1", seed="0")),
               ("multi-horizon heads without the motion channel", L["multi_horizon"],
                run("VFX", "motion_channelFalse", seed="0")),
@@ -1092,13 +1103,14 @@ def ledger_rows() -> tuple[Row, ...]:
               ("magnitude-weighted motion targets (no gain)", plateau, run("VFX", "motion_loss_weight4.0", seed="0")),
               ("frozen flow sensor, velocity and log speed (the paper: velocity alone, plateau unchanged)", plateau, run("VFX", corpus="flow", seed="0")),
               ("glide-enriched loss (no gain)", plateau, run("VFX", "glide_loss_weight16.0", seed="0")))
-    std, flow = run("VFX", seed="0"), run("VFX", corpus="flow", seed="0")
+    std = run("VFX", seed="0")
     glide_cert = lambda est, corpus, kind="glide": Read(LC, cert(est, "gamma", corpus, kind))  # noqa: E731
     standard_glide = Derived("first", (Read(CCR, cert("linear", "gamma", kind="glide")), glide_cert("linear", "standard")))
     section = "App. C \"The coordinate test\""
     return (
         Row("E21", "frontier", "App. C Fig. \"ledger\"", "best γ readout under every prediction-side mechanism (VFX)",
-            tuple(Cell(label, paper, R2, best(path)(MPR), Derived("default_first", (best(path)(FR), best(path)(LC))))
+            tuple(Cell(label, paper, R2, best(path)(MPR), Derived("default_first", (best(path)(FR), best(path)(LC))),
+                       released=released_best_gamma(path == flow))
                   for label, paper, path in stages),
             cause="at cpu on the reference environment every prediction-side mechanism's best γ is −0.01 to 0.02, "
                   "flat as in the paper but at the cpu budget's level (the default VFX 0.00; paper 0.12; the "
@@ -1107,7 +1119,9 @@ def ledger_rows() -> tuple[Row, ...]:
                   "interventions; its 0.25 is on glide windows, row E23's 0.33 in the paper), 0.10 on contact "
                   "windows",
             note="best γ = the largest ridge / MLP readout on contact and glide windows; our default trunk has the "
-                 "motion channel, so the paper's stages map as labelled"),
+                 "motion channel, so the paper's stages map as labelled; the flow stage's released run is the "
+                 "velocity-only sensor (its γ 0.11 on contact, 0.01 on glide windows)",
+            release="the flow stage: exp/e003_motion VFX_s0_l0.02_fl (dense flow input channels, standard split)"),
         Row("E22", "frontier", section, "linear γ certificate on glide windows: ≈ 0, and 0.52 under log speed",
             (Cell("standard coordinates", COORDINATE["gamma_linear_certificate_standard"], R2, cpu=standard_glide),
              Cell("log-speed coordinates", COORDINATE["gamma_linear_certificate_logspeed"], R2, cpu=Derived("first", (
@@ -1123,11 +1137,17 @@ def ledger_rows() -> tuple[Row, ...]:
                   "and scored on 306 (paper 351)"),
         Row("E23", "frontier", section, "model γ readout on glide windows: 0.08 → 0.33 with the log-speed channel",
             (Cell("before", COORDINATE["gamma_glide_readout"][0], R2, Read(MPR, f"{std}/{ridge('gamma', 'glide')}"),
-                  at_cpu(LC, f"{std}/{ridge('gamma', 'glide')}")),
+                  at_cpu(LC, f"{std}/{ridge('gamma', 'glide')}"), released={0: FLOW_RUNS["fl_g"]["gamma_glide"]}),
              Cell("with the log-speed channel", COORDINATE["gamma_glide_readout"][1], R2,
-                  Read(MPR, f"{flow}/{ridge('gamma', 'glide')}"), at_cpu(LC, f"{flow}/{ridge('gamma', 'glide')}"))),
+                  Read(MPR, f"{flow}/{ridge('gamma', 'glide')}"), at_cpu(LC, f"{flow}/{ridge('gamma', 'glide')}"),
+                  released={0: FLOW_RUNS["fl_g_ls"]["gamma_glide"]})),
             cause="on the retired calibrated environment γ on glide windows read −0.02 → −0.05 at cpu (152 test "
-                  "windows); the reference environment's 185 read −0.01 → 0.25 (paper 0.08 → 0.33)"),
+                  "windows); the reference environment's 185 read −0.01 → 0.25 (paper 0.08 → 0.33)",
+            note="the paper's pair is the release's flow-input VFX on its glide-enriched training split without and "
+                 "with a log-speed image channel; ours is the standard VFX and the flow corpus's VFX (the sensor's "
+                 "velocity and log speed as proprio channels) on the standard split (docs/design.md, \"The "
+                 "coordinate test\")",
+            release="exp/e003_motion VFX_s0_l0.02_fl_g and _fl_g_ls, seed 0"),
         Row("E24", "frontier", section, "functional glide test with the log-speed channel: 0.114 vs median-γ 0.054",
             (Cell("model", COORDINATE["glide_test_model_after"], ERROR,
                   Read(MPR, f"{flow}/prediction/glide_test/model"), at_cpu(LC, f"{flow}/prediction/glide_test/model")),

@@ -122,6 +122,26 @@ LAMBDA_SWEEP_VFX = {
     **{(0.02, s): MULTI_HORIZON[("VFX", s)] for s in (0, 1)},
 }
 
+#: VFX with the frozen flow sensor (exp/e003_motion, λ 0.02, seed 0; ``train.py --flow``: the sensor's two dense flow
+#: fields appended to the frame and its difference as image channels, ``--data2`` (tag ``_g``) the glide-enriched
+#: training split ``train2``, ``--logspeed`` (tag ``_ls``) a per-pixel log |flow| channel): ``fl`` is the γ ledger's
+#: "frozen flow velocity sensor" (velocity 0.88 moving windows, γ plateau unchanged), ``fl_g`` → ``fl_g_ls`` the
+#: coordinate test's "0.08 → 0.33" (ridge γ on glide windows). ``gamma_glide`` = ``probe.trunk.glide.gamma``.
+FLOW_SENSOR_VFX = {
+    "fl": {"source": "exp/e003_motion/results/VFX_s0_l0.02_fl.json", "params": 4_184_918, "minutes": 46.2,
+           "ridge": {"log_k": 0.4528, "log_m": 0.2753, "gamma": 0.1096}, "gamma_glide": 0.0124,
+           "mlp": {"log_k": 0.4654, "log_m": 0.2317, "gamma": 0.0544}, "mlp_gamma_glide": -0.0130,
+           "object_vel_moving": 0.8796, "object_pos_frame": 0.9743, "direct16": 0.0958, "rollout16": 0.1241},
+    "fl_g": {"source": "exp/e003_motion/results/VFX_s0_l0.02_fl_g.json", "params": 4_184_918, "minutes": 46.1,
+             "ridge": {"log_k": 0.4175, "log_m": 0.2646, "gamma": 0.1008}, "gamma_glide": 0.0820,
+             "mlp": {"log_k": 0.4323, "log_m": 0.2213, "gamma": 0.0697}, "mlp_gamma_glide": -0.0121,
+             "object_vel_moving": 0.8530, "object_pos_frame": 0.9667, "direct16": 0.1032, "rollout16": 0.1358},
+    "fl_g_ls": {"source": "exp/e003_motion/results/VFX_s0_l0.02_fl_g_ls.json", "params": 4_185_206, "minutes": 51.8,
+                "ridge": {"log_k": 0.4477, "log_m": 0.2520, "gamma": 0.1105}, "gamma_glide": 0.3332,
+                "mlp": {"log_k": 0.4590, "log_m": 0.2241, "gamma": 0.0610}, "mlp_gamma_glide": -0.0102,
+                "object_vel_moving": 0.8223, "object_pos_frame": 0.9655, "direct16": 0.1061, "rollout16": 0.1465},
+}
+
 DRIFT_LINEAR_CERTIFICATE = {"drift_x": 0.038, "drift_y": 0.019}
 """The release's linear certificate of a drift acceleration of the object on raw 16-step windows, all windows
 (exp/e003_motion/results/drift_probe.json, ``cert_linear_raw``; its review_fixes.py, mode "drift"): its generator
@@ -188,5 +208,5 @@ def released(variant: str, seed: int, table: dict = MULTI_HORIZON) -> dict:
     return table.get((variant, seed), {})
 
 
-__all__ = ["SOURCE_REPO", "RESULTS_COMMIT", "MODEL_COMMIT", "MULTI_HORIZON", "LAMBDA_0_1", "LAMBDA_SWEEP_VFX", "RUNS",
+__all__ = ["SOURCE_REPO", "RESULTS_COMMIT", "MODEL_COMMIT", "MULTI_HORIZON", "LAMBDA_0_1", "LAMBDA_SWEEP_VFX", "FLOW_SENSOR_VFX", "RUNS",
            "CORRECTED_ACTIONS_VFX", "ORACLE_EMBEDDING_PARAMS", "DRIFT_LINEAR_CERTIFICATE", "SINGLE_HORIZON", "MULTISCALE", "released"]
