@@ -156,3 +156,17 @@ def test_the_released_flow_sensor_runs_are_the_papers_coordinate_test_and_ledger
     assert round(runs["fl"]["gamma_glide"], 2) < 0.05  # velocity alone leaves glide-window γ at the plateau
     for tag, run in runs.items():
         assert run["source"].endswith(f"VFX_s0_l0.02_{tag}.json")
+
+
+def test_dose_one_is_the_released_flow_input_runs_on_the_glide_enriched_split():
+    # Table "dose1"'s log k, velocity and glide-window γ are the release's _fl_g(_gwW) runs to two decimals, so its
+    # weight 1 is that model (log k 0.42), not Table "targets"' VFX (0.50)
+    from pokeworld.experiments.dose_glide import DOSE_GLIDE
+
+    assert sorted(R.DOSE_GLIDE_RUNS) == sorted(DOSE_GLIDE)
+    for w, tag in R.DOSE_GLIDE_RUNS.items():
+        run, paper = R.FLOW_SENSOR_VFX[tag], DOSE_GLIDE[w]
+        assert round(run["ridge"]["log_k"], 2) == paper["log_k"]
+        assert round(run["object_vel_moving"], 2) == paper["object_vel"]
+        assert round(run["gamma_glide"], 2) == paper["gamma_glide"]
+    assert round(R.RUNS["VFX"]["ridge"]["log_k"], 2) != DOSE_GLIDE[1.0]["log_k"]

@@ -140,7 +140,23 @@ FLOW_SENSOR_VFX = {
                 "ridge": {"log_k": 0.4477, "log_m": 0.2520, "gamma": 0.1105}, "gamma_glide": 0.3332,
                 "mlp": {"log_k": 0.4590, "log_m": 0.2241, "gamma": 0.0610}, "mlp_gamma_glide": -0.0102,
                 "object_vel_moving": 0.8223, "object_pos_frame": 0.9655, "direct16": 0.1061, "rollout16": 0.1465},
+    "fl_g_gw4": {"source": "exp/e003_motion/results/VFX_s0_l0.02_fl_g_gw4.json", "params": 4_184_918, "minutes": 60.2,
+                 "ridge": {"log_k": 0.3409, "log_m": 0.2336, "gamma": 0.1207}, "gamma_glide": 0.1476,
+                 "mlp": {"log_k": 0.4066, "log_m": 0.2205, "gamma": 0.0910}, "mlp_gamma_glide": -0.0124,
+                 "object_vel_moving": 0.7938, "object_pos_frame": 0.9615, "direct16": 0.1090, "rollout16": 0.1461},
+    "fl_g_gw16": {"source": "exp/e003_motion/results/VFX_s0_l0.02_fl_g_gw16.json", "params": 4_184_918,
+                  "minutes": 56.5, "ridge": {"log_k": 0.2024, "log_m": 0.1768, "gamma": 0.0989}, "gamma_glide": 0.2073,
+                  "mlp": {"log_k": 0.2720, "log_m": 0.1964, "gamma": 0.0740}, "mlp_gamma_glide": 0.0052,
+                  "object_vel_moving": 0.6996, "object_pos_frame": 0.9331, "direct16": 0.1281, "rollout16": 0.1783},
+    "fl_g_gw64": {"source": "exp/e003_motion/results/VFX_s0_l0.02_fl_g_gw64.json", "params": 4_184_918,
+                  "minutes": 53.5, "ridge": {"log_k": 0.0992, "log_m": 0.1470, "gamma": 0.0910}, "gamma_glide": 0.2728,
+                  "mlp": {"log_k": 0.0958, "log_m": 0.1678, "gamma": 0.0668}, "mlp_gamma_glide": -0.0093,
+                  "object_vel_moving": 0.6476, "object_pos_frame": 0.8994, "direct16": 0.1448, "rollout16": 0.1843},
 }
+#: Dose–response 1 (Table "dose1") is the flow-input VFX on the glide-enriched split with zero-contact episodes drawn
+#: W times as often (``--glidew W``, tags ``_gw4/16/64``; W = 1 is ``fl_g``): its log k 0.42 / 0.34 / 0.20 / 0.10,
+#: velocity 0.85 / 0.79 / 0.70 / 0.65 and glide-window γ 0.08 → 0.27 are these runs' to two decimals.
+DOSE_GLIDE_RUNS = {1.0: "fl_g", 4.0: "fl_g_gw4", 16.0: "fl_g_gw16", 64.0: "fl_g_gw64"}
 
 DRIFT_LINEAR_CERTIFICATE = {"drift_x": 0.038, "drift_y": 0.019}
 """The release's linear certificate of a drift acceleration of the object on raw 16-step windows, all windows
@@ -208,5 +224,5 @@ def released(variant: str, seed: int, table: dict = MULTI_HORIZON) -> dict:
     return table.get((variant, seed), {})
 
 
-__all__ = ["SOURCE_REPO", "RESULTS_COMMIT", "MODEL_COMMIT", "MULTI_HORIZON", "LAMBDA_0_1", "LAMBDA_SWEEP_VFX", "FLOW_SENSOR_VFX", "RUNS",
+__all__ = ["SOURCE_REPO", "RESULTS_COMMIT", "MODEL_COMMIT", "MULTI_HORIZON", "LAMBDA_0_1", "LAMBDA_SWEEP_VFX", "FLOW_SENSOR_VFX", "DOSE_GLIDE_RUNS", "RUNS",
            "CORRECTED_ACTIONS_VFX", "ORACLE_EMBEDDING_PARAMS", "DRIFT_LINEAR_CERTIFICATE", "SINGLE_HORIZON", "MULTISCALE", "released"]
