@@ -49,7 +49,7 @@ from .experiments.lazy import LAZY
 from .experiments.tokens import TOKENS
 from .io import read_json
 from .published import paper as P
-from .published.release import DRIFT_LINEAR_CERTIFICATE as RELEASED_DRIFT_LINEAR, DOSE_GLIDE_RUNS, FLOW_SENSOR_VFX as FLOW_RUNS, LAMBDA_0_1, LAMBDA_SWEEP_VFX, MULTI_HORIZON, MULTISCALE, SINGLE_HORIZON
+from .published.release import DRIFT_LINEAR_CERTIFICATE as RELEASED_DRIFT_LINEAR, CONTACT_POOR_VFX, CONTROL_RUNS, DOSE_GLIDE_RUNS, DOSE_TOUCH_RUNS, FLOW_SENSOR_VFX as FLOW_RUNS, LAMBDA_0_1, LAMBDA_SWEEP_VFX, MULTI_HORIZON, MULTISCALE, SINGLE_HORIZON
 from .sim.environments import DEFAULT as DEFAULT_ENVIRONMENT
 
 REPRODUCED = "reproduced"
@@ -568,6 +568,18 @@ def both(path: str, cpu_record: str = MCR) -> dict:
             "cpu": at_cpu(cpu_record, path) if cpu_record in (FC, LC, LZ) else Read(cpu_record, path)}
 
 
+def released_value(r: dict, q: str, family: str = "ridge") -> float | None:
+    """A released run's reading of ``q`` as the paper tabulates it: ridge / MLP on contact windows, the frame-position
+    readout, the moving-window velocity (the paper's velocity columns), the direct-16 error."""
+    if q == "object_pos":
+        return r["object_pos_frame"]
+    if q == "object_vel":
+        return r["object_vel_moving"]
+    if q == "direct16":
+        return r["direct16"]
+    return r[family][q]
+
+
 def released(variant: str, pick, table: dict = MULTI_HORIZON) -> dict | None:
     """{seed: value} of the release's runs of ``variant`` (``pick`` reads a run; None when none has it)."""
     out = {}
@@ -808,10 +820,12 @@ def lambda_rows() -> tuple[Row, ...]:
 def lever_rows() -> tuple[Row, ...]:
     std, flow, poor = run("VFX", seed="0"), run("VFX", corpus="flow", seed="0"), run("VFX", corpus="contact_poor")
     best_k = lambda record, corpus: Read(record, f"certificates/{corpus}/certificate/contact/log_k/r2")  # noqa: E731
-    coverage = tuple(Cell(f"standard {LABEL[q]}", COVERAGE["standard"][q], R2, **both(f"{run('VFX')}/{ridge(q)}", FC))
+    coverage = tuple(Cell(f"standard {LABEL[q]}", COVERAGE["standard"][q], R2, **both(f"{run('VFX')}/{ridge(q)}", FC),
+                          released=released("VFX", lambda r, q=q: released_value(r, q)))
                      for q in ("log_k", "log_m", "object_pos", "object_vel"))
     coverage += tuple(Cell(f"contact-poor {LABEL[q]}", COVERAGE["contact_poor"][q], R2,
-                           Read(MPR, f"{poor}/{ridge(q)}"), at_cpu(FC, f"{poor}/{ridge(q)}"))
+                           Read(MPR, f"{poor}/{ridge(q)}"), at_cpu(FC, f"{poor}/{ridge(q)}"),
+                           released={0: released_value(CONTACT_POOR_VFX, q)})
                       for q in ("log_k", "log_m", "object_pos", "object_vel"))
     return (
         Row("A8", "levers", "§4.4 \"Information bandwidth\"",
@@ -909,14 +923,23 @@ def control_row(rid: str, key: str, path: str, cause: str) -> Row:
     """A row of Table "controls": ridge and MLP readouts, position, velocity, direct-16 where the paper has it."""
     def at(tail):
         return {"paper_budget": Read(MPR, f"{path}/{tail}"), "cpu": at_cpu(FC, f"{path}/{tail}")}
-    cells = tuple(Cell(f"{LABEL[q]} ridge", CONTROLS[key][q], R2, **at(ridge(q))) for q in ("log_m", "gamma", "log_k"))
-    cells += tuple(Cell(f"{LABEL[q]} MLP", P.CONTROLS_MLP[key][q], R2, **at(mlp(q)))
+    rel = CONTROL_RUNS[key]
+
+    def released_of(q, family="ridge"):
+        value = released_value(rel, q, family)
+        return None if value is None else {0: value}
+    cells = tuple(Cell(f"{LABEL[q]} ridge", CONTROLS[key][q], R2, **at(ridge(q)), released=released_of(q))
+                  for q in ("log_m", "gamma", "log_k"))
+    cells += tuple(Cell(f"{LABEL[q]} MLP", P.CONTROLS_MLP[key][q], R2, **at(mlp(q)), released=released_of(q, "mlp"))
                    for q in ("log_m", "gamma", "log_k"))
-    cells += tuple(Cell(LABEL[q], CONTROLS[key][q], R2, **at(ridge(q))) for q in ("object_pos", "object_vel"))
+    cells += tuple(Cell(LABEL[q], CONTROLS[key][q], R2, **at(ridge(q)), released=released_of(q))
+                   for q in ("object_pos", "object_vel"))
     if key in P.CONTROLS_DIRECT16:
-        cells += (Cell("direct-16", P.CONTROLS_DIRECT16[key], ERROR, **at("prediction/direct16")),)
+        cells += (Cell("direct-16", P.CONTROLS_DIRECT16[key], ERROR, **at("prediction/direct16"),
+                       released=released_of("direct16")),)
     return Row(rid, "frontier", "§4.5; App. C Table \"controls\"", f"objective-attribution control: {key}", cells,
-               cause=cause, needs=NEEDS_GPU)
+               cause=cause, needs=NEEDS_GPU, release=f"exp/e003_motion {rel['source'].rsplit('/', 1)[-1]}",
+               note="velocity: the release's moving-window readout (the paper's column), ours contact windows")
 
 
 def control_rows() -> tuple[Row, ...]:
@@ -934,7 +957,7 @@ def control_rows() -> tuple[Row, ...]:
         control_row("E6", "V-recon", run("V", "objectiverecon"),
                     "V with pixel reconstruction keeps position at 0.95 at cpu (paper 0.75; V without it 0.98) and "
                     "its mass falls to 0.03 (paper 0.16; V 0.14): at this budget reconstruction removes the mass the "
-                    "paper's V-recon keeps"),
+                    "paper's V-recon keeps (the paper's MLP log k −0.10 reads −0.0003 in the release's run)"),
         control_row("E7", "VFX-recon", run("VFX", "objectiverecon"),
                     "VFX-recon reads log k 0.41 at cpu (paper 0.61), below the same seed's VFX 0.54 where the "
                     "paper's sits above its VFX (0.61 vs 0.50): on the reference environment at cpu reconstruction "
@@ -1047,11 +1070,16 @@ def dose_rows() -> tuple[Row, ...]:
     glide = {w: dose("" if w == 1.0 else f"glide_loss_weight{w}") for w in DOSE_GLIDE}
     touch = {w: dose("" if w == 4.0 else f"touch_contact_weight{w}") for w in DOSE_TOUCH}
 
+    def released_dose(table, w):  # the release's run of a dose (weight 4 of dose 2 is the factorial's VFX)
+        if table is DOSE_GLIDE:
+            return FLOW_RUNS[DOSE_GLIDE_RUNS[w]]
+        return DOSE_TOUCH_RUNS.get(w) or MULTI_HORIZON[("VFX", 0)]
+
     def cells(weights, runs, table, q, path, tol, label, pick=None):
-        """``pick`` reads the release's run of a weight (dose 1's, :data:`DOSE_GLIDE_RUNS`) for the released column."""
+        """``pick`` reads the release's run of a weight (:func:`released_dose`) for the released column."""
         return tuple(Cell(f"{label} {w:g}", table[w][q], tol, Read(MPR, f"{runs[w]}/{path}"),
                           at_cpu(FC, f"{runs[w]}/{path}"),
-                          released={0: pick(FLOW_RUNS[DOSE_GLIDE_RUNS[w]])} if pick else None) for w in weights)
+                          released={0: pick(released_dose(table, w))} if pick else None) for w in weights)
     share = tuple(Cell(f"glide loss share at weight {w:g}", DOSE_GLIDE[w]["share"], POINTS,
                        cpu=at_cpu(FC, f"{glide[w]}/trained/glide_loss_share")) for w in DOSE_GLIDE)
     d1, d2 = "App. C Table \"dose1\"", "App. C Table \"dose2\""
@@ -1084,13 +1112,16 @@ def dose_rows() -> tuple[Row, ...]:
             note=DOSE1_NOTE + "; the paper's velocity is the release's moving-window readout, ours contact windows",
             release=DOSE1_RELEASE),
         Row("E19", "frontier", d2, "dose 2: log k against the contact-frame touch weight",
-            cells(DOSE_TOUCH, touch, DOSE_TOUCH, "log_k", ridge("log_k"), R2, "touch weight"),
+            cells(DOSE_TOUCH, touch, DOSE_TOUCH, "log_k", ridge("log_k"), R2, "touch weight",
+                  lambda r: r["ridge"]["log_k"]),
             cause="at cpu on the reference environment starving touch starves stiffness, as in the paper (0.54 / "
                   "0.52 / 0.20 / −0.01 at weights 4 / 1 / 0.25 / 0; paper 0.50 / 0.37 / 0.12 / −0.005), but weight 1 "
                   "keeps nearly all of it (0.52 against the paper's 0.37): the fall comes at a lower dose here"),
         Row("E20", "frontier", d2, "dose 2: log m and γ",
-            cells(DOSE_TOUCH, touch, DOSE_TOUCH, "log_m", ridge("log_m"), R2, "log m, touch weight")
-            + cells(DOSE_TOUCH, touch, DOSE_TOUCH, "gamma", ridge("gamma"), R2, "γ, touch weight"),
+            cells(DOSE_TOUCH, touch, DOSE_TOUCH, "log_m", ridge("log_m"), R2, "log m, touch weight",
+                  lambda r: r["ridge"]["log_m"])
+            + cells(DOSE_TOUCH, touch, DOSE_TOUCH, "gamma", ridge("gamma"), R2, "γ, touch weight",
+                    lambda r: r["ridge"]["gamma"]),
             cause="at cpu on the reference environment mass reads 0.07–0.13 and γ 0.00–0.04 at every dose: the cpu "
                   "budget's levels (the paper-budget VFX reads 0.31 / 0.15), so the paper's flat mass and γ columns "
                   "cannot be told from a floor here"),

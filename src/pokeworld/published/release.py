@@ -158,6 +158,60 @@ FLOW_SENSOR_VFX = {
 #: velocity 0.85 / 0.79 / 0.70 / 0.65 and glide-window γ 0.08 → 0.27 are these runs' to two decimals.
 DOSE_GLIDE_RUNS = {1.0: "fl_g", 4.0: "fl_g_gw4", 16.0: "fl_g_gw16", 64.0: "fl_g_gw64"}
 
+#: The objective-attribution controls (Table "controls"; exp/e003_motion, λ 0.02, seed 0): ``--sysid`` (``_sid``),
+#: ``--nll`` (``_nll``), ``--recon`` (``_rc``, V and VFX; pixel targets, so no latent rollout: direct-16 None). The
+#: table's velocity column is ``object_vel_moving`` (``probe.velocity_r2.moving``), its position ``object_pos_frame``.
+CONTROL_RUNS = {
+    "VFX+sysid": {"source": "exp/e003_motion/results/VFX_s0_l0.02_sid.json", "params": 4_203_161, "minutes": 43.3,
+        "ridge": {"log_k": 0.9106, "log_m": 0.7193, "gamma": 0.4499}, "gamma_glide": 0.4229,
+        "mlp": {"log_k": 0.9094, "log_m": 0.6973, "gamma": 0.3937}, "mlp_gamma_glide": 0.0068,
+        "object_vel": 0.74, "object_vel_moving": 0.7771, "object_pos_frame": 0.975,
+        "direct16": 0.1011, "rollout16": 0.1362},
+    "VFX-gnll": {"source": "exp/e003_motion/results/VFX_s0_l0.02_nll.json", "params": 4_262_700, "minutes": 36.6,
+        "ridge": {"log_k": 0.4932, "log_m": 0.3055, "gamma": 0.0965}, "gamma_glide": 0.0364,
+        "mlp": {"log_k": 0.4837, "log_m": 0.2854, "gamma": 0.0741}, "mlp_gamma_glide": -0.0155,
+        "object_vel": 0.8708, "object_vel_moving": 0.8828, "object_pos_frame": 0.9958,
+        "direct16": 0.1431, "rollout16": 0.1205},
+    "V-recon": {"source": "exp/e003_motion/results/V_s0_l0.02_rc.json", "params": 8_204_609, "minutes": 61.8,
+        "ridge": {"log_k": -0.0124, "log_m": 0.1547, "gamma": 0.0817}, "gamma_glide": -0.1127,
+        "mlp": {"log_k": -0.0003, "log_m": 0.0024, "gamma": -0.0009}, "mlp_gamma_glide": 0.0012,
+        "object_vel": 0.3741, "object_vel_moving": 0.4673, "object_pos_frame": 0.7448,
+        "direct16": None, "rollout16": None},
+    "VFX-recon": {"source": "exp/e003_motion/results/VFX_s0_l0.02_rc.json", "params": 8_298_743, "minutes": 62.5,
+        "ridge": {"log_k": 0.6132, "log_m": 0.1855, "gamma": 0.0327}, "gamma_glide": -0.1216,
+        "mlp": {"log_k": 0.6299, "log_m": 0.1891, "gamma": -0.037}, "mlp_gamma_glide": -0.0107,
+        "object_vel": 0.5592, "object_vel_moving": 0.6419, "object_pos_frame": 0.9463,
+        "direct16": None, "rollout16": None},
+}
+
+#: Dose–response 2 (Table "dose2": the contact-frame touch weight ``--touchw``, tags ``_tw1 / _tw0.25 / _tw0``; the
+#: default 4 is the VFX of :data:`MULTI_HORIZON`), on the standard split without flow input.
+DOSE_TOUCH_RUNS = {
+    1.0: {"source": "exp/e003_motion/results/VFX_s0_l0.02_tw1.json", "params": 4_184_342, "minutes": 37.5,
+        "ridge": {"log_k": 0.374, "log_m": 0.2843, "gamma": 0.1354}, "gamma_glide": 0.2547,
+        "mlp": {"log_k": 0.3892, "log_m": 0.2202, "gamma": 0.0415}, "mlp_gamma_glide": -0.0063,
+        "object_vel": 0.7749, "object_vel_moving": 0.797, "object_pos_frame": 0.9786,
+        "direct16": 0.0927, "rollout16": 0.1146},
+    0.25: {"source": "exp/e003_motion/results/VFX_s0_l0.02_tw0.25.json", "params": 4_184_342, "minutes": 36.8,
+        "ridge": {"log_k": 0.1243, "log_m": 0.2566, "gamma": 0.1335}, "gamma_glide": 0.2962,
+        "mlp": {"log_k": 0.0991, "log_m": 0.1987, "gamma": 0.0493}, "mlp_gamma_glide": -0.0048,
+        "object_vel": 0.803, "object_vel_moving": 0.8222, "object_pos_frame": 0.9791,
+        "direct16": 0.0918, "rollout16": 0.1084},
+    0.0: {"source": "exp/e003_motion/results/VFX_s0_l0.02_tw0.json", "params": 4_184_342, "minutes": 35.8,
+        "ridge": {"log_k": -0.0055, "log_m": 0.2124, "gamma": 0.142}, "gamma_glide": 0.3204,
+        "mlp": {"log_k": -0.0937, "log_m": 0.146, "gamma": 0.0496}, "mlp_gamma_glide": 0.002,
+        "object_vel": 0.8046, "object_vel_moving": 0.8217, "object_pos_frame": 0.9783,
+        "direct16": 0.0926, "rollout16": 0.1063},
+}
+
+#: VFX on the contact-poor training split (``--dsuf 4``, tag ``_d4``; probed on the standard probe split, whose
+#: 3,228 contact test windows it shares): §4.4 "Data coverage"'s log k 0.05, log m 0.11, position 0.87, velocity 0.58.
+CONTACT_POOR_VFX = {"source": "exp/e003_motion/results/VFX_s0_l0.02_d4.json", "params": 4_184_342, "minutes": 36.5,
+        "ridge": {"log_k": 0.046, "log_m": 0.1108, "gamma": 0.0682}, "gamma_glide": 0.0965,
+        "mlp": {"log_k": -0.0012, "log_m": 0.0064, "gamma": -0.003}, "mlp_gamma_glide": -0.0043,
+        "object_vel": 0.4871, "object_vel_moving": 0.5778, "object_pos_frame": 0.8663,
+        "direct16": 0.1812, "rollout16": 0.2995}
+
 DRIFT_LINEAR_CERTIFICATE = {"drift_x": 0.038, "drift_y": 0.019}
 """The release's linear certificate of a drift acceleration of the object on raw 16-step windows, all windows
 (exp/e003_motion/results/drift_probe.json, ``cert_linear_raw``; its review_fixes.py, mode "drift"): its generator
@@ -224,5 +278,7 @@ def released(variant: str, seed: int, table: dict = MULTI_HORIZON) -> dict:
     return table.get((variant, seed), {})
 
 
-__all__ = ["SOURCE_REPO", "RESULTS_COMMIT", "MODEL_COMMIT", "MULTI_HORIZON", "LAMBDA_0_1", "LAMBDA_SWEEP_VFX", "FLOW_SENSOR_VFX", "DOSE_GLIDE_RUNS", "RUNS",
-           "CORRECTED_ACTIONS_VFX", "ORACLE_EMBEDDING_PARAMS", "DRIFT_LINEAR_CERTIFICATE", "SINGLE_HORIZON", "MULTISCALE", "released"]
+__all__ = ["SOURCE_REPO", "RESULTS_COMMIT", "MODEL_COMMIT", "MULTI_HORIZON", "LAMBDA_0_1", "LAMBDA_SWEEP_VFX",
+           "FLOW_SENSOR_VFX", "DOSE_GLIDE_RUNS", "CONTROL_RUNS", "DOSE_TOUCH_RUNS", "CONTACT_POOR_VFX", "RUNS",
+           "CORRECTED_ACTIONS_VFX", "ORACLE_EMBEDDING_PARAMS", "DRIFT_LINEAR_CERTIFICATE", "SINGLE_HORIZON",
+           "MULTISCALE", "released"]
