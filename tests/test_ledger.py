@@ -94,13 +94,14 @@ def test_ledger_shares_runs_and_labels_every_mechanism(tmp_path):
     specs = exp_ledger(c)
     labels = [ledger_mechanism({"train": s.train, "corpus": s.corpus}) for s in specs]
     assert labels == ["single-horizon head", "multi-horizon heads", "no motion input channel", "spatial tokens",
-                      "magnitude-weighted motion targets", "frozen flow sensor (velocity and log speed)", "glide-enriched loss"]
+                      "magnitude-weighted motion targets", "frozen flow velocity sensor",
+                      "flow sensor with the log-speed coordinate", "glide-enriched loss"]
     names = {s.name for s in all_specs(c)}
     # shared runs train once: the factorial's VFX, the controls' token run and the coordinate run are the ledger's
-    assert {specs[1].name, specs[3].name, specs[5].name} <= names
+    assert {specs[1].name, specs[3].name, specs[6].name} <= names
     assert len(names) == len({s.name for s in all_specs(map_config("tiny", out=str(tmp_path),
                                                                    experiments=("factorial", "controls",
-                                                                                "coordinate")))}) + 4
+                                                                                "coordinate")))}) + 5
 
     def run(s, gc, gg):
         return {"train": s.train, "corpus": s.corpus, "probes": {"ridge": {"contact": {"gamma": gc, "object_vel": 0.5},
@@ -112,7 +113,7 @@ def test_ledger_shares_runs_and_labels_every_mechanism(tmp_path):
                "certificates": {"standard": {"estimators": {"drag": {"contact": {"gamma": 0.83}},
                                                             "gru": {"contact": {"gamma": 0.28}, "glide": {"gamma": 0.4}}}}}}
     text = "\n".join(report.ledger_table(results))
-    assert "| glide-enriched loss | +0.06 | +0.12 | +0.12 / no gain |" in text
+    assert "| glide-enriched loss | +0.07 | +0.14 | +0.14 / no gain |" in text
     assert "contact (drag) +0.83, glide (gru) +0.40" in text
     paths = report.ledger_figure(results, tmp_path)
     assert all(p.exists() for p in paths)

@@ -40,6 +40,9 @@ from ..windows import glide_frames
 
 CHANNELS = ("finger_x", "finger_y", "finger_vx", "finger_vy", "flow_vx", "flow_vy", "log_speed")
 """Proprio channels of the flow corpus: the source's four, then the sensor's three."""
+VELOCITY_CHANNELS = CHANNELS[:6]
+"""Proprio channels of the ``flow_velocity`` corpus: the flow corpus's without the log speed (the γ ledger's "frozen
+flow velocity sensor", where the coordinate test adds the log-speed coordinate)."""
 
 
 def _verify_flow_corpus(out: Path) -> None:
@@ -113,6 +116,38 @@ def flow_dataset(src: Dataset, cfg: FlowConfig, log_every: int = 0) -> tuple[Dat
     return ds, net
 
 
+def velocity_only(flow_ds: Dataset) -> Dataset:
+    """The ``flow_velocity`` corpus of a flow corpus: the same episodes and frozen sensor's velocity, without the
+    log-speed channel, so the two runs differ by the log-speed coordinate alone."""
+    names = flow_ds.manifest.get("proprio_channels")
+    if tuple(names or ()) != CHANNELS:
+        raise DataError(f"the flow_velocity corpus derives from a flow corpus (proprio channels {list(CHANNELS)}), "
+                        f"got {names}")
+    manifest = {k: v for k, v in flow_ds.manifest.items() if k not in ("content_sha256", "stats")}
+    manifest.update(corpus="flow_velocity", proprio_channels=list(VELOCITY_CHANNELS),
+                    flow={**flow_ds.manifest.get("flow", {}), "flow_sha256": flow_ds.manifest.get("content_sha256")})
+    return Dataset(frames=flow_ds.frames, proprio=np.ascontiguousarray(flow_ds.proprio[..., :len(VELOCITY_CHANNELS)]),
+                   touch=flow_ds.touch, actions=flow_ds.actions, labels=flow_ds.labels, params=flow_ds.params,
+                   split=flow_ds.split, manifest=manifest)
+
+
+def build_flow_velocity_corpus(flow_dir: str | Path, out: str | Path) -> Path:
+    """Write the ``flow_velocity`` corpus (:func:`velocity_only`) of the flow corpus at ``flow_dir`` to ``out``;
+    skipped when ``out`` already holds it for that flow corpus (its content hash), refused when it holds another."""
+    out = Path(out)
+    check_flow_destination(out)
+    source_hash = read_manifest(flow_dir).get("content_sha256")
+    if is_complete(out):
+        prev = read_manifest(out).get("flow")
+        if isinstance(prev, dict) and prev.get("flow_sha256") == source_hash:
+            print(f"[flow] {out} already holds the velocity-only corpus of {flow_dir}; skipping")
+            return out
+        raise ConfigError(f"{out} holds a different store; move it away or choose another directory")
+    save(velocity_only(load(flow_dir)), out)
+    print(f"[flow] wrote {out}: the flow corpus's velocity channels without the log speed")
+    return out
+
+
 def build_flow_corpus(source: str | Path, out: str | Path, cfg: FlowConfig, overwrite: bool = False) -> Path:
     """Write the ``flow`` corpus derived from the store at ``source`` to ``out`` (and the frozen sensor to
     ``out/flow_sensor.pt``); skipped when ``out`` already holds it for the same source and sensor config."""
@@ -137,4 +172,5 @@ def build_flow_corpus(source: str | Path, out: str | Path, cfg: FlowConfig, over
     return out
 
 
-__all__ = ["CHANNELS", "FLOW_CORPUS", "build_flow_corpus", "check_flow_destination", "flow_dataset", "sensor_quality"]
+__all__ = ["CHANNELS", "VELOCITY_CHANNELS", "FLOW_CORPUS", "build_flow_corpus", "build_flow_velocity_corpus",
+           "velocity_only", "check_flow_destination", "flow_dataset", "sensor_quality"]

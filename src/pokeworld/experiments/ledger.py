@@ -23,7 +23,8 @@ LEDGER = {  # App. C, the γ intervention ledger (text): mechanism -> the paper'
     "multi-horizon heads": "0.12 (plateau)",
     "spatial tokens": "no gain",
     "magnitude-weighted motion targets": "no gain",
-    "frozen flow sensor (velocity and log speed)": "plateau unchanged",
+    "frozen flow velocity sensor": "plateau unchanged",
+    "flow sensor with the log-speed coordinate": "0.33 on glide windows",
     "glide-enriched loss": "no gain",
 }
 
@@ -39,12 +40,14 @@ LEDGER_MOTION_ALPHA = 4.0
 def specs(c: MapConfig) -> list[RunSpec]:
     """The γ intervention ledger (App. C): every prediction-side mechanism against drag, one VFX run each —
     single- vs multi-horizon heads, the temporal-difference input channel off, spatial tokens, magnitude-weighted
-    motion-forecast targets, the frozen flow sensor's input channel, and a glide-enriched loss (glide weight 16).
+    motion-forecast targets, the frozen flow sensor's velocity as input (then with its log-speed coordinate, the
+    coordinate test's run: the figure's "linearizing sensed coordinate"), and a glide-enriched loss (weight 16).
     Runs shared with lazy / factorial / controls / coordinate / dose_glide keep those experiments' names."""
     s, lam = c.seeds[0], c.sigreg_weight
     return [spec("lazy", "VFX", s, lam, horizons=(1,)), spec("factorial", "VFX", s, lam),
             spec("ledger", "VFX", s, lam, motion_channel=False), spec("controls", "VFX", s, lam, tokens=True),
             spec("ledger", "VFX", s, lam, motion_loss_weight=LEDGER_MOTION_ALPHA),
+            spec("ledger", "VFX", s, lam, corpus="flow_velocity", measure_corpus="flow_velocity"),
             spec("coordinate", "VFX", s, lam, corpus="flow", measure_corpus="flow"),
             spec("dose_glide", "VFX", s, lam, glide_loss_weight=16.0)]
 
@@ -52,8 +55,10 @@ def specs(c: MapConfig) -> list[RunSpec]:
 def ledger_mechanism(run: dict) -> str:
     """Ledger row label of a run (the mechanism it deploys), from its corpus and train overrides."""
     t = run["train"]
+    if run.get("corpus") == "flow_velocity":
+        return "frozen flow velocity sensor"
     if run.get("corpus") == "flow":
-        return "frozen flow sensor (velocity and log speed)"
+        return "flow sensor with the log-speed coordinate"
     if t.get("tokens"):
         return "spatial tokens"
     if t.get("motion_loss_weight", 0.0) > 0:

@@ -13,7 +13,7 @@ from ..config import to_dict
 from ..data import read_manifest
 from ..errors import PokeworldError
 from ..evaluate import measure
-from ..evaluate.coordinate import build_flow_corpus
+from ..evaluate.coordinate import build_flow_corpus, build_flow_velocity_corpus
 from ..io import atomic_path, read_json, write_json
 from ..models import flow
 from ..progress import HEARTBEAT_S, duration
@@ -61,8 +61,9 @@ def corpus_config(c: MapConfig, corpus: str) -> generate.GenerateConfig:
 def ensure_corpus(c: MapConfig, corpus: str) -> Path:
     """Generate corpus ``corpus`` into the map folder (skipped when it is there and current)."""
     if corpus == "flow":  # derived from the standard corpus by the frozen flow sensor
-
         return build_flow_corpus(ensure_corpus(c, "standard"), corpus_dir(c, "flow"), flow.make_config(c.preset))
+    if corpus == "flow_velocity":  # the flow corpus without its log-speed channel
+        return build_flow_velocity_corpus(ensure_corpus(c, "flow"), corpus_dir(c, corpus))
 
     try:
         return generate.run(corpus_config(c, corpus))
@@ -103,6 +104,8 @@ def ensure_certificates(c: MapConfig, corpus: str) -> dict:
     if c.certify_fit_episodes >= 0:
         cost["fit_episodes"] = c.certify_fit_episodes
     cost["separate_targets"] = c.certify_separate_targets
+    if corpus == "flow_velocity":  # the standard episodes, no channel a certificate reads: the standard's
+        return {**ensure_certificates(c, "standard"), "gate_from": "standard"}
     if corpus == "flow":
         # the state-based estimators do not read the appended channels: only the log-speed certificate is new
         path = certify.run(certify.make_config(c.preset, data=str(corpus_dir(c, corpus)), targets=("gamma",),
