@@ -49,7 +49,8 @@ def test_only_this_configurations_runs_count_and_others_are_named(tmp_path):
     # 2, then the other experiments' runs, by their run names (finding 2's single-horizon factorial first)
     assert p["queue"][:17] == ["V@0", "VF@0", "VX_t@0", "VX_p@0", "VX@0", "VFX@1", "VF@1", "V@1", "VX_t@1",
                                "VX_p@1", "VX@1", "VFX@2", "VF@2", "V@2", "VX_t@2", "VX_p@2", "VX@2"]
-    assert p["queue"][17] == "V-h1-lam0.02-standard-s0" and len(p["queue"]) == len(set(p["queue"])) > 50
+    assert p["queue"][17] == "V-h1-lam0.1-standard-motion_channelFalse-s0"
+    assert len(p["queue"]) == len(set(p["queue"])) > 50
     assert p["finished"] == ["VFX@0"] and p["resume"] == {"V@0": {"step": 700, "from": "new"}}
     assert p["other_configurations"] == {"aaaaaaaaaaaa": {"finished": ["VF@0", "VFX@0"], "corpora": ["abababababab"],
                                                           "commits": ["ad841ac"]}}

@@ -179,6 +179,16 @@ def test_static_baseline_is_decoded_like_every_prediction():
     assert lossy["static16"] != pytest.approx(lossy["static16_true"], abs=1e-3)
 
 
+def test_frame_position_r2_reads_the_frame_latent_and_can_come_out_either_way():
+    ds = planted_dataset(steps=30)
+    ds.proprio[..., :2] = ds.labels["object_pos"]  # the frame latent is the object position
+    model, cfg = PlantedModel(), M.MeasureConfig(mlp=False)
+    exact = M.prediction_quality(model, ds, *M.probe_latents(model, ds, cfg), seed=0)["frame_position_r2"]
+    ds.proprio[..., :2] = np.random.default_rng(1).normal(size=ds.labels["object_pos"].shape)  # no position at all
+    blind = M.prediction_quality(model, ds, *M.probe_latents(model, ds, cfg), seed=0)["frame_position_r2"]
+    assert exact > 0.99 and blind < 0.05
+
+
 # --------------------------------------------------------------------------- report under the gate
 def results_with_gate(gru_gamma: float, drag_gamma: float) -> dict:
     from pokeworld.certify import certificate_table, gate

@@ -12,7 +12,7 @@ import numpy as np
 import torch
 
 from ..data import Dataset
-from ..regressors import RidgeCV
+from ..regressors import RidgeCV, r2_scores
 from ..windows import make_windows, wall_contact
 from .state import EpisodeLatents, as_model_input, padded_actions
 
@@ -30,6 +30,17 @@ def position_decoder(ds: Dataset, lat_fit: EpisodeLatents, fit_eps: np.ndarray, 
     return RidgeCV().fit(z[keep], y[keep], g[keep])
 
 
+def frame_position_r2(ds: Dataset, dec: RidgeCV, lat: EpisodeLatents, episodes: np.ndarray,
+                      label: str = "object_pos") -> float:
+    """Held-out R² (mean over coordinates) of the position decoder on every frame of ``episodes``: how linearly the
+    encoder's per-frame latent holds the position, the release's ``probe_r2_pos_frame`` (the lazy equilibrium's
+    position column reads the frame embedding, not the predictor state)."""
+    rows = np.array([lat.index[int(e)] for e in episodes])
+    z = lat.z[rows].reshape(-1, lat.z.shape[-1])
+    y = ds.labels[label][episodes].reshape(len(z), -1)
+    return float(np.mean(r2_scores(y, dec.predict(z))))
+
+
 @torch.no_grad()
 def prediction_quality(model, ds: Dataset, lat_fit: EpisodeLatents, lat_test: EpisodeLatents, seed: int,
                        position: str = "object_pos", test_split: str = "probe_test", context: int = CONTEXT,
@@ -40,7 +51,7 @@ def prediction_quality(model, ds: Dataset, lat_fit: EpisodeLatents, lat_test: Ep
     Every prediction, the static baseline included, goes through the same position decoder (fit on
     ``lat_fit``, the probe-fit episodes, to ``labels/<position>``), so all candidates carry its error;
     ``probe_error`` is that decoder's error on the true future latent (the floor no decoded prediction
-    can beat on average). ``static16_true`` / ``static8_true`` are the undecoded static errors in true
+    can beat on average), ``frame_position_r2`` its R² on every test frame (:func:`frame_position_r2`). ``static16_true`` / ``static8_true`` are the undecoded static errors in true
     position space, for reference only. Keys name the horizon (``direct16``, ``rollout8``, ... for the
     default 16 and its half). ``lat_test`` must hold the ``test_split`` episodes. ``glide`` adds the
     simulator's functional glide test. ``decoder``: that position decoder when the caller already fit it
@@ -64,7 +75,8 @@ def prediction_quality(model, ds: Dataset, lat_fit: EpisodeLatents, lat_test: Ep
     out = {"windows": len(w),
            f"static{H}": err(static_decoded, truth), f"static{H}_true": err(ctx_pos, truth),
            f"static{half}": err(static_decoded, truth_half), f"static{half}_true": err(ctx_pos, truth_half),
-           "probe_error": err(truth_decoded, truth)}
+           "probe_error": err(truth_decoded, truth),
+           "frame_position_r2": frame_position_r2(ds, dec, lat_test, test_eps, position)}
     direct = None
     if H in model.horizons:
         # the trunk reads its own input (every token of a token model); the direct head predicts the latent the

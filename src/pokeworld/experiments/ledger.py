@@ -42,9 +42,9 @@ def specs(c: MapConfig) -> list[RunSpec]:
     single- vs multi-horizon heads, the temporal-difference input channel off, spatial tokens, magnitude-weighted
     motion-forecast targets, the frozen flow sensor's velocity as input (then with its log-speed coordinate, the
     coordinate test's run: the figure's "linearizing sensed coordinate"), and a glide-enriched loss (weight 16).
-    Runs shared with lazy / factorial / controls / coordinate / dose_glide keep those experiments' names."""
+    Runs shared with factorial / controls / coordinate / dose_glide keep those experiments' names."""
     s, lam = c.seeds[0], c.sigreg_weight
-    return [spec("lazy", "VFX", s, lam, horizons=(1,)), spec("factorial", "VFX", s, lam),
+    return [spec("ledger", "VFX", s, lam, horizons=(1,)), spec("factorial", "VFX", s, lam),
             spec("ledger", "VFX", s, lam, motion_channel=False), spec("controls", "VFX", s, lam, tokens=True),
             spec("ledger", "VFX", s, lam, motion_loss_weight=LEDGER_MOTION_ALPHA),
             spec("ledger", "VFX", s, lam, corpus="flow_velocity", measure_corpus="flow_velocity"),
