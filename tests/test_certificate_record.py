@@ -45,6 +45,18 @@ def test_two_pieces_give_the_record_one_call_with_both_estimators_would_have_wri
     assert again["estimators"] == merged["estimators"] and again["pieces"] == 3
 
 
+def test_drag_coverage_travels_with_its_piece_and_a_disagreeing_copy_is_refused():
+    cov = {"drag": {"contact": {"windows": 40, "with_glide_pair": 0.75, "r2_with_glide_pair": 1.0, "r2_without": -0.1,
+                                "r2_lost_without": 0.2}}}
+    drag = {"drag": {"contact": {"gamma": 0.8}}}
+    merged = merge_records([("a", piece(LINEAR)), ("b", {**piece(drag), "drag_coverage": cov})])
+    assert merged["drag_coverage"] == cov
+    assert "drag_coverage" not in merge_records([("a", piece(LINEAR)), ("b", piece(GRU))])
+    other = {"drag": {"contact": {**cov["drag"]["contact"], "with_glide_pair": 0.5}}}
+    with pytest.raises(DataError, match="coverage"):
+        merge_records([("a", {**piece(drag), "drag_coverage": cov}), ("b", {**piece(drag), "drag_coverage": other})])
+
+
 def test_targets_certified_separately_join_under_one_estimator():
     m = merge_records([("k", piece({"gru": {"contact": {"log_k": 0.9}}}, targets=("log_k",))),
                        ("m", piece({"gru": {"contact": {"log_m": 0.8}}}, targets=("log_m",)))])

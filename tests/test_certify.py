@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from pokeworld.certify import (DEFAULT_ESTIMATORS, ESTIMATORS, certify, certify_stage, drag_estimates, make_config,
-                               pixel_object_state)
+from pokeworld.certify import (DEFAULT_ESTIMATORS, ESTIMATORS, certify, certify_stage, drag_coverage, drag_estimates,
+                               make_config, pixel_object_state)
 
 from pokeworld.errors import ConfigError, DataError
 from pokeworld.regressors import RidgeCV, TorchRegressor, r2_scores
@@ -40,6 +40,22 @@ def test_drag_estimator_on_simulated_glide_windows(environment):
     np.testing.assert_allclose(est, law, rtol=1e-4)
 
 
+def test_drag_coverage_splits_the_certificate_into_glide_windows_and_the_rest(rng):
+    """Exact on the windows with a glide pair, the fit median on the rest: the covered part reads R² 1, the rest
+    reads ≤ 0 (a constant), and the rest's squared error is the whole of 1 − R²."""
+    y = rng.uniform(0.5, 3.0, 400)
+    has = np.arange(400) % 4 != 0
+    pred = np.where(has, y, np.median(y))
+    cov = drag_coverage(pred, has, y)
+    whole = 1 - np.sum((y - pred) ** 2) / np.sum((y - y.mean()) ** 2)
+    assert cov["with_glide_pair"] == pytest.approx(0.75) and cov["windows"] == 400
+    assert cov["r2_with_glide_pair"] == pytest.approx(1.0) and cov["r2_without"] <= 0.0
+    assert cov["r2_lost_without"] == pytest.approx(1 - whole)
+    noisy = drag_coverage(pred + has * rng.normal(0, 0.5, 400), has, y)  # errors on covered windows count there
+    assert noisy["r2_with_glide_pair"] < 0.9 and noisy["r2_lost_without"] == pytest.approx(cov["r2_lost_without"])
+    assert drag_coverage(y, np.ones(400, bool), y)["r2_without"] is None
+
+
 def test_ridge_recovers_planted_linear_signal_and_not_a_shuffled_one(rng):
     n, groups = 600, np.repeat(np.arange(60), 10)
     X = rng.normal(size=(n, 20))
@@ -73,6 +89,9 @@ def test_certify_on_tiny_corpus_reports_every_estimator(tiny_dataset):
     best = res["certificate"]["contact"]["gamma"]
     assert best["r2"] == max(r["contact"]["gamma"] for r in res["estimators"].values() if "contact" in r)
     assert res["counts"]["contact"]["fit"] > 0
+    cov = res["drag_coverage"]["drag"]["contact"]  # simulator speeds: near exact where a window glides
+    assert cov["windows"] == res["counts"]["contact"]["test"] and 0 < cov["with_glide_pair"] <= 1
+    assert cov["r2_with_glide_pair"] > 0.9 > cov["r2_without"]  # the fit support bounds a 50-episode fit
 
 
 def test_a_gru_certificate_reports_its_epochs_to_the_whole_job(tiny_dataset):

@@ -53,6 +53,21 @@ def _union_estimators(pieces: list[tuple[str, dict]]) -> dict:
     return out
 
 
+def _union_drag_coverage(pieces: list[tuple[str, dict]]) -> dict:
+    """The drag estimators' coverage (``certify.drag_coverage``) of every piece that has it; a cell in two pieces
+    must agree, as its R² does."""
+    out: dict = {}
+    for name, p in pieces:
+        for est, kinds in (p.get("drag_coverage") or {}).items():
+            for kind, cov in kinds.items():
+                have = out.setdefault(est, {}).get(kind)
+                if have is not None and have != cov:
+                    raise DataError(f"{name} and another piece differ in {est}'s coverage of {kind} windows: the same "
+                                    "cell fit twice disagrees; keep one")
+                out[est][kind] = cov
+    return out
+
+
 def _union_counts(pieces: list[tuple[str, dict]]) -> dict:
     out: dict = {}
     for name, p in pieces:
@@ -89,7 +104,8 @@ def merge_records(pieces: list[tuple[str, dict]]) -> dict:
             "gate": gate(certificate, estimators), "config": config, "dataset": pieces[0][1]["dataset"],
             "fit_corpus": pieces[0][1]["fit_corpus"],
             "warnings": _ordered_union(p.get("warnings", []) for _, p in pieces),
-            "pieces": sum(int(p.get("pieces", 1)) for _, p in pieces)}
+            "pieces": sum(int(p.get("pieces", 1)) for _, p in pieces),
+            **({"drag_coverage": cov} if (cov := _union_drag_coverage(pieces)) else {})}
 
 
 __all__ = ["SHARED_SETTINGS", "check_piece", "merge_records"]

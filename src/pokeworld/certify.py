@@ -214,9 +214,7 @@ def drag_estimates(speed: np.ndarray, glide: np.ndarray, dt: float, fallback: fl
     ``speed`` (W, L) object speeds and ``glide`` (W, L-1) marks frame pairs with no
     finger or wall contact. Windows without a usable pair get ``fallback``.
     """
-    if speed.ndim != 2 or glide.shape != (speed.shape[0], speed.shape[1] - 1):
-        raise DataError(f"speed (W, L) and glide (W, L-1) expected, got {speed.shape}, {glide.shape}")
-    ok = glide & (speed[:, :-1] > min_speed) & (speed[:, 1:] > min_speed)
+    ok = usable_glide_pairs(speed, glide, min_speed)
     rate = np.log(np.maximum(speed[:, :-1], 1e-9) / np.maximum(speed[:, 1:], 1e-9)) / dt
     rate = np.where(ok, rate, np.nan)
     out = np.full(len(speed), fallback, dtype=float)
@@ -224,6 +222,42 @@ def drag_estimates(speed: np.ndarray, glide: np.ndarray, dt: float, fallback: fl
     if has.any():
         out[has] = np.nanmedian(rate[has], axis=1)
     return out
+
+
+def usable_glide_pairs(speed: np.ndarray, glide: np.ndarray, min_speed: float = 0.02) -> np.ndarray:
+    """The frame pairs (W, L-1) the drag estimator reads: glide pairs (``glide``: no finger or wall contact at either
+    end) with both speeds above ``min_speed``, where the log-ratio of speeds is not noise."""
+    if speed.ndim != 2 or glide.shape != (speed.shape[0], speed.shape[1] - 1):
+        raise DataError(f"speed (W, L) and glide (W, L-1) expected, got {speed.shape}, {glide.shape}")
+    return glide & (speed[:, :-1] > min_speed) & (speed[:, 1:] > min_speed)
+
+
+def drag_prediction(ds: Dataset, w: Windows, vel: np.ndarray, y_fit: np.ndarray, dt: float
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """The drag estimator's γ for each window of ``w`` (object velocities ``vel`` (E, T+1, 2)) and which windows
+    hold a usable glide pair. The only thing it learns from the fit windows' γ (``y_fit``) is their median, the
+    estimate of a window without a usable pair, and their support, which bounds wild ratios from noisy (pixel)
+    speeds."""
+    speed = np.linalg.norm(w.gather(vel), axis=-1)
+    glide = glide_pairs(ds, w)
+    pred = drag_estimates(speed, glide, dt, float(np.median(y_fit)))
+    return np.clip(pred, y_fit.min(), y_fit.max()), usable_glide_pairs(speed, glide).any(1)
+
+
+def drag_coverage(pred: np.ndarray, has_pair: np.ndarray, y: np.ndarray) -> dict:
+    """Where the drag certificate's R² comes from: the share of windows with a usable glide pair, the R² on those
+    and on the rest (each against its own spread; None with fewer than two windows), and ``r2_lost_without``, the
+    part of 1 − R² (of the whole) that the windows without a pair account for."""
+    var = float(np.sum((y - y.mean()) ** 2))
+
+    def part(mask: np.ndarray) -> float | None:
+        if mask.sum() < 2 or np.ptp(y[mask]) == 0:
+            return None
+        return float(1.0 - np.sum((y[mask] - pred[mask]) ** 2) / np.sum((y[mask] - y[mask].mean()) ** 2))
+
+    lost = float(np.sum((y[~has_pair] - pred[~has_pair]) ** 2) / var) if var > 0 else None
+    return {"windows": int(len(y)), "with_glide_pair": float(has_pair.mean()) if len(y) else 0.0,
+            "r2_with_glide_pair": part(has_pair), "r2_without": part(~has_pair), "r2_lost_without": lost}
 
 
 def linear_sequence_r2(X_fit: np.ndarray, y_fit: np.ndarray, groups: np.ndarray, X_test: np.ndarray,
@@ -248,7 +282,8 @@ def log_speed_channel(ds: Dataset) -> np.ndarray | None:
     return ds.proprio[..., names.index("log_speed")]
 
 
-def _glide_pairs(ds: Dataset, w: Windows) -> np.ndarray:
+def glide_pairs(ds: Dataset, w: Windows) -> np.ndarray:
+    """Frame pairs (W, L-1) of ``w`` with no finger or wall contact at either end."""
     contact = w.gather(ds.labels["contact"]) > 0
     walls = w.gather(wall_contact(ds))
     free = ~(contact | walls)
@@ -320,12 +355,7 @@ def _estimator_r2(est: str, ds: Dataset, fit_ds: Dataset, cfg: CertifyConfig, wi
         if "gamma" not in cfg.targets:
             return None
         g_idx = cfg.targets.index("gamma")
-        fallback = float(np.median(y_fit[:, g_idx]))
-        speed = np.linalg.norm(w_test.gather(vel), axis=-1)
-        pred = drag_estimates(speed, _glide_pairs(ds, w_test), dt, fallback)
-        # the only thing this estimator learns from probe-fit: the parameter's support,
-        # which bounds wild ratios from noisy (pixel) speeds
-        pred = np.clip(pred, y_fit[:, g_idx].min(), y_fit[:, g_idx].max())
+        pred, _ = drag_prediction(ds, w_test, vel, y_fit[:, g_idx], dt)
         r2 = {"gamma": float(r2_scores(y_test[:, g_idx], pred)[0])}
     else:
         geometry = est in GEOMETRY
@@ -379,6 +409,21 @@ def _certify_kinds(ds: Dataset, fit_ds: Dataset, cfg: CertifyConfig, episodes, s
                 continue
             results["estimators"].setdefault(est, {})[kind] = r2
             print(f"[certify] {kind:8s} {est:11s} " + " ".join(f"{t}={v:+.3f}" for t, v in r2.items()), flush=True)
+            if est.startswith("drag"):  # what its R² is made of: the windows that hold a glide, and the rest
+                g = cfg.targets.index("gamma")
+                pred, has = drag_prediction(ds, w_test, test_state["pixel" if "_pixel" in est else "state"][1],
+                                            y_fit[:, g], dt)
+                cov = results.setdefault("drag_coverage", {}).setdefault(est, {})[kind] = drag_coverage(
+                    pred, has, y_test[:, g])
+                print(f"[certify] {kind:8s} {est:11s} {drag_coverage_line(cov)}", flush=True)
+
+
+def drag_coverage_line(cov: dict) -> str:
+    """:func:`drag_coverage` in words."""
+    f = lambda v: "—" if v is None else f"{v:.2f}"  # noqa: E731
+    return (f"{cov['with_glide_pair']:.0%} of {cov['windows']} windows hold a usable glide pair (R² "
+            f"{f(cov['r2_with_glide_pair'])} there); the rest take the fit windows' median (R² {f(cov['r2_without'])},"
+            f" {f(cov['r2_lost_without'])} of the whole's 1 − R²)")
 
 
 def certify_stage(data: str, kind: str, estimator: str) -> str:
@@ -528,6 +573,9 @@ def format_table(results: dict) -> str:
         lines.append(f"  {'estimator':12s}" + "".join(f"{t:>10s}" for t in targets))
         for est, r2 in rows.items():
             lines.append(f"  {est:12s}" + "".join(f"{r2[t]:>10.3f}" if t in r2 else f"{'-':>10s}" for t in targets))
+    for est, kinds in results.get("drag_coverage", {}).items():
+        for kind, cov in kinds.items():
+            lines.append(f"{est} on {kind} windows: {drag_coverage_line(cov)}")
     for t, g in gate_of(results).items():
         # print the comparison that holds (0.2 < 0.4 -> FAIL), as the protocol report does
         best = (f"{g['estimator']} {g['certificate']:.3f} {'>=' if g['passed'] else '<'} {g['threshold']}"
@@ -573,5 +621,6 @@ def load_gate(path: str | Path) -> dict:
 
 
 __all__ = ["CertifyConfig", "PRESETS", "GATES", "GATE_ESTIMATOR", "certify", "gate", "gate_of", "load_gate", "run",
-           "make_config", "fit_targets", "drag_estimates", "pixel_object_state", "window_features", "certify_stage",
+           "make_config", "fit_targets", "drag_estimates", "drag_prediction", "drag_coverage", "glide_pairs",
+           "usable_glide_pairs", "pixel_object_state", "window_features", "certify_stage",
            "epoch_reporting"]
