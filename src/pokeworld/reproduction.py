@@ -847,7 +847,8 @@ def lambda_rows() -> tuple[Row, ...]:
 
 
 def lever_rows() -> tuple[Row, ...]:
-    std, flow, poor = run("VFX", seed="0"), run("VFX", corpus="flow", seed="0"), run("VFX", corpus="contact_poor")
+    std, flow, poor = (run("VFX", seed="0"), run("VFX", corpus="flow_velocity", seed="0"),
+                       run("VFX", corpus="contact_poor"))
     best_k = lambda record, corpus: Read(record, f"certificates/{corpus}/certificate/contact/log_k/r2")  # noqa: E731
     coverage = tuple(Cell(f"standard {LABEL[q]}", COVERAGE["standard"][q], R2, **both(f"{run('VFX')}/{ridge(q)}", FC),
                           released=released("VFX", lambda r, q=q: released_value(r, q)))
@@ -889,11 +890,12 @@ def lever_rows() -> tuple[Row, ...]:
                   Read(MPR, f"{flow}/{ridge('object_vel')}"), at_cpu(LC, f"{flow}/{ridge('object_vel')}"),
                   released={0: FLOW_RUNS["fl"]["object_vel_moving"]})),
             cause="at cpu on the reference environment VFX reads velocity 0.66 without the sensor (the paper's "
-                  "0.79; the paper-budget VFX reads 0.82) and 0.93 with it (paper 0.88): the endpoint reproduces, the "
-                  "baseline is the cpu budget's (the retired calibrated environment: 0.58 → 0.87)",
+                  "0.79; the paper-budget VFX reads 0.82) and 0.93 with the frozen flow velocity sensor (paper "
+                  "0.88): the endpoint reproduces, the baseline is the cpu budget's (the retired calibrated "
+                  "environment: 0.58 → 0.87)",
             note="the paper's pair equals the release's moving-window velocity readouts (standard VFX 0.786, the "
-                 "velocity-only flow-input VFX 0.880); ours reads contact windows, and our flow run carries the "
-                 "log-speed channel too",
+                 "velocity-only flow-input VFX 0.880); ours reads contact windows, the sensor's velocity as proprio "
+                 "channels (the flow_velocity corpus; the release feeds dense flow image channels)",
             release="exp/e003_motion VFX_s0/s1_l0.02 and VFX_s0_l0.02_fl, moving windows"),
         Row("D2", "levers", "§4.4 \"Data coverage\"; App. C",
             "VFX on contact-poor data: log k 0.50 → 0.05, log m 0.29 → 0.11, position 0.98 → 0.87, velocity "
@@ -1169,14 +1171,14 @@ def ledger_rows() -> tuple[Row, ...]:
             if flow_stage else None
     plateau = AtMost(P.GAMMA_LEDGER["motion_channel"])
     L = P.GAMMA_LEDGER
-    flow = run("VFX", corpus="flow", seed="0")
+    flow, sensor = run("VFX", corpus="flow", seed="0"), run("VFX", corpus="flow_velocity", seed="0")
     stages = (("single-horizon head", L["single_horizon"], run("VFX", horizons="1", seed="0")),
               ("multi-horizon heads without the motion channel", L["multi_horizon"],
                run("VFX", "motion_channelFalse", seed="0")),
               ("multi-horizon heads with the motion channel (the default)", L["motion_channel"], run("VFX", seed="0")),
               ("spatial tokens (no gain)", plateau, run("VFX", "tokensTrue", seed="0")),
               ("magnitude-weighted motion targets (no gain)", plateau, run("VFX", "motion_loss_weight4.0", seed="0")),
-              ("frozen flow sensor, velocity and log speed (the paper: velocity alone, plateau unchanged)", plateau, run("VFX", corpus="flow", seed="0")),
+              ("frozen flow velocity sensor (no gain)", plateau, sensor),
               ("glide-enriched loss (no gain)", plateau, run("VFX", "glide_loss_weight16.0", seed="0")))
     std = run("VFX", seed="0")
     glide_cert = lambda est, corpus, kind="glide": Read(LC, cert(est, "gamma", corpus, kind))  # noqa: E731
@@ -1185,14 +1187,12 @@ def ledger_rows() -> tuple[Row, ...]:
     return (
         Row("E21", "frontier", "App. C Fig. \"ledger\"", "best γ readout under every prediction-side mechanism (VFX)",
             tuple(Cell(label, paper, R2, best(path)(MPR), Derived("default_first", (best(path)(FR), best(path)(LC))),
-                       released=released_best_gamma(path == flow))
+                       released=released_best_gamma(path == sensor))
                   for label, paper, path in stages),
             cause="at cpu on the reference environment every prediction-side mechanism's best γ is −0.01 to 0.02, "
                   "flat as in the paper but at the cpu budget's level (the default VFX 0.00; paper 0.12; the "
-                  "paper-budget VFX reads 0.15); the flow-sensor run reads 0.25 because our one flow run carries "
-                  "the coordinate test's log-speed channel beside the sensed velocity (the paper's two "
-                  "interventions; its 0.25 is on glide windows, row E23's 0.33 in the paper), 0.10 on contact "
-                  "windows",
+                  "paper-budget VFX reads 0.15); the frozen flow velocity sensor reads 0.05 (the release's 0.11), "
+                  "and only the coordinate test's log-speed channel lifts γ (0.25 on glide windows, row E23)",
             note="best γ = the largest ridge / MLP readout on contact and glide windows; our default trunk has the "
                  "motion channel, so the paper's stages map as labelled; the flow stage's released run is the "
                  "velocity-only sensor (its γ 0.11 on contact, 0.01 on glide windows)",
