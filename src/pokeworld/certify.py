@@ -420,10 +420,12 @@ def _certify_kinds(ds: Dataset, fit_ds: Dataset, cfg: CertifyConfig, episodes, s
 
 def drag_coverage_line(cov: dict) -> str:
     """:func:`drag_coverage` in words."""
-    f = lambda v: "—" if v is None else f"{v:.2f}"  # noqa: E731
+    def num(v: float | None) -> str:
+        return "—" if v is None else f"{v:.2f}"
+
     return (f"{cov['with_glide_pair']:.0%} of {cov['windows']} windows hold a usable glide pair (R² "
-            f"{f(cov['r2_with_glide_pair'])} there); the rest take the fit windows' median (R² {f(cov['r2_without'])},"
-            f" {f(cov['r2_lost_without'])} of the whole's 1 − R²)")
+            f"{num(cov['r2_with_glide_pair'])} there); the rest take the fit windows' median (R² "
+            f"{num(cov['r2_without'])}, {num(cov['r2_lost_without'])} of the whole's 1 − R²)")
 
 
 def certify_stage(data: str, kind: str, estimator: str) -> str:
