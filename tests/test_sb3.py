@@ -32,8 +32,9 @@ def test_a_flat_frame_would_not_be_an_image_to_sb3():
     assert not is_image_space(gym.spaces.Box(0, 255, (64, 64), np.uint8))
 
 
-def test_ppo_with_a_cnn_extractor_trains_on_the_dict_observation():
+def test_ppo_with_a_cnn_extractor_trains_on_the_dict_observation(tmp_path):
     from stable_baselines3 import PPO
+    from stable_baselines3.common.logger import configure
     from stable_baselines3.common.torch_layers import NatureCNN
 
     env = PokeWorldEnv(physics=PhysicsConfig(image_size=36), max_episode_steps=16)  # NatureCNN's smallest input
@@ -41,6 +42,7 @@ def test_ppo_with_a_cnn_extractor_trains_on_the_dict_observation():
     extractor = model.policy.features_extractor.extractors["vision"]
     assert isinstance(extractor, NatureCNN)  # the frame goes through convolutions, not a flatten
     before = [p.detach().clone() for p in extractor.parameters()]
+    model.set_logger(configure(str(tmp_path), []))  # sb3's default logger makes an SB3-<time> folder in /tmp
     model.learn(total_timesteps=256)
     assert model.num_timesteps >= 256
     assert any(not np.allclose(a.numpy(), b.detach().numpy()) for a, b in zip(before, extractor.parameters()))
