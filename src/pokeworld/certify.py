@@ -335,9 +335,10 @@ def epoch_reporting(make, stage_name: str, fits: int, cfg: CertifyConfig):
 
 
 def _estimator_r2(est: str, ds: Dataset, fit_ds: Dataset, cfg: CertifyConfig, windows, targets, states,
-                  dt: float, stage_name: str = "") -> dict[str, float] | None:
+                  dt: float, stage_name: str = "", extras: dict | None = None) -> dict[str, float] | None:
     """One estimator's held-out R² per target on one window kind (None when it does not apply to this store);
-    a neural estimator reports its epochs as ``stage_name``'s progress (:func:`epoch_reporting`)."""
+    a neural estimator reports its epochs as ``stage_name``'s progress (:func:`epoch_reporting`). A drag
+    estimator also puts its :func:`drag_coverage` into ``extras["drag_coverage"]`` (from the same prediction)."""
     w_fit, w_test = windows
     y_fit, y_test = targets
     fit_state, test_state = states
@@ -355,8 +356,10 @@ def _estimator_r2(est: str, ds: Dataset, fit_ds: Dataset, cfg: CertifyConfig, wi
         if "gamma" not in cfg.targets:
             return None
         g_idx = cfg.targets.index("gamma")
-        pred, _ = drag_prediction(ds, w_test, vel, y_fit[:, g_idx], dt)
+        pred, has_pair = drag_prediction(ds, w_test, vel, y_fit[:, g_idx], dt)
         r2 = {"gamma": float(r2_scores(y_test[:, g_idx], pred)[0])}
+        if extras is not None:
+            extras["drag_coverage"] = drag_coverage(pred, has_pair, y_test[:, g_idx])
     else:
         geometry = est in GEOMETRY
         X_fit = window_features(fit_ds, w_fit, pos_fit, vel_fit, geometry)
@@ -402,19 +405,16 @@ def _certify_kinds(ds: Dataset, fit_ds: Dataset, cfg: CertifyConfig, episodes, s
             now["what"] = f"{est} on {kind} windows ({len(w_fit)} fit / {len(w_test)} test; estimator {i + 1} of " \
                           f"{len(cfg.estimators)})"
             name = certify_stage(cfg.data, kind, est)
+            extras: dict = {}
             with stage(name, "certify"):  # a whole job's estimate hears of it
                 r2 = _estimator_r2(est, ds, fit_ds, cfg, (w_fit, w_test), (y_fit, y_test), (fit_state, test_state),
-                                   dt, name)
+                                   dt, name, extras)
             if r2 is None:
                 continue
             results["estimators"].setdefault(est, {})[kind] = r2
             print(f"[certify] {kind:8s} {est:11s} " + " ".join(f"{t}={v:+.3f}" for t, v in r2.items()), flush=True)
-            if est.startswith("drag"):  # what its R² is made of: the windows that hold a glide, and the rest
-                g = cfg.targets.index("gamma")
-                pred, has = drag_prediction(ds, w_test, test_state["pixel" if "_pixel" in est else "state"][1],
-                                            y_fit[:, g], dt)
-                cov = results.setdefault("drag_coverage", {}).setdefault(est, {})[kind] = drag_coverage(
-                    pred, has, y_test[:, g])
+            if "drag_coverage" in extras:  # what its R² is made of: the windows that hold a glide, and the rest
+                cov = results.setdefault("drag_coverage", {}).setdefault(est, {})[kind] = extras["drag_coverage"]
                 print(f"[certify] {kind:8s} {est:11s} {drag_coverage_line(cov)}", flush=True)
 
 
