@@ -79,16 +79,7 @@ def prediction_quality(model, ds: Dataset, lat_fit: EpisodeLatents, lat_test: Ep
            "frame_position_r2": frame_position_r2(ds, dec, lat_test, test_eps, position)}
     direct = None
     if H in model.horizons:
-        # the trunk reads its own input (every token of a token model); the direct head predicts the latent the
-        # decoder reads (the token mean), from the token-mean state
-        z_in = lat_test.gather(w, trunk=True)
-        preds = []
-        for i in range(0, len(w), 512):
-            zt = as_model_input(model, z_in[i:i + 512])
-            h = model.trunk(zt, acts[i:i + 512])
-            zh = model.predict(h, acts[i:i + 512], H)
-            preds.append(zh[:, context - 1].float().cpu().numpy())
-        direct = dec.predict(np.concatenate(preds))
+        direct = dec.predict(direct_latents(model, lat_test, w, acts, H, context))
         out[f"direct{H}"] = err(direct, truth)
     if 1 in model.horizons and not model.tokens:
         rolls = []
@@ -101,6 +92,20 @@ def prediction_quality(model, ds: Dataset, lat_fit: EpisodeLatents, lat_test: Ep
     if glide and direct is not None:
         out["glide_test"] = glide_test(ds, w, direct, fit_eps, residual=truth_decoded - truth, context=context)
     return out
+
+
+@torch.no_grad()
+def direct_latents(model, lat: EpisodeLatents, w, acts: np.ndarray, horizon: int, context: int = CONTEXT,
+                   batch: int = 512) -> np.ndarray:
+    """The direct Δ=``horizon`` head's prediction from the state at window position ``context`` − 1: (W, D), the
+    latent the position decoder reads. The trunk reads its own input (every token of a token model); a token
+    model's direct head predicts the token-mean latent from the token-mean state."""
+    z_in = lat.gather(w, trunk=True)
+    preds = []
+    for i in range(0, len(w), batch):
+        h = model.trunk(as_model_input(model, z_in[i:i + batch]), acts[i:i + batch])
+        preds.append(model.predict(h, acts[i:i + batch], horizon)[:, context - 1].float().cpu().numpy())
+    return np.concatenate(preds)
 
 
 def glide_test(ds: Dataset, w, predicted_pos: np.ndarray, fit_eps: np.ndarray,
