@@ -62,7 +62,9 @@ def test_on_a_trained_run_the_decoded_direct_error_is_the_measured_one(tmp_path,
     assert cli(["train", "--preset", "tiny", "--data", str(store), "--out", str(run)]) == 0
     assert cli(["probe", "--preset", "tiny", str(run)]) == 0
     assert main([str(run), "--preset", "tiny", "--out", str(out)]) == 0
-    row = json.loads(out.read_text())["runs"]["run"]
+    record = json.loads(out.read_text())
+    row = record["runs"]["run"]
+    assert str(tmp_path) not in record["provenance"]["command"]  # run folders by name, no machine paths
     measured = json.loads((run / "measure.json").read_text())["prediction"]
     assert row["decoded"]["direct"] == pytest.approx(measured["direct16"], rel=1e-5)
     assert row["decoded"]["static"] == pytest.approx(measured["static16"], rel=1e-5)

@@ -26,11 +26,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from .. import __version__
 from ..data import load
 from ..evaluate import measure
 from ..evaluate.prediction import HORIZON, direct_latents, position_decoder
 from ..evaluate.probes import probe_latents
 from ..evaluate.state import padded_actions
+from ..evaluate.tables import git_commit
 from ..io import write_json
 from ..run_store import trained_store
 from ..rundir import load_model
@@ -134,7 +136,11 @@ def main(argv: list[str] | None = None) -> int:
             return 2
     cfg = measure.make_config(a.preset)
     torch.manual_seed(cfg.seed)
-    out = {"preset": a.preset, "bands": list(BANDS), "runs": {}}
+    # run folders by name only: a record names no machine's paths
+    command = "python scripts/decoded_error_spectrum.py " + " ".join(f"RUNS/{p.name}" for p in a.runs) + \
+        (" --data DATA" if a.data else "") + f" --preset {a.preset} --out {a.out.name}"
+    out = {"preset": a.preset, "bands": list(BANDS), "runs": {},
+           "provenance": {"pokeworld": __version__, "git": git_commit(), "command": command}}
     for i, run in enumerate(a.runs):
         print(f"[decoded-error] {i + 1}/{len(a.runs)} {run.name}", flush=True)
         row = out["runs"][run.name] = run_spectrum(run, cfg, a.data)
