@@ -29,14 +29,12 @@ import torch
 from .. import __version__
 from ..data import load
 from ..evaluate import measure
-from ..evaluate.prediction import HORIZON, direct_latents, position_decoder
+from ..evaluate.prediction import HORIZON, direct_latents, future_windows, position_decoder, position_error
 from ..evaluate.probes import probe_latents
-from ..evaluate.state import padded_actions
 from ..evaluate.tables import git_commit
 from ..io import write_json
 from ..run_store import trained_store
 from ..rundir import load_model
-from ..windows import make_windows
 
 BANDS = (4, 16, 32)
 """Upper edges of the principal-component bands (the last band runs to the latent's dimension)."""
@@ -99,18 +97,14 @@ def run_spectrum(run: Path, cfg: measure.MeasureConfig, data: str | None = None,
     context, test_eps = cfg.context, ds.episodes("probe_test")
     lat_fit, lat_test = probe_latents(model, ds, cfg)
     dec = position_decoder(ds, lat_fit, ds.episodes("probe_fit"), np.random.default_rng(cfg.seed))
-    w = make_windows(ds, test_eps, context + horizon, stride)
-    acts = w.gather(padded_actions(ds))
-    z = lat_test.gather(w)
-    pos = w.gather(ds.labels["object_pos"]).reshape(len(w), context + horizon, -1)
+    w, acts, z, pos = future_windows(ds, lat_test, test_eps, context + horizon, stride)
     z_pred = direct_latents(model, lat_test, w, acts, horizon, context)
-    err = lambda p, q: float(np.linalg.norm(p - q, axis=-1).mean())  # noqa: E731
     frames = lat_test.z.reshape(-1, lat_test.z.shape[-1])
     out = spectrum(frames, ds.labels["object_pos"][test_eps].reshape(len(frames), -1), z[:, -1], z_pred)
     out.update(tokens=bool(getattr(model, "tokens", False)), horizon=horizon, windows=len(w),
-               decoded={"direct": err(dec.predict(z_pred), pos[:, -1]),
-                        "static": err(dec.predict(z[:, context - 1]), pos[:, -1]),
-                        "probe_error": err(dec.predict(z[:, -1]), pos[:, -1])})
+               decoded={"direct": position_error(dec.predict(z_pred), pos[:, -1]),
+                        "static": position_error(dec.predict(z[:, context - 1]), pos[:, -1]),
+                        "probe_error": position_error(dec.predict(z[:, -1]), pos[:, -1])})
     return out
 
 

@@ -63,13 +63,9 @@ def prediction_quality(model, ds: Dataset, lat_fit: EpisodeLatents, lat_test: Ep
     fit_eps, test_eps = ds.episodes("probe_fit"), ds.episodes(test_split)
     dec = decoder or position_decoder(ds, lat_fit, fit_eps, np.random.default_rng(seed), position)
     H, half = horizon, horizon // 2
-    w = make_windows(ds, test_eps, context + H, stride)
-    acts = w.gather(padded_actions(ds))
-    z = lat_test.gather(w)
-    pos = w.gather(ds.labels[position])
-    pos = pos.reshape(*pos.shape[:2], -1)
+    w, acts, z, pos = future_windows(ds, lat_test, test_eps, context + H, stride, position)
     truth, truth_half, ctx_pos = pos[:, -1], pos[:, context + half - 1], pos[:, context - 1]
-    err = lambda p, q: float(np.linalg.norm(p - q, axis=-1).mean())  # noqa: E731
+    err = position_error
     static_decoded = dec.predict(z[:, context - 1])
     truth_decoded = dec.predict(z[:, -1])
     out = {"windows": len(w),
@@ -92,6 +88,20 @@ def prediction_quality(model, ds: Dataset, lat_fit: EpisodeLatents, lat_test: Ep
     if glide and direct is not None:
         out["glide_test"] = glide_test(ds, w, direct, fit_eps, residual=truth_decoded - truth, context=context)
     return out
+
+
+def future_windows(ds: Dataset, lat: EpisodeLatents, episodes: np.ndarray, length: int, stride: int = 4,
+                   position: str = "object_pos"):
+    """The prediction test's windows of ``length`` observations over ``episodes``: ``(windows, their actions, their
+    latents (W, length, D), their positions (W, length, P))``."""
+    w = make_windows(ds, episodes, length, stride)
+    pos = w.gather(ds.labels[position])
+    return w, w.gather(padded_actions(ds)), lat.gather(w), pos.reshape(*pos.shape[:2], -1)
+
+
+def position_error(p: np.ndarray, q: np.ndarray) -> float:
+    """Mean Euclidean distance between two (W, P) position arrays: every error of the prediction table."""
+    return float(np.linalg.norm(p - q, axis=-1).mean())
 
 
 @torch.no_grad()
